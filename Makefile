@@ -1,0 +1,36 @@
+# Two commands do all the set-up on a fresh machine:
+#   make run    creates .venv, installs corridor, runs the default batch (scenarios/merging.yaml)
+#   make test   creates .venv, installs corridor[dev], runs the test suite
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+RUNS ?= 4
+OUT ?= results/merging
+
+.PHONY: run test test-all lint bench clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $(STAMP)
+
+run: $(STAMP)
+	$(BIN)/run_scenario scenarios/merging.yaml --runs $(RUNS) --out $(OUT)
+
+test: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/pytest -q -n 2
+
+test-all: $(STAMP)
+	$(BIN)/pytest -q -n 2 -m ''
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/kernel_overhead.py
+
+clean:
+	rm -rf $(VENV) results build *.egg-info .cache
