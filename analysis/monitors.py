@@ -1,0 +1,53 @@
+"""Monitors that read only the world snapshot (and backends' own collision reports)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from corridor.analysis.safety import obb_overlap_pairs
+from corridor.engine import Component, Phase, RunContext
+from corridor.snapshot import Kind, Role
+
+
+class CollisionMonitor(Component):
+    """Counts collisions: each backend's own report (SUMO's) plus oriented-box overlap for every pair
+    that a backend cannot see (an externally driven or non-road entity is involved)."""
+
+    phase = Phase.DETECT
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.period = scenario.dt
+        self.pairs: dict[tuple[str, str], float] = {}  # unordered pair -> first contact time [s]
+
+    def tick(self, ctx: RunContext) -> None:
+        for b in ctx.backends():
+            for t, a, v, kind in getattr(b, "new_collisions", ()):
+                self._add(ctx, t, a, v, f"{b.name} ({kind})")
+        s = ctx.snapshot
+        if len(s) < 2:
+            return
+        special = (s.role == Role.CONTROLLED) | ((s.kind != Kind.CAR) & (s.kind != Kind.TRUCK))
+        if not special.any():
+            return
+        pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
+                                  s.position[:, 2], s.size[:, 2])
+        for i, j in pairs:
+            if special[i] or special[j]:
+                self._add(ctx, ctx.t, str(s.ids[i]), str(s.ids[j]), "box overlap")
+
+    def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:
+        key = (a, b) if a < b else (b, a)
+        if key not in self.pairs:
+            self.pairs[key] = t
+            ctx.events.emit(t, self.name, "collision", f"{key[0]} x {key[1]} [{how}]", a=key[0], b=key[1])
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"collisions": len(self.pairs),
+                "first_collision_s": min(self.pairs.values()) if self.pairs else np.nan}

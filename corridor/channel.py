@@ -1,0 +1,377 @@
+"""A generic lossy, delayed, range-limited broadcast channel (V2X CAMs, MAVLink bytes, anything).
+
+The channel models what a controller can know: a message sent at ``t_s`` arrives at each attached
+receiver after ``latency_s + U(0, jitter_s)`` seconds, unless the receiver is out of range or the
+per-link loss model drops it.  It carries any payload (a dataclass, ``bytes``) and never inspects it.
+
+Model choices (written down because metrics depend on them):
+
+- **Jitter** is uniform: ``delay = latency_s + U(0, jitter_s)``, so the mean delay is
+  ``latency_s + jitter_s / 2`` and the delay lies in ``[latency_s, latency_s + jitter_s]``.
+  Messages of one link may therefore overtake each other (as on a real radio with retries).
+- **Range** is a disc (sphere in 3-D) of radius ``range_m`` around the sender, checked against
+  positions known at send time (``set_positions`` each tick).  When the sender's or a receiver's
+  position is unknown, that copy is not range checked.
+- **Loss** is decided independently per directed link ``(src, dst)`` and per message copy:
+  Bernoulli with probability ``p``, or a Gilbert–Elliott two-state Markov chain per link.  The chain
+  starts in the good state and advances one step per in-range copy on that link *before* the loss
+  draw (state of message k = state after k transitions); out-of-range copies do not advance it.
+  With ``loss_good=0, loss_bad=1`` the loss bursts are geometric with mean ``1 / p_bad_to_good``
+  and the stationary loss is ``p_gb / (p_gb + p_bg)``.
+- **Delivery** (``deliver(t_s)``) pops every copy with ``t_recv <= t_s`` (1e-9 s tolerance against
+  float round-off of ``t + latency``), sorted by ``(t_recv, src, dst, send order)``.  Copies for a
+  receiver detached meanwhile are discarded (not counted as delivered).
+- **Age of information** (AoI): for every ordered pair (receiver, source) with at least one received
+  message, and at every ``deliver(t_s)`` call *after* that call's deliveries, the sample is
+  ``t_s - (send time of the newest message the receiver has from that source)``.  ``aoi_mean_s`` is
+  the mean over all samples, ``aoi_max_s`` their maximum.  Detaching a node forgets its pairs both as
+  receiver and as source (a vehicle that left no longer ages).
+
+Determinism: all randomness comes from the ``numpy.random.Generator`` passed in; every ``send``
+draws a fixed number of arrays (loss and jitter uniforms over its receiver set, plus the
+Gilbert–Elliott transition uniforms over its in-range copies), so identical call sequences with
+identical seeds give identical deliveries.
+
+Performance: receivers live in numpy arrays; one broadcast computes range, loss and delay for all
+receivers at once, and the Gilbert–Elliott states are an N×N boolean matrix indexed by node.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+_T_EPS_S = 1e-9  # [s] tolerance of the delivery time comparison
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class BernoulliLoss(_Frozen):
+    """Independent loss of every message copy with probability ``p``."""
+
+    model: Literal["bernoulli"] = "bernoulli"
+    p: float = Field(0.0, ge=0.0, le=1.0)
+
+
+class GilbertElliottLoss(_Frozen):
+    """Bursty loss: a two-state (good/bad) Markov chain per link, advanced once per message copy."""
+
+    model: Literal["gilbert_elliott"] = "gilbert_elliott"
+    p_good_to_bad: float = Field(ge=0.0, le=1.0)
+    p_bad_to_good: float = Field(gt=0.0, le=1.0)
+    loss_good: float = Field(0.0, ge=0.0, le=1.0)
+    loss_bad: float = Field(1.0, ge=0.0, le=1.0)
+
+    def stationary_loss(self) -> float:
+        """Long-run loss probability: pi_bad * loss_bad + pi_good * loss_good."""
+        pi_bad = self.p_good_to_bad / (self.p_good_to_bad + self.p_bad_to_good)
+        return pi_bad * self.loss_bad + (1.0 - pi_bad) * self.loss_good
+
+
+LossModel = Annotated[BernoulliLoss | GilbertElliottLoss, Field(discriminator="model")]
+
+
+class ChannelConfig(_Frozen):
+    """Channel parameters as they appear in a scenario (``v2x.channel`` / ``uav.link``)."""
+
+    range_m: float = Field(300.0, gt=0.0)  # [m] communication radius
+    latency_s: float = Field(0.02, ge=0.0)  # [s] fixed part of the delay
+    jitter_s: float = Field(0.01, ge=0.0)  # [s] width of the uniform random part of the delay
+    loss: LossModel = BernoulliLoss(p=0.0)
+    rate_hz: float = Field(10.0, gt=0.0)  # [Hz] nominal message rate of periodic senders
+
+    @property
+    def period_s(self) -> float:
+        """Nominal period of periodic senders [s]."""
+        return 1.0 / self.rate_hz
+
+    def mean_delay_s(self) -> float:
+        """Expected delay of a delivered message [s]."""
+        return self.latency_s + 0.5 * self.jitter_s
+
+
+@dataclass(frozen=True, slots=True)
+class Delivery:
+    """One message copy that reached receiver ``dst``."""
+
+    src: str
+    dst: str
+    t_sent_s: float  # [s]
+    t_recv_s: float  # [s]
+    payload: Any
+
+
+@dataclass(frozen=True)
+class ChannelStats:
+    """Per-run channel statistics (see the module docstring for the exact definitions).
+
+    ``sent`` counts addressed copies (one per attached receiver other than the sender);
+    ``delivery_ratio`` is ``delivered / (sent - out_of_range)``, i.e. over copies in range.
+    """
+
+    sent: int
+    delivered: int
+    lost_random: int
+    out_of_range: int
+    delivery_ratio: float
+    aoi_mean_s: float
+    aoi_max_s: float
+
+    def as_dict(self, prefix: str = "") -> dict[str, float]:
+        """Flat dict for a results row, e.g. ``prefix="v2x_"``."""
+        return {prefix + k: float(v) for k, v in self.__dict__.items()}
+
+
+@dataclass
+class _Batch:
+    """Copies of one sent message still in flight (struct of arrays over receivers)."""
+
+    seq: int
+    src: str
+    src_idx: int
+    t_sent_s: float
+    payload: Any
+    dst_idx: np.ndarray  # node indices
+    t_recv_s: np.ndarray  # [s]
+
+
+class Channel:
+    """Broadcast/unicast channel with range, latency + jitter and per-link loss.
+
+    Typical tick: ``set_positions(...)``; senders call ``send(...)``; then ``deliver(t_s)`` once and
+    each receiver reads ``inbox(its_id)``.
+    """
+
+    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        self._index: dict[str, int] = {}
+        self._names: list[str] = []
+        self._cap = 0
+        self._attached = np.zeros(0, dtype=bool)  # by node index
+        self._ge_bad = np.zeros((0, 0), dtype=bool)  # [src, dst] Gilbert–Elliott state
+        self._last_sent = np.zeros((0, 0))  # [dst, src] newest received send time, NaN = none
+        self._positions: dict[str, np.ndarray] = {}
+        self._recv_idx = np.zeros(0, dtype=np.int64)  # attached receivers, attach order
+        self._recv_pos = np.zeros((0, 3))  # [m], NaN rows = unknown
+        self._recv_dirty = True
+        self._pending: list[_Batch] = []
+        self._seq = 0
+        self._inboxes: dict[str, list[Delivery]] = {}
+        self._n_sent = self._n_delivered = self._n_lost = self._n_oor = 0
+        self._aoi_sum_s = 0.0
+        self._aoi_count = 0
+        self._aoi_max_s = 0.0
+
+    # -- membership and positions -------------------------------------------------------------
+    def attach(self, receiver_id: str) -> None:
+        """Make ``receiver_id`` receive broadcasts (idempotent)."""
+        i = self._node(receiver_id)
+        if not self._attached[i]:
+            self._attached[i] = True
+            self._recv_dirty = True
+
+    def detach(self, receiver_id: str) -> None:
+        """Stop delivering to ``receiver_id`` and forget its age-of-information pairs."""
+        i = self._index.get(receiver_id)
+        if i is None:
+            return
+        self._attached[i] = False
+        self._last_sent[i, :] = np.nan
+        self._last_sent[:, i] = np.nan
+        self._recv_dirty = True
+
+    @property
+    def receivers(self) -> list[str]:
+        """Currently attached receivers."""
+        return [self._names[i] for i in np.flatnonzero(self._attached)]
+
+    def set_positions(self, positions: Mapping[str, np.ndarray]) -> None:
+        """Positions [m] (2-D or 3-D, local frame) used for range checks of the following sends."""
+        self._positions = {k: _as3(v) for k, v in positions.items()}
+        self._recv_dirty = True
+
+    def set_positions_arrays(self, ids: Iterable[str], pos_m: np.ndarray) -> None:
+        """Same as ``set_positions`` from a snapshot's struct of arrays (ids[N], position[N, 2|3])."""
+        self.set_positions(dict(zip(ids, np.asarray(pos_m, dtype=float), strict=True)))
+
+    # -- sending --------------------------------------------------------------------------------
+    def send(
+        self,
+        t_s: float,
+        src: str,
+        payload: Any,
+        src_pos: np.ndarray | None = None,
+        dst: str | None = None,
+    ) -> int:
+        """Send ``payload`` from ``src`` at ``t_s``; broadcast unless ``dst`` is given.
+
+        Returns the number of copies put in flight (after range and loss).
+        """
+        self._refresh_receivers()
+        src_idx = self._node(src)
+        dst_idx, dst_pos = self._targets(src_idx, dst)
+        n = dst_idx.size
+        if n == 0:
+            return 0
+        p_src = _as3(src_pos) if src_pos is not None else self._positions.get(src)
+        in_range = self._in_range(p_src, dst_pos)
+        u_loss = self._rng.random(n)
+        u_delay = self._rng.random(n)
+        lost = self._draw_loss(src_idx, dst_idx, in_range, u_loss)
+        keep = in_range & ~lost
+        self._n_sent += n
+        self._n_oor += int(n - in_range.sum())
+        self._n_lost += int(lost.sum())
+        if keep.any():
+            t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay[keep]
+            self._pending.append(_Batch(self._seq, src, src_idx, float(t_s), payload, dst_idx[keep], t_recv))
+        self._seq += 1
+        return int(keep.sum())
+
+    def _targets(self, src_idx: int, dst: str | None) -> tuple[np.ndarray, np.ndarray]:
+        """Receiver node indices and positions of one send (sender excluded)."""
+        if dst is None:
+            mask = self._recv_idx != src_idx
+            return self._recv_idx[mask], self._recv_pos[mask]
+        j = self._index.get(dst)
+        if j is None or not self._attached[j] or j == src_idx:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 3))
+        pos = self._positions.get(dst, np.full(3, np.nan))
+        return np.array([j]), pos[None, :]
+
+    def _in_range(self, p_src: np.ndarray | None, dst_pos: np.ndarray) -> np.ndarray:
+        if p_src is None:
+            return np.ones(len(dst_pos), dtype=bool)
+        d2 = np.sum((dst_pos - p_src) ** 2, axis=1)
+        return np.isnan(d2) | (d2 <= self.cfg.range_m**2)
+
+    def _draw_loss(
+        self, src_idx: int, dst_idx: np.ndarray, in_range: np.ndarray, u: np.ndarray
+    ) -> np.ndarray:
+        """Loss flags of the in-range copies (out-of-range copies are never 'lost')."""
+        loss = self.cfg.loss
+        if isinstance(loss, BernoulliLoss):
+            return in_range & (u < loss.p)
+        links = dst_idx[in_range]
+        bad = self._ge_bad[src_idx, links]
+        u_t = self._rng.random(links.size)
+        bad = np.where(bad, u_t >= loss.p_bad_to_good, u_t < loss.p_good_to_bad)
+        self._ge_bad[src_idx, links] = bad
+        p_loss = np.where(bad, loss.loss_bad, loss.loss_good)
+        lost = np.zeros(dst_idx.size, dtype=bool)
+        lost[in_range] = u[in_range] < p_loss
+        return lost
+
+    # -- delivery -------------------------------------------------------------------------------
+    def deliver(self, t_s: float) -> list[Delivery]:
+        """Pop every copy with ``t_recv <= t_s``, deterministically ordered; refresh the inboxes."""
+        out: list[Delivery] = []
+        keep: list[_Batch] = []
+        for b in self._pending:
+            due = (b.t_recv_s <= t_s + _T_EPS_S) & self._attached[b.dst_idx]
+            gone = ~self._attached[b.dst_idx]
+            if due.any():
+                self._record(b, b.dst_idx[due])
+                out.extend(
+                    Delivery(b.src, self._names[j], b.t_sent_s, float(tr), b.payload)
+                    for j, tr in zip(b.dst_idx[due], b.t_recv_s[due])
+                )
+            rest = ~due & ~gone
+            if rest.any():
+                keep.append(
+                    _Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[rest], b.t_recv_s[rest])
+                )
+        self._pending = keep
+        out.sort(key=lambda d: (d.t_recv_s, d.src, d.dst, d.t_sent_s))
+        self._n_delivered += len(out)
+        self._inboxes = self.group_by_dst(out)
+        self._sample_aoi(t_s)
+        return out
+
+    def inbox(self, dst: str) -> list[Delivery]:
+        """Deliveries to ``dst`` from the latest ``deliver`` call (replaced at every call)."""
+        return self._inboxes.get(dst, [])
+
+    @staticmethod
+    def group_by_dst(deliveries: Iterable[Delivery]) -> dict[str, list[Delivery]]:
+        """Group deliveries by receiver, keeping their order."""
+        groups: dict[str, list[Delivery]] = {}
+        for d in deliveries:
+            groups.setdefault(d.dst, []).append(d)
+        return groups
+
+    @property
+    def in_flight(self) -> int:
+        """Copies sent but not yet delivered."""
+        return sum(b.dst_idx.size for b in self._pending)
+
+    # -- statistics -----------------------------------------------------------------------------
+    def stats(self) -> ChannelStats:
+        """Counters and age of information so far."""
+        in_range = self._n_sent - self._n_oor
+        return ChannelStats(
+            sent=self._n_sent,
+            delivered=self._n_delivered,
+            lost_random=self._n_lost,
+            out_of_range=self._n_oor,
+            delivery_ratio=self._n_delivered / in_range if in_range else float("nan"),
+            aoi_mean_s=self._aoi_sum_s / self._aoi_count if self._aoi_count else float("nan"),
+            aoi_max_s=self._aoi_max_s if self._aoi_count else float("nan"),
+        )
+
+    def _record(self, b: _Batch, dst_idx: np.ndarray) -> None:
+        cur = self._last_sent[dst_idx, b.src_idx]
+        self._last_sent[dst_idx, b.src_idx] = np.fmax(cur, b.t_sent_s)
+
+    def _sample_aoi(self, t_s: float) -> None:
+        known = self._last_sent[~np.isnan(self._last_sent)]
+        if known.size == 0:
+            return
+        ages = t_s - known
+        self._aoi_sum_s += float(ages.sum())
+        self._aoi_count += int(ages.size)
+        self._aoi_max_s = max(self._aoi_max_s, float(ages.max()))
+
+    # -- node bookkeeping -----------------------------------------------------------------------
+    def _node(self, name: str) -> int:
+        i = self._index.get(name)
+        if i is not None:
+            return i
+        i = len(self._names)
+        self._index[name] = i
+        self._names.append(name)
+        if i >= self._cap:
+            self._grow(max(16, 2 * self._cap))
+        return i
+
+    def _grow(self, cap: int) -> None:
+        n = self._cap
+        attached = np.zeros(cap, dtype=bool)
+        attached[:n] = self._attached
+        ge = np.zeros((cap, cap), dtype=bool)
+        ge[:n, :n] = self._ge_bad
+        last = np.full((cap, cap), np.nan)
+        last[:n, :n] = self._last_sent
+        self._attached, self._ge_bad, self._last_sent, self._cap = attached, ge, last, cap
+
+    def _refresh_receivers(self) -> None:
+        if not self._recv_dirty:
+            return
+        idx = np.flatnonzero(self._attached)
+        nan3 = np.full(3, np.nan)
+        self._recv_idx = idx
+        self._recv_pos = np.array([self._positions.get(self._names[i], nan3) for i in idx]).reshape(-1, 3)
+        self._recv_dirty = False
+
+
+def _as3(p: np.ndarray | Iterable[float]) -> np.ndarray:
+    """A position as a float 3-vector (2-D positions get z = 0)."""
+    a = np.asarray(p, dtype=float).ravel()
+    return a if a.size == 3 else np.concatenate([a, np.zeros(3 - a.size)])

@@ -1,0 +1,231 @@
+"""The engine: a base tick, multi-rate components, and the pipeline of one tick.
+
+Every tick:  sense → communicate → decide → act → integrate → detect → record.
+Each component declares its ``phase`` and its ``period`` (a whole multiple of the base tick ``dt``)
+and runs only on the ticks where its period is due.  Backends (SUMO, JSBSim) own dynamics and run in
+*integrate*; controllers run in *decide* and emit commands that the backends apply in *act*; monitors
+run in *detect* on the world snapshot; recorders (signals, Rerun) run in *record* and never change a
+trajectory.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+
+from corridor.events import EventLog
+from corridor.snapshot import WorldSnapshot
+
+
+class Phase(IntEnum):
+    SENSE = 0
+    COMMUNICATE = 1
+    DECIDE = 2
+    ACT = 3
+    INTEGRATE = 4
+    DETECT = 5
+    RECORD = 6
+
+
+def stable_key(name: str) -> int:
+    """A process-independent integer for a name (Python's ``hash`` is salted per process)."""
+    return int.from_bytes(hashlib.blake2b(name.encode(), digest_size=4).digest(), "little")
+
+
+class Signals:
+    """Named scalar time series recorded during a run (the input of STL specs and report plots)."""
+
+    def __init__(self) -> None:
+        self._t: dict[str, list[float]] = {}
+        self._v: dict[str, list[float]] = {}
+
+    def record(self, name: str, t: float, value: float) -> None:
+        self._t.setdefault(name, []).append(t)
+        self._v.setdefault(name, []).append(float(value))
+
+    def names(self) -> list[str]:
+        return list(self._v)
+
+    def get(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        return np.asarray(self._t[name]), np.asarray(self._v[name])
+
+    def as_arrays(self) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for n in self._v:
+            out[f"{n}.t"] = np.asarray(self._t[n])
+            out[n] = np.asarray(self._v[n])
+        return out
+
+
+@dataclass
+class RunContext:
+    """What components see: time, the snapshot, the command bus, events, signals, and their peers."""
+
+    run_seed: int
+    dt: float  # [s]
+    duration: float  # [s]
+    t: float = 0.0  # [s]
+    tick: int = 0
+    snapshot: WorldSnapshot = field(default_factory=WorldSnapshot)
+    commands: list[Any] = field(default_factory=list)
+    events: EventLog = field(default_factory=EventLog)
+    signals: Signals = field(default_factory=Signals)
+    components: dict[str, Component] = field(default_factory=dict)
+    scenario: Any = None
+    workdir: Any = None  # a per-run scratch directory (pathlib.Path)
+
+    def rng(self, name: str) -> np.random.Generator:
+        """An independent generator per subsystem, derived from the run seed and the name only,
+        so adding a component never changes another one's random stream."""
+        return np.random.default_rng(np.random.SeedSequence(self.run_seed, spawn_key=(stable_key(name),)))
+
+    def get(self, name: str) -> Component:
+        return self.components[name]
+
+    def backends(self) -> list[Backend]:
+        return [c for c in self.components.values() if isinstance(c, Backend)]
+
+
+class Component:
+    """Base of everything the engine schedules."""
+
+    phase: Phase = Phase.DECIDE
+    period: float = 0.1  # [s]
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def setup(self, ctx: RunContext) -> None:
+        """Called once, after every component exists (wire peers, draw generators)."""
+
+    def tick(self, ctx: RunContext) -> None:
+        """Called on every tick where the period is due."""
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        """Called once at the end; returns metric columns for the run's row."""
+        return {}
+
+    def close(self) -> None:
+        """Release external resources; called even when the run failed."""
+
+
+class Backend(Component):
+    """Owns dynamics and hides its library: spawn, apply commands, step, read state."""
+
+    phase = Phase.INTEGRATE
+
+    def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        """Apply the commands addressed to entities of this backend (ignore the others)."""
+
+    def snapshot_part(self) -> WorldSnapshot:
+        return WorldSnapshot()
+
+
+class Controller(Component):
+    """A controller: ``reset(rng)``, ``observe(ctx) -> obs``, ``step(obs) -> commands``.
+
+    ``step`` is pure with respect to the engine (testable alone, do-mpc's ``make_step``); the engine
+    glue (``tick``) observes, steps, and puts the commands on the bus.
+    """
+
+    phase = Phase.DECIDE
+
+    def setup(self, ctx: RunContext) -> None:
+        self.events = ctx.events
+        self.reset(ctx.rng(self.name))
+
+    def reset(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+
+    def observe(self, ctx: RunContext) -> Any:
+        return ctx.snapshot
+
+    def step(self, obs: Any) -> list[Any]:
+        return []
+
+    def tick(self, ctx: RunContext) -> None:
+        ctx.commands.extend(self.step(self.observe(ctx)))
+
+
+class NoController(Controller):
+    """Leaves everything to the backends' own behaviour (e.g. SUMO's default merging)."""
+
+    def __init__(self, name: str, params: Any = None, scenario: Any = None) -> None:
+        super().__init__(name)
+
+
+class Simulation:
+    """A base tick and a list of components; ``run`` steps until ``duration``."""
+
+    def __init__(self, ctx: RunContext, components: Iterable[Component]) -> None:
+        self.ctx = ctx
+        comps = list(components)
+        names = [c.name for c in comps]
+        if len(set(names)) != len(names):
+            raise ValueError(f"component names must be unique: {names}")
+        ctx.components = {c.name: c for c in comps}
+        self._every: dict[str, int] = {c.name: self._ticks_per_period(c) for c in comps}
+        self._by_phase: dict[Phase, list[Component]] = {p: [] for p in Phase}
+        for c in comps:
+            self._by_phase[c.phase].append(c)
+        self.wall_s = 0.0
+
+    def _ticks_per_period(self, c: Component) -> int:
+        n = round(c.period / self.ctx.dt)
+        if n < 1 or abs(n * self.ctx.dt - c.period) > 1e-9 * max(1.0, c.period):
+            raise ValueError(f"{c.name}: period {c.period} s is not a multiple of dt {self.ctx.dt} s")
+        return n
+
+    def _run(self, phase: Phase) -> None:
+        k = self.ctx.tick
+        for c in self._by_phase[phase]:
+            if k % self._every[c.name] == 0:
+                c.tick(self.ctx)
+
+    def _act(self) -> None:
+        if self.ctx.commands:
+            for b in self._by_phase[Phase.INTEGRATE]:
+                if isinstance(b, Backend):
+                    b.apply(self.ctx.commands, self.ctx)
+            self.ctx.commands = []
+
+    def _integrate(self) -> None:
+        self._run(Phase.INTEGRATE)
+        self.ctx.tick += 1
+        self.ctx.t = self.ctx.tick * self.ctx.dt
+        parts = [b.snapshot_part() for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
+        self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, parts)
+
+    def step(self) -> None:
+        """One tick; reads as the pipeline of DESIGN.md."""
+        self._run(Phase.SENSE)
+        self._run(Phase.COMMUNICATE)
+        self._run(Phase.DECIDE)
+        self._act()
+        self._integrate()
+        self._run(Phase.DETECT)
+        self._run(Phase.RECORD)
+
+    def run(self) -> dict[str, Any]:
+        """Set up, tick to the end, collect every component's metrics; always closes components."""
+        t0 = time.perf_counter()
+        n_ticks = round(self.ctx.duration / self.ctx.dt)
+        try:
+            for c in self.ctx.components.values():
+                c.setup(self.ctx)
+            for _ in range(n_ticks):
+                self.step()
+            metrics: dict[str, Any] = {}
+            for c in self.ctx.components.values():
+                metrics.update(c.finish(self.ctx))
+        finally:
+            for c in self.ctx.components.values():
+                c.close()
+            self.wall_s = time.perf_counter() - t0
+        return metrics

@@ -1,0 +1,64 @@
+"""The results store: one Parquet part per finished run (written at once, atomically), compacted
+into ``runs.parquet``.  A killed batch loses no finished run; ``--resume`` skips them."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+FIRST_COLUMNS = ["run_id", "scenario", "variant", "seed", "status", "error", "wall_s", "sim_s", "collisions"]
+
+
+class ResultStore:
+    def __init__(self, out_dir: str | Path, resume: bool = False) -> None:
+        self.dir = Path(out_dir)
+        self.parts = self.dir / "parts"
+        self.parts.mkdir(parents=True, exist_ok=True)
+        if not resume:
+            for p in self.parts.glob("*.parquet"):
+                p.unlink()
+            (self.dir / "runs.parquet").unlink(missing_ok=True)
+        elif (self.dir / "runs.parquet").exists():
+            self._explode(pd.read_parquet(self.dir / "runs.parquet"))
+
+    def _explode(self, df: pd.DataFrame) -> None:
+        """Turn a compacted table back into parts, so a resumed batch appends to it."""
+        for rec in df.to_dict("records"):
+            if not (self.parts / f"{rec['run_id']}.parquet").exists():
+                self.write(rec)
+
+    def write(self, row: dict[str, Any]) -> None:
+        row = {k: (json.dumps(v) if isinstance(v, dict | list) else v) for k, v in row.items()}
+        tmp = self.parts / f".{row['run_id']}.tmp"
+        pd.DataFrame([row]).to_parquet(tmp, index=False)
+        os.replace(tmp, self.parts / f"{row['run_id']}.parquet")
+
+    def finished(self) -> set[str]:
+        """Run ids with an ``ok`` row (errored runs are tried again on resume)."""
+        done = set()
+        for p in self.parts.glob("*.parquet"):
+            if pd.read_parquet(p, columns=["status"])["status"].iloc[0] == "ok":
+                done.add(p.stem)
+        return done
+
+    def read(self) -> pd.DataFrame:
+        files = sorted(self.parts.glob("*.parquet"))
+        if not files:
+            return pd.DataFrame(columns=FIRST_COLUMNS)
+        df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
+        return df
+
+    def compact(self, order: list[str]) -> pd.DataFrame:
+        df = self.read()
+        rank = {rid: i for i, rid in enumerate(order)}
+        df = df.assign(_o=df["run_id"].map(lambda r: rank.get(r, len(rank)))).sort_values("_o").drop(columns="_o")
+        cols = [c for c in FIRST_COLUMNS if c in df.columns] + [c for c in df.columns if c not in FIRST_COLUMNS]
+        df = df[cols].reset_index(drop=True)
+        tmp = self.dir / ".runs.parquet.tmp"
+        df.to_parquet(tmp, index=False)
+        os.replace(tmp, self.dir / "runs.parquet")
+        return df

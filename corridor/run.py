@@ -1,0 +1,128 @@
+"""One run: raw scenario + overrides + seed -> Simulation -> one results row.
+
+``execute`` is the function every executor calls (process pool or Ray); it never raises: a run that
+fails is a row with ``status=error`` and a one-line message, so a batch always goes on.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corridor.engine import Component, RunContext, Simulation
+from corridor.errors import CorridorError
+from corridor.registry import CONTROLLERS, MONITORS
+from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
+
+DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    run_id: str
+    scenario: str  # scenario name
+    source: str  # file the scenario came from (for error messages)
+    variant: str
+    seed: int
+    base: dict[str, Any]  # raw scenario data (extends resolved, --set applied)
+    overrides: dict[str, Any] = field(default_factory=dict)  # variant overrides then randomize draws
+    draws: dict[str, Any] = field(default_factory=dict)
+    out_dir: str | None = None  # where per-run signals go (signals/<run_id>.npz)
+    rerun_path: str | None = None  # record this run to a Rerun .rrd file
+
+
+def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> Component:
+    registry = CONTROLLERS if table == "controllers" else MONITORS
+    cls = registry.get(spec.type)
+    params_model = getattr(cls, "Params", None)
+    params = params_model.model_validate(spec.params) if params_model else spec.params
+    comp = cls(name, params, sc)
+    if spec.period is not None:
+        comp.period = spec.period
+    return comp
+
+
+def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None) -> Simulation:
+    """Assemble backends, controllers, monitors and recorders for one run."""
+    comps: list[Component] = []
+    if sc.road is not None:
+        from corridor.traffic.sumo_backend import SumoBackend
+
+        comps.append(SumoBackend("sumo", sc))
+    for name, spec in sc.controllers.items():
+        if spec.type != "none":
+            comps.append(make_component("controllers", name, spec, sc))
+    for name, spec in {**DEFAULT_MONITORS, **sc.monitors}.items():
+        comps.append(make_component("monitors", name, spec, sc))
+    if rerun_path:
+        from corridor.analysis.rerun_log import RerunRecorder
+
+        comps.append(RerunRecorder("rerun", sc, rerun_path))
+    ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=workdir)
+    return Simulation(ctx, comps)
+
+
+def evaluate_specs(sc: Scenario, ctx: RunContext) -> dict[str, Any]:
+    """Evaluate the scenario's STL specs on the recorded signals (resampled to the base tick)."""
+    if not sc.specs:
+        return {}
+    from corridor.analysis.stl import evaluate_spec
+
+    grid = np.arange(0.0, sc.duration + 1e-9, sc.dt)
+    signals = {}
+    for n in ctx.signals.names():
+        t, v = ctx.signals.get(n)
+        signals[n] = np.interp(grid, t, v) if len(t) else np.zeros_like(grid)
+    out: dict[str, Any] = {}
+    for spec in sc.specs:
+        r = evaluate_spec(spec.formula, signals, sc.dt)
+        out[f"spec.{spec.name}.satisfied"] = bool(r.satisfied)
+        out[f"spec.{spec.name}.space"] = float(r.space)
+        out[f"spec.{spec.name}.time"] = float(r.time)
+    return out
+
+
+def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
+             rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
+    with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
+        sim = build(sc, seed, Path(tmp), rerun_path)
+        metrics = sim.run()
+    metrics.update(evaluate_specs(sc, sim.ctx))
+    for kind in ("mode", "fallback"):
+        metrics[f"events_{kind}"] = sim.ctx.events.counts.get(kind, 0)
+    if out_dir and sc.outputs.signals:
+        sig_dir = Path(out_dir) / "signals"
+        sig_dir.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(sig_dir / f"{run_id}.npz", **sim.ctx.signals.as_arrays())
+    return metrics, sim.ctx, sim.wall_s
+
+
+def one_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    msg = text[0] if text else ""
+    return f"{type(exc).__name__}: {msg}" if not isinstance(exc, CorridorError) else msg
+
+
+def execute(spec: RunSpec) -> dict[str, Any]:
+    """Run one RunSpec; always returns a row."""
+    t0 = time.perf_counter()
+    row: dict[str, Any] = {"run_id": spec.run_id, "scenario": spec.scenario, "variant": spec.variant,
+                           "seed": spec.seed, "status": "ok", "error": ""}
+    row.update({f"draw.{k}": v for k, v in spec.draws.items()})
+    try:
+        sc = validate(apply_overrides(spec.base, spec.overrides), f"{spec.source} [{spec.variant}]")
+        metrics, _, _ = simulate(sc, spec.seed, spec.out_dir, spec.run_id, spec.rerun_path)
+        row["sim_s"] = sc.duration
+        row.update(metrics)
+    except Exception as exc:  # a failing run is a row, never a lost batch
+        row.update(status="error", error=one_line(exc), sim_s=math.nan)
+        row["traceback"] = traceback.format_exc(limit=6)
+    row["wall_s"] = time.perf_counter() - t0
+    return row

@@ -1,0 +1,121 @@
+"""Road monitors: surrogate safety (TTC, DRAC, hard braking) and traffic KPIs (throughput past the
+merge, travel-time delay of mainline and ramp vehicles).  They read the SUMO backend's lane-frame
+arrays, aligned row by row with its snapshot part."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.analysis.safety import lane_leaders, ttc_drac
+from corridor.engine import Component, Phase, RunContext
+from corridor.traffic.sumo_backend import SumoBackend
+
+
+def road_backend(ctx: RunContext) -> SumoBackend:
+    for b in ctx.backends():
+        if isinstance(b, SumoBackend):
+            return b
+    raise ValueError("this monitor needs a road (SUMO) backend: add `road:` to the scenario")
+
+
+class SurrogateSafety(Component):
+    """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events."""
+
+    phase = Phase.DETECT
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        ttc_threshold_s: float = Field(1.5, gt=0)  # for time exposed (TET)
+        hard_brake_mps2: float = Field(-4.5, lt=0)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.p = params
+        self.period = scenario.road.sumo.step_length if scenario.road else scenario.dt
+        self.warmup = scenario.warmup
+        self.min_ttc, self.max_drac, self.tet = np.inf, 0.0, 0.0
+        self.hard_brakes = 0
+        self._braking: set[str] = set()
+
+    def setup(self, ctx: RunContext) -> None:
+        self.road = road_backend(ctx)
+
+    def tick(self, ctx: RunContext) -> None:
+        r = self.road
+        ids = r.active
+        braking = {ids[k] for k in np.nonzero(r.accel < self.p.hard_brake_mps2)[0]} if ids else set()
+        counting = ctx.t >= self.warmup
+        if counting:
+            self.hard_brakes += len(braking - self._braking)
+        self._braking = braking
+        f, lead = lane_leaders(r.lane_id, r.lane_pos)
+        ttc_now = np.inf
+        if len(f):
+            s = r.snapshot_part()
+            speed = s.speed
+            gap = r.lane_pos[lead] - s.size[lead, 0] - r.lane_pos[f]
+            ttc, drac = ttc_drac(gap, speed[f], speed[lead])
+            ttc_now = float(ttc.min())
+            if counting:
+                self.min_ttc = min(self.min_ttc, ttc_now)
+                self.max_drac = max(self.max_drac, float(drac.max()))
+                self.tet += float(np.count_nonzero(ttc < self.p.ttc_threshold_s)) * self.period
+        ctx.signals.record("min_ttc", ctx.t, min(ttc_now, 99.0))
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"min_ttc_s": min(self.min_ttc, 99.0), "max_drac_mps2": self.max_drac,
+                "ttc_exposed_s": self.tet, "hard_brakes": self.hard_brakes}
+
+
+class TrafficKpis(Component):
+    """Throughput past a line (the merge end) and travel-time delay by role (mainline / ramp)."""
+
+    phase = Phase.DETECT
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.p = params
+        self.period = scenario.road.sumo.step_length
+        self.warmup = scenario.warmup
+        self.passed: set[str] = set()
+        self.count = 0
+
+    def setup(self, ctx: RunContext) -> None:
+        self.road = road_backend(ctx)
+        self.line_x = float(self.road.net.landmarks[self.p.count_landmark])
+
+    def tick(self, ctx: RunContext) -> None:
+        r = self.road
+        n = len(r.active)
+        if n == 0:
+            return
+        part = r.snapshot_part()
+        x = part.position[:, 0]
+        for k in np.nonzero(x > self.line_x)[0]:
+            vid = r.active[k]
+            if vid not in self.passed:
+                self.passed.add(vid)
+                if ctx.t >= self.warmup:
+                    self.count += 1
+        ctx.signals.record("vehicles", ctx.t, n)
+        ctx.signals.record("mean_speed", ctx.t, float(part.speed.mean()))
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        span_h = (ctx.duration - self.warmup) / 3600.0
+        out: dict[str, Any] = {"throughput_vph": self.count / span_h}
+        delays = self.road.delays(self.warmup)
+        for role, d in delays.items():
+            out[f"delay_{role}_mean_s"] = float(d.mean()) if len(d) else np.nan
+            out[f"delay_{role}_p95_s"] = float(np.percentile(d, 95)) if len(d) else np.nan
+            out[f"n_{role}"] = len(d)
+        both = np.concatenate(list(delays.values()))
+        out["delay_mean_s"] = float(both.mean()) if len(both) else np.nan
+        out["delay_total_vh"] = float(both.sum() / 3600.0)
+        return out

@@ -1,0 +1,262 @@
+"""The SUMO backend (libsumo): builds the network and demand, steps SUMO, reads state by
+subscriptions into the world snapshot, applies external-control commands.
+
+libsumo allows one simulation per process; the batch runner gives each run its own process.
+SUMO x/y [m] are used as the scenario's local ENU east/north (the generated networks are planar).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corridor.engine import Backend, RunContext
+from corridor.snapshot import Kind, Role, WorldSnapshot
+from corridor.traffic import commands as cmd
+from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
+from corridor.traffic.network import BuiltNetwork, build_network
+
+_VARS: tuple[int, ...] = ()  # filled at first start (libsumo constants)
+
+
+def sumo_binary() -> str:
+    import sumo
+
+    return str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
+
+
+@dataclass
+class VehicleInfo:
+    """Static facts of one vehicle, taken once when it departs."""
+
+    flow: str
+    route: str
+    role: int
+    connected: bool
+    length: float  # [m]
+    width: float  # [m]
+    depart_s: float
+    depart_delay_s: float
+    freeflow_s: float  # free-flow travel time of its route at its desired speed
+    arrive_s: float = math.nan
+
+
+def vtype_attrs(vt: Any) -> dict[str, str | float]:
+    attrs: dict[str, str | float] = {
+        "carFollowModel": vt.car_following, "accel": vt.accel, "decel": vt.decel,
+        "emergencyDecel": vt.emergency_decel, "sigma": vt.sigma, "tau": vt.tau, "length": vt.length,
+        "width": vt.width, "minGap": vt.min_gap, "maxSpeed": vt.max_speed, "speedFactor": vt.speed_factor,
+        "speedDev": vt.speed_dev,
+    }
+    attrs.update(vt.lc)
+    attrs.update(vt.extra)
+    return attrs
+
+
+def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
+    """SUMO angle: degrees clockwise from north -> ENU yaw: radians counter-clockwise from east."""
+    return np.radians(90.0 - np.asarray(angle_deg, dtype=float))
+
+
+class SumoBackend(Backend):
+    """Road traffic in SUMO.  Exposes lane-frame arrays aligned with its snapshot rows for road
+    monitors (``lane_id``, ``lane_pos``, ``accel``) and per-vehicle facts in ``info``."""
+
+    def __init__(self, name: str, scenario: Any, network: BuiltNetwork | None = None,
+                 cache_dir: Path | None = None) -> None:
+        super().__init__(name)
+        self.scenario = scenario
+        self.road = scenario.road
+        self.period = self.road.sumo.step_length
+        self.net = network or build_network(self.road.network.type, self.road.network.params, cache_dir)
+        self.info: dict[str, VehicleInfo] = {}
+        self.active: list[str] = []
+        self.controlled: set[str] = set()
+        self.collisions: list[tuple[float, str, str, str]] = []  # (t, collider, victim, type)
+        self.new_collisions: list[tuple[float, str, str, str]] = []
+        self.teleports: list[tuple[float, str]] = []
+        self.commands_ignored = 0
+        self._part = WorldSnapshot()
+        self.lane_id = np.zeros(0, dtype=object)
+        self.lane_pos = np.zeros(0)
+        self.accel = np.zeros(0)
+        self._started = False
+
+    # ------------------------------------------------------------------ set-up
+    def setup(self, ctx: RunContext) -> None:
+        import libsumo
+
+        self._ls = libsumo
+        self._rng = ctx.rng(f"{self.name}.demand")
+        self._flow_of = {fid: fl for fid, fl in self.road.demand.flows.items()}
+        routes_file = self._write_demand(ctx)
+        seed = int(np.random.SeedSequence(ctx.run_seed, spawn_key=(7,)).generate_state(1)[0] % 2**31)
+        libsumo.start(self._args(routes_file, seed, ctx.duration))
+        self._started = True
+        self._vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE,
+                      libsumo.VAR_ACCELERATION, libsumo.VAR_LANE_ID, libsumo.VAR_LANEPOSITION)
+        libsumo.simulation.subscribe([libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
+                                      libsumo.VAR_TELEPORT_STARTING_VEHICLES_IDS])
+        self._route_ff = {r: self._route_lanes(edges) for r, edges in self.net.routes.items()}
+
+    def _write_demand(self, ctx: RunContext) -> Path:
+        d = self.road.demand
+        vtypes = [VehicleTypeDef(n, vtype_attrs(vt)) for n, vt in d.vehicle_types.items()]
+        flows = [FlowDef(fid, fl.route, fl.vtype, fl.rate_profile(ctx.duration, d.scale),
+                         depart_lane=fl.depart_lane, depart_speed=fl.depart_speed, arrivals=fl.arrivals)
+                 for fid, fl in d.flows.items()]
+        for fl in flows:
+            if fl.route not in self.net.routes:
+                raise ValueError(f"road.demand.flows.{fl.id}.route: unknown route {fl.route!r}; "
+                                 f"the network has {', '.join(sorted(self.net.routes))}")
+        return write_routes(Path(ctx.workdir) / "routes.rou.xml", self.net.routes, vtypes, flows, ctx.duration)
+
+    def _args(self, routes_file: Path, seed: int, duration: float) -> list[str]:
+        o = self.road.sumo
+        args = [sumo_binary(), "-n", str(self.net.net_file), "-r", str(routes_file),
+                "--step-length", f"{o.step_length}", "--seed", str(seed), "--end", f"{duration}",
+                "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
+                "--collision.action", o.collision_action, "--collision.mingap-factor", "0",
+                "--collision.check-junctions", str(o.collision_check_junctions).lower(),
+                "--time-to-teleport", f"{o.time_to_teleport}"]
+        if self.net.additional_files:
+            args += ["-a", ",".join(str(p) for p in self.net.additional_files)]
+        return args + list(o.extra_args)
+
+    def _route_lanes(self, edges: tuple[str, ...]) -> list[tuple[float, float]]:
+        """(length [m], speed limit [m/s]) of each edge of a route (first lane)."""
+        lane = self._ls.lane
+        return [(lane.getLength(f"{e}_0"), lane.getMaxSpeed(f"{e}_0")) for e in edges]
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self, ctx: RunContext) -> None:
+        ls = self._ls
+        ls.simulationStep()
+        t = ls.simulation.getTime()
+        sim = ls.simulation.getSubscriptionResults()
+        for vid in sim.get(ls.VAR_DEPARTED_VEHICLES_IDS, ()):
+            self._on_depart(vid, t)
+        for vid in sim.get(ls.VAR_ARRIVED_VEHICLES_IDS, ()):
+            if vid in self.info:
+                self.info[vid].arrive_s = t
+            self.controlled.discard(vid)
+        for vid in sim.get(ls.VAR_TELEPORT_STARTING_VEHICLES_IDS, ()):
+            self.teleports.append((t, vid))
+            ctx.events.emit(t, self.name, "teleport", f"{vid} teleported (jam or stuck merge)", vid=vid)
+        self.new_collisions = [(t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()]
+        self.collisions.extend(self.new_collisions)
+        self._read_state(ls.vehicle.getAllSubscriptionResults())
+
+    def _on_depart(self, vid: str, t: float) -> None:
+        ls = self._ls
+        ls.vehicle.subscribe(vid, self._vars)
+        flow = vid.rsplit(".", 1)[0]
+        spec = self._flow_of.get(flow)
+        route = spec.route if spec else ls.vehicle.getRouteID(vid)
+        vt = self.road.demand.vehicle_types[spec.vtype] if spec else None
+        connected = bool(spec and self._rng.random() < spec.connected_share)
+        desired = ls.vehicle.getSpeedFactor(vid)
+        vmax = vt.max_speed if vt else 50.0
+        ff = sum(length / min(vmax, lim * desired) for length, lim in self._route_ff.get(route, []))
+        self.info[vid] = VehicleInfo(
+            flow=flow, route=route, role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
+            connected=connected, length=vt.length if vt else 5.0, width=vt.width if vt else 1.8,
+            depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff)
+
+    def _read_state(self, res: dict[str, dict[int, Any]]) -> None:
+        ls = self._ls
+        ids = list(res)
+        n = len(ids)
+        self.active = ids
+        if n == 0:
+            self._part = WorldSnapshot()
+            self.lane_id, self.lane_pos, self.accel = np.zeros(0, dtype=object), np.zeros(0), np.zeros(0)
+            return
+        rows = [res[v] for v in ids]
+        front = np.array([r[ls.VAR_POSITION] for r in rows], dtype=float)
+        speed = np.array([r[ls.VAR_SPEED] for r in rows], dtype=float)
+        yaw = yaw_from_sumo_angle([r[ls.VAR_ANGLE] for r in rows])
+        info = [self.info[v] for v in ids]
+        length = np.array([i.length for i in info])
+        width = np.array([i.width for i in info])
+        cos, sin = np.cos(yaw), np.sin(yaw)
+        pos = np.zeros((n, 3))
+        pos[:, 0] = front[:, 0] - 0.5 * length * cos  # SUMO reports the front bumper; store the centre
+        pos[:, 1] = front[:, 1] - 0.5 * length * sin
+        vel = np.zeros((n, 3))
+        vel[:, 0], vel[:, 1] = speed * cos, speed * sin
+        role = np.array([Role.CONTROLLED if v in self.controlled else i.role for v, i in zip(ids, info)],
+                        dtype=np.int8)
+        self._part = WorldSnapshot(
+            t=0.0, ids=np.array(ids, dtype=object), kind=np.full(n, Kind.CAR, dtype=np.int8), role=role,
+            position=pos, velocity=vel, heading=yaw,
+            size=np.column_stack([length, width, np.full(n, 1.5)]))
+        self.lane_id = np.array([r[ls.VAR_LANE_ID] for r in rows], dtype=object)
+        self.lane_pos = np.array([r[ls.VAR_LANEPOSITION] for r in rows], dtype=float)
+        self.accel = np.array([r[ls.VAR_ACCELERATION] for r in rows], dtype=float)
+
+    def snapshot_part(self) -> WorldSnapshot:
+        return self._part
+
+    # ------------------------------------------------------------------ commands
+    def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        v = self._ls.vehicle
+        live = set(self.active)
+        for c in commands:
+            vid = getattr(c, "vid", None)
+            if vid is None or not isinstance(c, cmd.SetSpeed | cmd.SetAccel | cmd.ChangeLane |
+                                                 cmd.MoveToXY | cmd.Release):
+                continue
+            if vid not in live:
+                self.commands_ignored += 1
+                continue
+            if isinstance(c, cmd.Release):
+                v.setSpeed(vid, -1)
+                v.setSpeedMode(vid, 31)
+                self.controlled.discard(vid)
+                continue
+            self.controlled.add(vid)
+            if isinstance(c, cmd.SetSpeed):
+                if c.speed_mode is not None:
+                    v.setSpeedMode(vid, c.speed_mode)
+                v.setSpeed(vid, max(0.0, c.speed_mps))
+            elif isinstance(c, cmd.SetAccel):
+                if c.speed_mode is not None:
+                    v.setSpeedMode(vid, c.speed_mode)
+                v.setAcceleration(vid, c.accel_mps2, c.duration_s)
+            elif isinstance(c, cmd.ChangeLane):
+                v.changeLane(vid, c.lane_index, c.duration_s)
+            elif isinstance(c, cmd.MoveToXY):
+                v.setSpeed(vid, max(0.0, c.speed_mps))
+                v.moveToXY(vid, c.edge, c.lane, c.x, c.y, 90.0 - math.degrees(c.yaw_rad), c.keep_route)
+
+    # ------------------------------------------------------------------ metrics
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        arrived = [i for i in self.info.values() if not math.isnan(i.arrive_s) and i.depart_s >= ctx.scenario.warmup]
+        return {
+            "vehicles_departed": len(self.info),
+            "vehicles_arrived": len([i for i in self.info.values() if not math.isnan(i.arrive_s)]),
+            "vehicles_measured": len(arrived),
+            "teleports": len(self.teleports),
+            "merge_failures": sum(1 for _, vid in self.teleports
+                                  if vid in self.info and self.info[vid].role == Role.RAMP),
+        }
+
+    def delays(self, warmup_s: float) -> dict[str, np.ndarray]:
+        """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role."""
+        out: dict[str, list[float]] = {"mainline": [], "ramp": []}
+        for i in self.info.values():
+            if math.isnan(i.arrive_s) or i.depart_s < warmup_s:
+                continue
+            d = (i.arrive_s - i.depart_s) + i.depart_delay_s - i.freeflow_s
+            out["ramp" if i.role == Role.RAMP else "mainline"].append(d)
+        return {k: np.asarray(v) for k, v in out.items()}
+
+    def close(self) -> None:
+        if self._started:
+            self._ls.close()
+            self._started = False
