@@ -19,7 +19,8 @@ Model choices (written down because metrics depend on them):
   With ``loss_good=0, loss_bad=1`` the loss bursts are geometric with mean ``1 / p_bad_to_good``
   and the stationary loss is ``p_gb / (p_gb + p_bg)``.
 - **Delivery** (``deliver(t_s)``) pops every copy with ``t_recv <= t_s`` (1e-9 s tolerance against
-  float round-off of ``t + latency``), sorted by ``(t_recv, src, dst, send order)``.  Copies for a
+  float round-off of ``t + latency``), sorted by ``(t_recv, src, dst, send order)`` (names compared
+  as strings).  Copies for a
   receiver detached meanwhile are discarded (not counted as delivered).
 - **Age of information** (AoI): for every ordered pair (receiver, source) with at least one received
   message, and at every ``deliver(t_s)`` call *after* that call's deliveries, the sample is
@@ -164,6 +165,7 @@ class Channel:
         self._pending: list[_Batch] = []
         self._seq = 0
         self._inboxes: dict[str, list[Delivery]] = {}
+        self._rank = np.zeros(0, dtype=np.int64)  # lexicographic rank of node names
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = 0
         self._aoi_sum_s = 0.0
         self._aoi_count = 0
@@ -272,28 +274,53 @@ class Channel:
     # -- delivery -------------------------------------------------------------------------------
     def deliver(self, t_s: float) -> list[Delivery]:
         """Pop every copy with ``t_recv <= t_s``, deterministically ordered; refresh the inboxes."""
-        out: list[Delivery] = []
+        due_batches: list[_Batch] = []
+        due_parts: list[tuple[np.ndarray, np.ndarray]] = []
         keep: list[_Batch] = []
         for b in self._pending:
-            due = (b.t_recv_s <= t_s + _T_EPS_S) & self._attached[b.dst_idx]
-            gone = ~self._attached[b.dst_idx]
+            live = self._attached[b.dst_idx]
+            due = (b.t_recv_s <= t_s + _T_EPS_S) & live
             if due.any():
-                self._record(b, b.dst_idx[due])
-                out.extend(
-                    Delivery(b.src, self._names[j], b.t_sent_s, float(tr), b.payload)
-                    for j, tr in zip(b.dst_idx[due], b.t_recv_s[due])
-                )
-            rest = ~due & ~gone
+                due_batches.append(b)
+                due_parts.append((b.dst_idx[due], b.t_recv_s[due]))
+            rest = ~due & live
             if rest.any():
                 keep.append(
                     _Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[rest], b.t_recv_s[rest])
                 )
         self._pending = keep
-        out.sort(key=lambda d: (d.t_recv_s, d.src, d.dst, d.t_sent_s))
+        out = self._materialise(due_batches, due_parts)
         self._n_delivered += len(out)
         self._inboxes = self.group_by_dst(out)
         self._sample_aoi(t_s)
         return out
+
+    def _materialise(
+        self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]
+    ) -> list[Delivery]:
+        """Delivery objects sorted by (t_recv, src name, dst name, send order); updates AoI state."""
+        if not batches:
+            return []
+        counts = [d.size for d, _ in parts]
+        batch_of = np.repeat(np.arange(len(batches)), counts)
+        dst = np.concatenate([d for d, _ in parts])
+        t_recv = np.concatenate([t for _, t in parts])
+        src = np.array([b.src_idx for b in batches])[batch_of]
+        t_sent = np.array([b.t_sent_s for b in batches])[batch_of]
+        np.fmax.at(self._last_sent, (dst, src), t_sent)
+        rank = self._name_rank()
+        order = np.lexsort((batch_of, rank[dst], rank[src], t_recv))
+        names = self._names
+        return [
+            Delivery(batches[bi].src, names[di], batches[bi].t_sent_s, tr, batches[bi].payload)
+            for bi, di, tr in zip(batch_of[order].tolist(), dst[order].tolist(), t_recv[order].tolist())
+        ]
+
+    def _name_rank(self) -> np.ndarray:
+        """Lexicographic rank of every node name (for the deterministic delivery order)."""
+        if self._rank.size != len(self._names):
+            self._rank = np.argsort(np.argsort(np.array(self._names, dtype=object), kind="stable"))
+        return self._rank
 
     def inbox(self, dst: str) -> list[Delivery]:
         """Deliveries to ``dst`` from the latest ``deliver`` call (replaced at every call)."""
@@ -325,10 +352,6 @@ class Channel:
             aoi_mean_s=self._aoi_sum_s / self._aoi_count if self._aoi_count else float("nan"),
             aoi_max_s=self._aoi_max_s if self._aoi_count else float("nan"),
         )
-
-    def _record(self, b: _Batch, dst_idx: np.ndarray) -> None:
-        cur = self._last_sent[dst_idx, b.src_idx]
-        self._last_sent[dst_idx, b.src_idx] = np.fmax(cur, b.t_sent_s)
 
     def _sample_aoi(self, t_s: float) -> None:
         known = self._last_sent[~np.isnan(self._last_sent)]

@@ -1,0 +1,38 @@
+"""Signal temporal logic: formulas, parser, space and time robustness, online monitoring.
+
+>>> from corridor.analysis.stl import evaluate_spec
+>>> result = evaluate_spec("G[0,30](gap_lead > 5)", {"gap_lead": gaps}, dt=0.1)  # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+from corridor.analysis.stl.formula import (
+    Always,
+    And,
+    BinOp,
+    Call,
+    Const,
+    Eventually,
+    Expr,
+    Formula,
+    Implies,
+    Neg,
+    Not,
+    Or,
+    Predicate,
+    Until,
+    Var,
+    var,
+)
+from corridor.analysis.stl.online import OnlineMonitor
+from corridor.analysis.stl.parser import STLSyntaxError, as_formula, parse_formula
+from corridor.analysis.stl.space import STLSignalError, space_robustness
+from corridor.analysis.stl.spec import SpecResult, evaluate_spec
+from corridor.analysis.stl.time_rob import TimeRobustness, time_robustness
+
+__all__ = [
+    "Always", "And", "BinOp", "Call", "Const", "Eventually", "Expr", "Formula", "Implies", "Neg", "Not",
+    "OnlineMonitor", "Or", "Predicate", "STLSignalError", "STLSyntaxError", "SpecResult", "TimeRobustness",
+    "Until", "Var", "as_formula", "evaluate_spec", "parse_formula", "space_robustness", "time_robustness",
+    "var",
+]

@@ -1,0 +1,47 @@
+"""A tiny backend with no external library: point masses moving at constant velocity unless
+commanded.  Tests drive the engine with it (Scenic keeps a dummy simulator for the same reason)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from corridor.engine import Backend, RunContext
+from corridor.snapshot import Kind, Role, WorldSnapshot
+
+
+@dataclass(frozen=True)
+class SetVelocity:
+    vid: str
+    velocity: tuple[float, float, float]  # [m/s] ENU
+
+
+class NullBackend(Backend):
+    def __init__(self, name: str, ids: list[str], position: np.ndarray, velocity: np.ndarray,
+                 period: float = 0.1, kind: Kind = Kind.CAR) -> None:
+        super().__init__(name)
+        self.period = period
+        self.ids = np.array(ids, dtype=object)
+        self.position = np.asarray(position, dtype=float).copy()
+        self.velocity = np.asarray(velocity, dtype=float).copy()
+        self.kind = kind
+        self.steps = 0
+
+    def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        index = {v: k for k, v in enumerate(self.ids)}
+        for c in commands:
+            if isinstance(c, SetVelocity) and c.vid in index:
+                self.velocity[index[c.vid]] = c.velocity
+
+    def tick(self, ctx: RunContext) -> None:
+        self.position += self.velocity * self.period
+        self.steps += 1
+
+    def snapshot_part(self) -> WorldSnapshot:
+        n = len(self.ids)
+        return WorldSnapshot(
+            ids=self.ids, kind=np.full(n, self.kind, dtype=np.int8), role=np.full(n, Role.OTHER, dtype=np.int8),
+            position=self.position.copy(), velocity=self.velocity.copy(),
+            heading=np.arctan2(self.velocity[:, 1], self.velocity[:, 0]), size=np.tile([4.5, 1.8, 1.5], (n, 1)))

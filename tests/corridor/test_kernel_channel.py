@@ -1,0 +1,195 @@
+"""The channel's loss, latency, range and age of information match their configured statistics."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pydantic
+import pytest
+
+from corridor.channel import BernoulliLoss, Channel, ChannelConfig, GilbertElliottLoss
+
+
+def _pair_channel(cfg: ChannelConfig, seed: int = 0) -> Channel:
+    ch = Channel(cfg, np.random.default_rng(seed))
+    ch.attach("a")
+    ch.attach("b")
+    return ch
+
+
+def _loss_sequence(ch: Channel, n: int, src: str = "a", dst: str = "b") -> np.ndarray:
+    """Send n unicast messages a->b one by one; True where the copy was lost."""
+    return np.array([ch.send(float(k), src, k, dst=dst) == 0 for k in range(n)])
+
+
+def _burst_lengths(lost: np.ndarray) -> np.ndarray:
+    """Lengths of the runs of consecutive losses."""
+    padded = np.concatenate([[0], lost.astype(int), [0]])
+    edges = np.flatnonzero(np.diff(padded))
+    return edges[1::2] - edges[0::2]
+
+
+def test_config_validates_union_and_rejects_unknown_fields() -> None:
+    cfg = ChannelConfig.model_validate(
+        {"loss": {"model": "gilbert_elliott", "p_good_to_bad": 0.1, "p_bad_to_good": 0.5}}
+    )
+    assert isinstance(cfg.loss, GilbertElliottLoss)
+    assert cfg.loss.stationary_loss() == pytest.approx(0.1 / 0.6)
+    assert isinstance(ChannelConfig().loss, BernoulliLoss)
+    with pytest.raises(pydantic.ValidationError):
+        ChannelConfig.model_validate({"loss": {"model": "bernoulli", "p": 0.1, "q": 1}})
+    with pytest.raises(pydantic.ValidationError):
+        ChannelConfig.model_validate({"loss": {"model": "bernoulli", "p": 1.5}})
+    with pytest.raises(pydantic.ValidationError):
+        ChannelConfig(latency_s=-0.1)
+
+
+def test_bernoulli_loss_ratio_matches_p() -> None:
+    p, n = 0.3, 20000
+    lost = _loss_sequence(_pair_channel(ChannelConfig(loss=BernoulliLoss(p=p))), n)
+    sigma = math.sqrt(n * p * (1 - p))
+    assert abs(lost.sum() - n * p) < 4 * sigma
+    # independent losses: mean burst length of a geometric run is 1 / (1 - p)
+    assert _burst_lengths(lost).mean() == pytest.approx(1 / (1 - p), rel=0.05)
+
+
+def test_gilbert_elliott_stationary_loss_and_bursts() -> None:
+    p_gb, p_bg, n = 0.05, 0.25, 60000
+    loss = GilbertElliottLoss(p_good_to_bad=p_gb, p_bad_to_good=p_bg)
+    lost = _loss_sequence(_pair_channel(ChannelConfig(loss=loss), seed=3), n)
+    pi_bad = p_gb / (p_gb + p_bg)
+    # Markov-correlated samples: variance of the mean inflates by (1 + lam) / (1 - lam), lam = 1 - p_gb - p_bg
+    lam = 1 - p_gb - p_bg
+    sigma = math.sqrt(pi_bad * (1 - pi_bad) / n * (1 + lam) / (1 - lam))
+    assert abs(lost.mean() - pi_bad) < 4 * sigma
+    bursts = _burst_lengths(lost)
+    se = math.sqrt(1 - p_bg) / p_bg / math.sqrt(bursts.size)  # geometric(p_bg) std / sqrt(count)
+    assert abs(bursts.mean() - 1 / p_bg) < 4 * se
+    assert bursts.mean() > 2.5  # clearly burstier than Bernoulli at the same mean loss (1.2)
+
+
+def test_gilbert_elliott_state_is_per_link() -> None:
+    """A link that is never used stays in the good state: its first copy gets through."""
+    loss = GilbertElliottLoss(p_good_to_bad=1.0, p_bad_to_good=1e-9)  # first transition -> bad forever
+    ch = _pair_channel(ChannelConfig(loss=loss))
+    ch.attach("c")
+    assert all(ch.send(float(k), "a", k, dst="b") == 0 for k in range(5))
+    # link a->c advances only now; with p_good_to_bad = 1 it is also bad, but c->a is its own chain
+    assert ch.send(10.0, "a", 0, dst="c") == 0
+    assert ch.stats().lost_random == 6
+    loss0 = GilbertElliottLoss(p_good_to_bad=0.0, p_bad_to_good=1.0)
+    ch0 = _pair_channel(ChannelConfig(loss=loss0))
+    assert all(ch0.send(float(k), "a", k, dst="b") == 1 for k in range(100))
+
+
+def test_latency_mean_and_bounds() -> None:
+    lat, jit, n = 0.1, 0.04, 5000
+    ch = _pair_channel(ChannelConfig(latency_s=lat, jitter_s=jit))
+    for k in range(n):
+        ch.send(float(k), "a", k)
+    got = ch.deliver(float(n + 1))
+    delay = np.array([d.t_recv_s - d.t_sent_s for d in got])
+    assert len(got) == n
+    assert delay.min() >= lat - 1e-12 and delay.max() <= lat + jit + 1e-12
+    se = jit / math.sqrt(12 * n)
+    assert abs(delay.mean() - (lat + jit / 2)) < 4 * se
+    assert delay.std() == pytest.approx(jit / math.sqrt(12), rel=0.05)
+
+
+def test_delivery_waits_for_delay_and_is_sorted() -> None:
+    ch = Channel(ChannelConfig(latency_s=0.05, jitter_s=0.0), np.random.default_rng(0))
+    for r in ("c", "a", "b"):
+        ch.attach(r)
+    ch.send(0.0, "c", "x")
+    ch.send(0.0, "a", "y")
+    assert ch.deliver(0.04) == []
+    got = ch.deliver(0.05)
+    assert [(d.src, d.dst) for d in got] == [("a", "b"), ("a", "c"), ("c", "a"), ("c", "b")]
+    assert all(d.t_recv_s == pytest.approx(0.05) for d in got)
+    assert [d.payload for d in ch.inbox("b")] == ["y", "x"]
+    assert ch.deliver(1.0) == [] and ch.inbox("b") == []
+
+
+def test_range_cutoff_2d_3d_and_unknown_positions() -> None:
+    ch = Channel(ChannelConfig(range_m=300.0, jitter_s=0.0), np.random.default_rng(0))
+    for r in ("tx", "near", "far", "high", "unknown"):
+        ch.attach(r)
+    ch.set_positions(
+        {
+            "tx": np.zeros(2),
+            "near": np.array([299.0, 0.0]),
+            "far": np.array([0.0, 301.0]),
+            "high": np.array([200.0, 0.0, 250.0]),
+        }  # 320 m in 3-D
+    )
+    assert ch.send(0.0, "tx", "m") == 2
+    assert {d.dst for d in ch.deliver(1.0)} == {"near", "unknown"}
+    # an explicit sender position overrides the table
+    assert ch.send(1.0, "tx", "m", src_pos=np.array([200.0, 0.0, 250.0])) == 3  # "far" now 440 m
+    s = ch.stats()
+    assert (s.sent, s.out_of_range, s.lost_random) == (8, 3, 0)
+    assert s.delivery_ratio == pytest.approx(2 / 5)  # 2 of the 5 in-range copies delivered so far
+
+
+def test_unicast_sender_excluded_and_detach() -> None:
+    ch = Channel(ChannelConfig(jitter_s=0.0), np.random.default_rng(0))
+    for r in ("a", "b", "c"):
+        ch.attach(r)
+    assert ch.send(0.0, "a", "hi", dst="c") == 1
+    assert ch.send(0.0, "a", "self", dst="a") == 0
+    assert ch.send(0.0, "a", "nobody", dst="zz") == 0
+    assert ch.send(0.0, "a", "all") == 2
+    ch.detach("b")  # b leaves while its copy is in flight
+    got = ch.deliver(1.0)
+    assert [(d.dst, d.payload) for d in got] == [("c", "hi"), ("c", "all")]  # ties keep send order
+    assert ch.receivers == ["a", "c"]
+    assert ch.stats().delivered == 2
+
+
+def test_age_of_information_closed_form() -> None:
+    """Zero loss, fixed 20 ms latency, 10 Hz sends, deliveries sampled 50 ms after each send: AoI = 50 ms."""
+    ch = _pair_channel(ChannelConfig(latency_s=0.02, jitter_s=0.0, rate_hz=10))
+    for k in range(50):
+        t = 0.1 * k
+        ch.send(t, "a", k)
+        ch.send(t, "b", k)
+        ch.deliver(t + 0.05)
+    s = ch.stats()
+    assert s.aoi_mean_s == pytest.approx(0.05) and s.aoi_max_s == pytest.approx(0.05)
+    assert s.delivery_ratio == 1.0 and s.delivered == 100
+
+
+def test_aoi_grows_when_every_message_is_lost() -> None:
+    ch = _pair_channel(ChannelConfig(latency_s=0.0, jitter_s=0.0))
+    ch.send(0.0, "a", 0)
+    ch.deliver(0.0)
+    for k in range(1, 11):
+        ch.deliver(float(k))  # nothing sent: the info received at t=0 ages
+    s = ch.stats()
+    assert s.aoi_max_s == pytest.approx(10.0)
+    assert s.aoi_mean_s == pytest.approx(np.mean(np.arange(0, 11)))
+
+
+def _run(seed: int) -> list[tuple[str, str, float, int]]:
+    cfg = ChannelConfig(range_m=150.0, loss=GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3))
+    ch = Channel(cfg, np.random.default_rng(seed))
+    ids = [f"v{i}" for i in range(30)]
+    for i in ids:
+        ch.attach(i)
+    x0_m = np.linspace(0.0, 600.0, 30)
+    out = []
+    for k in range(20):
+        t = 0.1 * k
+        ch.set_positions_arrays(ids, np.c_[x0_m + 10.0 * t, np.zeros(30)])
+        for i in ids:
+            ch.send(t, i, (i, k))
+        out += [(d.src, d.dst, d.t_recv_s, d.payload[1]) for d in ch.deliver(t + 0.1)]
+    return out
+
+
+def test_determinism_same_seed_same_deliveries() -> None:
+    a, b, c = _run(7), _run(7), _run(8)
+    assert a == b
+    assert a != c
+    assert len(a) > 1000

@@ -1,0 +1,95 @@
+"""Bad input gives one line `FILE: field.path: what is wrong` and exit code 2, no traceback."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from corridor.cli import main
+from corridor.scenario import load
+
+ROOT = Path(__file__).resolve().parents[2]
+MERGING = ROOT / "scenarios" / "merging.yaml"
+
+
+def run_cli(capsys, *argv: str) -> tuple[int, str]:
+    code = main(list(argv))
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+def write(tmp_path: Path, text: str, name: str = "s.yaml") -> Path:
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def assert_one_line(code: int, err: str, *needles: str) -> None:
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert "Traceback" not in err
+    for n in needles:
+        assert n in err, err
+
+
+def test_missing_file(capsys, tmp_path):
+    assert_one_line(*run_cli(capsys, str(tmp_path / "nope.yaml")), "nope.yaml: no such file")
+
+
+def test_invalid_yaml(capsys, tmp_path):
+    p = write(tmp_path, "name: x\nroad: [unclosed\n")
+    assert_one_line(*run_cli(capsys, str(p)), "invalid YAML", "line")
+
+
+def test_wrong_type(capsys, tmp_path):
+    p = write(tmp_path, f"extends: {MERGING}\nduration: soon\n")
+    assert_one_line(*run_cli(capsys, str(p)), "duration:", "number")
+
+
+def test_unknown_key_with_hint(capsys, tmp_path):
+    p = write(tmp_path, f"extends: {MERGING}\ndurration: 10\n")
+    assert_one_line(*run_cli(capsys, str(p)), "durration: unknown key (did you mean 'duration'?)")
+
+
+def test_negative_flow(capsys):
+    code, err = run_cli(capsys, str(MERGING), "--set", "road.demand.flows.main_truck.flow_vph=-5")
+    assert_one_line(code, err, "road.demand.flows.main_truck.flow_vph: must be greater than or equal to 0")
+
+
+def test_set_on_missing_field(capsys):
+    code, err = run_cli(capsys, str(MERGING), "--set", "road.sumo.step_lenght=0.2")
+    assert_one_line(code, err, "road.sumo.step_lenght: unknown key (did you mean 'step_length'?)")
+
+
+def test_bad_network_param_names_its_path(capsys):
+    code, err = run_cli(capsys, str(MERGING), "--set", "road.network.params.accel_lane_length_m=5000")
+    assert_one_line(code, err, "road.network.params", "accel_lane_length_m")
+
+
+def test_unknown_component_type(capsys):
+    code, err = run_cli(capsys, str(MERGING), "--set", "monitors.ssm.type=surogate_safety")
+    assert_one_line(code, err, "monitors.ssm.type: unknown monitor 'surogate_safety' (did you mean 'surrogate_safety'?)")
+
+
+def test_set_syntax(capsys):
+    assert_one_line(*run_cli(capsys, str(MERGING), "--set", "duration"), "expected FIELD.PATH=VALUE")
+
+
+def test_extends_and_set_merge(tmp_path):
+    p = write(tmp_path, f"extends: {MERGING}\nname: child\nduration: 30\nwarmup: 0\n")
+    sc, _ = load(p, ["road.demand.scale=1.5", "metrics=[a, b]"])
+    assert (sc.name, sc.duration, sc.road.demand.scale, sc.metrics) == ("child", 30, 1.5, ["a", "b"])
+    assert sc.road.network.params["mainline_lanes"] == 2  # inherited
+
+
+def test_extends_cycle(capsys, tmp_path):
+    write(tmp_path, "extends: b.yaml\nname: a\n", "a.yaml")
+    write(tmp_path, "extends: a.yaml\nname: b\n", "b.yaml")
+    assert_one_line(*run_cli(capsys, str(tmp_path / "a.yaml")), "extends: cycle")
+
+
+def test_scenario_is_frozen():
+    sc, _ = load(MERGING)
+    with pytest.raises(Exception):
+        sc.duration = 5  # type: ignore[misc]

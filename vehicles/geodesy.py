@@ -1,0 +1,79 @@
+"""Geodetic <-> local ENU conversions around a scenario origin, and unit helpers.
+
+The world snapshot lives in one local East-North-Up frame (metres) anchored at the scenario's geodetic
+``origin`` (lat0 [deg], lon0 [deg], h0 [m above the WGS-84 ellipsoid]). JSBSim works in geodetic
+latitude / longitude / height in feet, so the flight layer converts at its boundary. The maths is
+pymap3d's (WGS-84, exact, vectorised over numpy arrays); this module only fixes the conventions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pymap3d
+
+FT_PER_M = 1.0 / 0.3048  # [ft/m], exact by definition of the international foot
+M_PER_FT = 0.3048  # [m/ft]
+KT_PER_MPS = 3600.0 / 1852.0  # [kt/(m/s)]
+
+
+def ft_to_m(x_ft: float | np.ndarray) -> float | np.ndarray:
+    """Feet to metres."""
+    return x_ft * M_PER_FT
+
+
+def m_to_ft(x_m: float | np.ndarray) -> float | np.ndarray:
+    """Metres to feet."""
+    return x_m * FT_PER_M
+
+
+def enu_yaw_from_heading(psi_rad: float | np.ndarray) -> float | np.ndarray:
+    """Compass heading (clockwise from north) -> ENU yaw (counter-clockwise from east), both [rad].
+
+    The result is wrapped to (-pi, pi].
+    """
+    return wrap_pi(0.5 * np.pi - psi_rad)
+
+
+def heading_from_enu_yaw(yaw_rad: float | np.ndarray) -> float | np.ndarray:
+    """ENU yaw (CCW from east) -> compass heading (CW from north) in [0, 2 pi) [rad]."""
+    return np.mod(0.5 * np.pi - yaw_rad, 2.0 * np.pi)
+
+
+def wrap_pi(a_rad: float | np.ndarray) -> float | np.ndarray:
+    """Wrap an angle to (-pi, pi] [rad]."""
+    return np.pi - np.mod(np.pi - a_rad, 2.0 * np.pi)
+
+
+@dataclass(frozen=True)
+class Origin:
+    """Geodetic anchor of the local ENU frame: latitude, longitude [deg] and ellipsoidal height [m]."""
+
+    lat_deg: float
+    lon_deg: float
+    h_m: float = 0.0
+
+    def to_enu(
+        self, lat_deg: np.ndarray | float, lon_deg: np.ndarray | float, h_m: np.ndarray | float
+    ) -> np.ndarray:
+        """Geodetic -> ENU metres; returns shape (..., 3) (a (3,) array for scalars)."""
+        e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, h_m, self.lat_deg, self.lon_deg, self.h_m)
+        return np.stack([np.asarray(e, float), np.asarray(n, float), np.asarray(u, float)], axis=-1)
+
+    def to_geodetic(self, enu_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """ENU metres (shape (..., 3)) -> (lat [deg], lon [deg], h [m]) arrays of shape (...)."""
+        enu = np.asarray(enu_m, dtype=float)
+        lat, lon, h = pymap3d.enu2geodetic(
+            enu[..., 0], enu[..., 1], enu[..., 2], self.lat_deg, self.lon_deg, self.h_m
+        )
+        return np.asarray(lat, float), np.asarray(lon, float), np.asarray(h, float)
+
+
+def ned_to_enu(v_ned: np.ndarray) -> np.ndarray:
+    """Swap a local North-East-Down vector (..., 3) to East-North-Up (the same map is its inverse)."""
+    v = np.asarray(v_ned, dtype=float)
+    return np.stack([v[..., 1], v[..., 0], -v[..., 2]], axis=-1)
+
+
+enu_to_ned = ned_to_enu

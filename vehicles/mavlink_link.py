@@ -1,0 +1,573 @@
+"""MAVLink 2 link between aircraft and a ground station, carried as bytes over ``corridor.channel``.
+
+Every UAV is a MAVLink system (its own ``sysid``) that sends HEARTBEAT at 1 Hz and
+GLOBAL_POSITION_INT + LOCAL_POSITION_NED at 10 Hz; a piloted aircraft is seen through ADSB_VEHICLE
+(as if re-broadcast by an ADS-B receiver); the ground station (sysid 255) sends HEARTBEAT and
+SET_POSITION_TARGET_LOCAL_NED commands. Encoding and decoding are pymavlink's (dialect ``common``,
+MAVLink 2 framing, magic 0xFD, CRC-16/X.25 with CRC_EXTRA).
+
+Frames due at the same instant from one sender travel in one datagram (one ``channel.send``), as on
+UDP. Each received datagram is parsed on its own (:meth:`MavlinkDecoder.decode_datagram`): a frame
+whose CRC does not match is counted in ``bad_crc`` and the parser resynchronises at the next 0xFD
+byte; bytes that are not a frame (garbage, truncated frames, unknown message ids, bad flags) are
+counted in ``bad_data``. Nothing corrupted can raise. One corrupted frame can add more than one count
+when its body happens to contain 0xFD bytes (each candidate start is checked, as the C library does).
+
+Frames: local NED is the scenario's ENU origin (x north, y east, z down); altitudes in
+GLOBAL_POSITION_INT / ADSB_VEHICLE are heights above the WGS-84 ellipsoid (no geoid model; the
+scenario origin's height defines the datum), ``relative_alt`` is ENU up.
+"""
+
+from __future__ import annotations
+
+import socket
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink2
+
+from .geodesy import Origin, heading_from_enu_yaw, wrap_pi
+
+MAGIC_V2 = mavlink2.PROTOCOL_MARKER_V2  # 0xFD
+_HEADER_LEN = mavlink2.HEADER_LEN_V2  # 10 bytes
+_SIGNATURE_LEN = mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN  # 13 bytes
+GCS_SYSID = 255
+_TM_IGNORE_POS = 0b111  # POSITION_TARGET_TYPEMASK_{X,Y,Z}_IGNORE
+_TM_IGNORE_VEL = 0b111000
+_TM_IGNORE_ACC = 0b111000000
+_TM_IGNORE_YAW = mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
+_TM_IGNORE_YAW_RATE = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
+
+
+def _ms(t_s: float) -> int:
+    """Simulation time [s] -> MAVLink time_boot_ms (uint32, wraps)."""
+    return int(round(t_s * 1000.0)) & 0xFFFFFFFF
+
+
+def _cdeg(yaw_rad: float) -> int:
+    """ENU yaw [rad] -> compass heading in centidegrees [0, 35999]."""
+    return int(round(np.degrees(heading_from_enu_yaw(yaw_rad)) * 100.0)) % 36000
+
+
+# ------------------------------------------------------------------------------------------ encoding
+class MavlinkEndpoint:
+    """One MAVLink 2 system/component: turns states and commands into framed bytes.
+
+    ``origin`` anchors the local NED frame and the geodetic conversion.
+    """
+
+    def __init__(self, sysid: int, origin: Origin, compid: int = 1, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR):
+        if not 1 <= sysid <= 255:
+            raise ValueError(f"MAVLink sysid must be in 1..255, got {sysid}")
+        self.sysid, self.compid, self.mav_type = sysid, compid, mav_type
+        self.origin = origin
+        self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+
+    def pack(self, msg: Any) -> bytes:
+        """Frame one message with this endpoint's ids and sequence number (MAVLink 2, 0xFD)."""
+        buf = bytes(msg.pack(self.mav))  # pack() does not advance the sequence number: we do
+        self.mav.seq = (self.mav.seq + 1) % 256
+        self.mav.total_packets_sent += 1
+        self.mav.total_bytes_sent += len(buf)
+        return buf
+
+    def heartbeat(self) -> bytes:
+        """HEARTBEAT: a GCS reports MAV_TYPE_GCS / no autopilot; aircraft report guided + armed."""
+        autopilot = mavlink2.MAV_AUTOPILOT_INVALID if self.mav_type == mavlink2.MAV_TYPE_GCS else (
+            mavlink2.MAV_AUTOPILOT_GENERIC
+        )
+        mode = 0 if self.mav_type == mavlink2.MAV_TYPE_GCS else (
+            mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
+        )
+        return self.pack(self.mav.heartbeat_encode(self.mav_type, autopilot, mode, 0, mavlink2.MAV_STATE_ACTIVE))
+
+    def global_position_int(self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float) -> bytes:
+        """GLOBAL_POSITION_INT: lat/lon [1e-7 deg], alt [mm], relative_alt = ENU up [mm], NED cm/s."""
+        lat, lon, h = self.origin.to_geodetic(np.asarray(p_enu, float))
+        ve, vn, vu = (float(x) for x in v_enu)
+        msg = self.mav.global_position_int_encode(
+            _ms(t_s), int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(h) * 1e3)),
+            int(round(float(p_enu[2]) * 1e3)), _cm_s(vn), _cm_s(ve), _cm_s(-vu), _cdeg(yaw_rad),
+        )
+        return self.pack(msg)
+
+    def local_position_ned(self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray) -> bytes:
+        """LOCAL_POSITION_NED around the scenario origin [m, m/s]."""
+        e, n, u = (float(x) for x in p_enu)
+        ve, vn, vu = (float(x) for x in v_enu)
+        return self.pack(self.mav.local_position_ned_encode(_ms(t_s), n, e, -u, vn, ve, -vu))
+
+    def adsb_vehicle(
+        self, icao: int, callsign: str, p_enu: np.ndarray, v_enu: np.ndarray, tslc_s: int = 0
+    ) -> bytes:
+        """ADSB_VEHICLE report of a piloted aircraft (geometric altitude, course over ground)."""
+        lat, lon, h = self.origin.to_geodetic(np.asarray(p_enu, float))
+        ve, vn, vu = (float(x) for x in v_enu)
+        flags = (
+            mavlink2.ADSB_FLAGS_VALID_COORDS | mavlink2.ADSB_FLAGS_VALID_ALTITUDE
+            | mavlink2.ADSB_FLAGS_VALID_HEADING | mavlink2.ADSB_FLAGS_VALID_VELOCITY
+            | mavlink2.ADSB_FLAGS_VALID_CALLSIGN
+        )
+        msg = self.mav.adsb_vehicle_encode(
+            icao & 0xFFFFFFFF, int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)),
+            mavlink2.ADSB_ALTITUDE_TYPE_GEOMETRIC, int(round(float(h) * 1e3)),
+            _cdeg(float(np.arctan2(vn, ve))), min(int(round(np.hypot(ve, vn) * 100.0)), 0xFFFF),
+            _cm_s(vu), callsign.encode()[:8], mavlink2.ADSB_EMITTER_TYPE_LIGHT, min(tslc_s, 255), flags, 1200,
+        )
+        return self.pack(msg)
+
+    def set_position_target_local_ned(
+        self,
+        t_s: float,
+        target_sysid: int,
+        p_enu: np.ndarray | None = None,
+        v_enu: np.ndarray | None = None,
+        yaw_rad: float | None = None,
+    ) -> bytes:
+        """SET_POSITION_TARGET_LOCAL_NED to ``target_sysid``; omitted parts are masked as ignored."""
+        mask = _TM_IGNORE_ACC | _TM_IGNORE_YAW_RATE
+        p, v = np.zeros(3), np.zeros(3)
+        if p_enu is None:
+            mask |= _TM_IGNORE_POS
+        else:
+            p = np.asarray(p_enu, float)
+        if v_enu is None:
+            mask |= _TM_IGNORE_VEL
+        else:
+            v = np.asarray(v_enu, float)
+        yaw_ned = 0.0 if yaw_rad is None else float(wrap_pi(heading_from_enu_yaw(yaw_rad)))
+        if yaw_rad is None:
+            mask |= _TM_IGNORE_YAW
+        msg = self.mav.set_position_target_local_ned_encode(
+            _ms(t_s), target_sysid, 1, mavlink2.MAV_FRAME_LOCAL_NED, mask,
+            p[1], p[0], -p[2], v[1], v[0], -v[2], 0.0, 0.0, 0.0, yaw_ned, 0.0,
+        )
+        return self.pack(msg)
+
+
+def _cm_s(v_mps: float) -> int:
+    """[m/s] -> int16 [cm/s], clamped."""
+    return int(np.clip(round(v_mps * 100.0), -32768, 32767))
+
+
+# ------------------------------------------------------------------------------------------ decoding
+@dataclass
+class DecodeCounters:
+    """What a decoder saw: good messages, CRC rejections, undecodable byte runs, bytes dropped."""
+
+    messages: int = 0
+    bad_crc: int = 0
+    bad_data: int = 0
+    bytes_dropped: int = 0
+
+    def add(self, other: DecodeCounters) -> None:
+        self.messages += other.messages
+        self.bad_crc += other.bad_crc
+        self.bad_data += other.bad_data
+        self.bytes_dropped += other.bytes_dropped
+
+
+class MavlinkDecoder:
+    """Bytes -> MAVLink 2 messages with CRC checking, resynchronisation and counters; never raises.
+
+    ``feed`` is the stream interface (an incomplete trailing frame waits for more bytes);
+    ``decode_datagram`` parses one datagram on its own (incomplete frames are dropped and counted).
+    """
+
+    def __init__(self) -> None:
+        self.mav = mavlink2.MAVLink(None)
+        self.counters = DecodeCounters()
+        self._buf = b""
+
+    def feed(self, data: bytes) -> list[Any]:
+        msgs, rest, c = _scan(self.mav, self._buf + bytes(data), final=False)
+        self._buf = rest
+        self.counters.add(c)
+        return msgs
+
+    def decode_datagram(self, data: bytes) -> list[Any]:
+        msgs, _, c = _scan(self.mav, bytes(data), final=True)
+        self.counters.add(c)
+        return msgs
+
+
+def _frame_len(buf: bytes, i: int) -> int:
+    """Total length of the MAVLink 2 frame that starts at ``buf[i]`` (header present)."""
+    n = _HEADER_LEN + buf[i + 1] + 2
+    return n + _SIGNATURE_LEN if buf[i + 2] & mavlink2.MAVLINK_IFLAG_SIGNED else n
+
+
+def _scan(mav: Any, buf: bytes, final: bool) -> tuple[list[Any], bytes, DecodeCounters]:
+    """Find and decode every MAVLink 2 frame in ``buf``; returns (messages, unparsed tail, counters)."""
+    c = DecodeCounters()
+    msgs: list[Any] = []
+    i, n = 0, len(buf)
+    while i < n:
+        j = buf.find(b"\xfd", i)
+        if j < 0:
+            j = n
+        if j > i:  # garbage before the next candidate start
+            c.bad_data += 1
+            c.bytes_dropped += j - i
+            i = j
+            continue
+        if n - i < _HEADER_LEN + 2 or n - i < _frame_len(buf, i):
+            if not final:
+                return msgs, buf[i:], c
+            c.bad_data += 1  # truncated frame (or a 0xFD inside garbage): drop one byte and rescan
+            c.bytes_dropped += 1
+            i += 1
+            continue
+        m = _decode_frame(mav, buf[i : i + _frame_len(buf, i)], c)
+        if m is None:
+            c.bytes_dropped += 1
+            i += 1
+        else:
+            msgs.append(m)
+            c.messages += 1
+            i += _frame_len(buf, i)
+    return msgs, b"", c
+
+
+def _decode_frame(mav: Any, frame: bytes, c: DecodeCounters) -> Any | None:
+    """pymavlink's decode of one candidate frame; None (and a count) when it is rejected."""
+    if frame[2] & ~mavlink2.MAVLINK_IFLAG_SIGNED:
+        c.bad_data += 1
+        return None
+    try:
+        m = mav.decode(bytearray(frame))
+    except mavlink2.MAVError as err:
+        if "CRC" in str(err.message):
+            c.bad_crc += 1
+        else:
+            c.bad_data += 1
+        return None
+    except Exception:  # noqa: BLE001 - corrupted bytes must never crash the run
+        c.bad_data += 1
+        return None
+    if isinstance(m, mavlink2.MAVLink_unknown | mavlink2.MAVLink_bad_data):
+        c.bad_data += 1
+        return None
+    return m
+
+
+# -------------------------------------------------------------------------------------- observations
+@dataclass(frozen=True)
+class TrafficReport:
+    """What a receiver learned about another aircraft from one datagram (ENU frame).
+
+    ``t_meas_s`` is the sender's measurement time (time_boot_ms); yaw is ENU [rad] (NaN if unknown).
+    """
+
+    src: str
+    sysid: int
+    kind: str  # "uav" (LOCAL_POSITION_NED / GLOBAL_POSITION_INT) or "adsb"
+    t_sent_s: float
+    t_recv_s: float
+    t_meas_s: float
+    p_enu: np.ndarray
+    v_enu: np.ndarray
+    yaw_rad: float
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    """A SET_POSITION_TARGET_LOCAL_NED that reached its target (ENU; None where masked out)."""
+
+    dst: str
+    t_sent_s: float
+    t_recv_s: float
+    p_enu: np.ndarray | None
+    v_enu: np.ndarray | None
+    yaw_rad: float | None
+
+
+def report_from_messages(
+    msgs: Iterable[Any], origin: Origin, src: str, t_sent_s: float, t_recv_s: float
+) -> TrafficReport | None:
+    """One TrafficReport from a datagram's messages: LOCAL_POSITION_NED preferred, then
+    GLOBAL_POSITION_INT, then ADSB_VEHICLE; None when the datagram carries no position."""
+    by_type = {m.get_type(): m for m in msgs}
+    if (m := by_type.get("LOCAL_POSITION_NED")) is not None:
+        p = np.array([m.y, m.x, -m.z])
+        v = np.array([m.vy, m.vx, -m.vz])
+        yaw = float("nan")
+        if (g := by_type.get("GLOBAL_POSITION_INT")) is not None and g.hdg != 0xFFFF:
+            yaw = float(wrap_pi(0.5 * np.pi - np.radians(g.hdg / 100.0)))
+        return TrafficReport(src, m.get_srcSystem(), "uav", t_sent_s, t_recv_s, m.time_boot_ms / 1e3, p, v, yaw)
+    if (m := by_type.get("GLOBAL_POSITION_INT")) is not None:
+        p = origin.to_enu(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        v = np.array([m.vy, m.vx, -m.vz]) / 100.0
+        yaw = float(wrap_pi(0.5 * np.pi - np.radians(m.hdg / 100.0)))
+        return TrafficReport(src, m.get_srcSystem(), "uav", t_sent_s, t_recv_s, m.time_boot_ms / 1e3, p, v, yaw)
+    if (m := by_type.get("ADSB_VEHICLE")) is not None:
+        p = origin.to_enu(m.lat * 1e-7, m.lon * 1e-7, m.altitude * 1e-3)
+        course = 0.5 * np.pi - np.radians(m.heading / 100.0)
+        spd = m.hor_velocity / 100.0
+        v = np.array([spd * np.cos(course), spd * np.sin(course), m.ver_velocity / 100.0])
+        return TrafficReport(
+            src, m.ICAO_address, "adsb", t_sent_s, t_recv_s, t_sent_s - m.tslc, p, v, float(wrap_pi(course))
+        )
+    return None
+
+
+def setpoint_from_message(m: Any, dst: str, t_sent_s: float, t_recv_s: float) -> Setpoint:
+    """SET_POSITION_TARGET_LOCAL_NED -> Setpoint in ENU, honouring its type_mask."""
+    p = None if m.type_mask & _TM_IGNORE_POS == _TM_IGNORE_POS else np.array([m.y, m.x, -m.z])
+    v = None if m.type_mask & _TM_IGNORE_VEL == _TM_IGNORE_VEL else np.array([m.vy, m.vx, -m.vz])
+    yaw = None if m.type_mask & _TM_IGNORE_YAW else float(wrap_pi(0.5 * np.pi - m.yaw))
+    return Setpoint(dst, t_sent_s, t_recv_s, p, v, yaw)
+
+
+# ---------------------------------------------------------------------------------------------- link
+@dataclass(frozen=True)
+class LinkRates:
+    """Send rates [Hz]: HEARTBEAT, UAV position (GLOBAL_POSITION_INT + LOCAL_POSITION_NED), ADS-B."""
+
+    heartbeat_hz: float = 1.0
+    position_hz: float = 10.0
+    adsb_hz: float = 10.0
+
+
+@dataclass
+class Inbox:
+    """What one ``receive`` call delivered: traffic reports per receiver, set-points per target."""
+
+    reports: dict[str, list[TrafficReport]] = field(default_factory=dict)
+    setpoints: list[Setpoint] = field(default_factory=list)
+
+
+def parse_udp_address(addr: str) -> tuple[str, int]:
+    """``"udpout:127.0.0.1:14550"`` (or ``"127.0.0.1:14550"``) -> (host, port)."""
+    parts = addr.split(":")
+    if parts[0] in ("udpout", "udp"):
+        parts = parts[1:]
+    if len(parts) != 2:
+        raise ValueError(f"expected udpout:HOST:PORT, got {addr!r}")
+    return parts[0], int(parts[1])
+
+
+@dataclass
+class _Node:
+    endpoint: MavlinkEndpoint
+    kind: str  # "uav" | "piloted" | "gcs"
+    icao: int = 0
+    callsign: str = ""
+    next_hb_s: float = 0.0
+    next_pos_s: float = 0.0
+
+
+class MavlinkLink:
+    """All MAVLink traffic of a scenario over one channel (``corridor.channel.Channel`` interface:
+    ``attach``, ``send(t_s, src, payload, src_pos=None, dst=None)``, ``deliver(t_s)``).
+
+    Per tick: ``publish(t_s, ids, position, velocity, yaw)`` sends what is due; ``command(...)`` sends a
+    ground-station set-point; ``receive(t_s)`` decodes what the channel delivered. ``bit_error_rate``
+    flips received bits (per bit, drawn from ``rng``) to exercise the CRC; ``udp_mirror`` copies every
+    sent datagram to a UDP address (e.g. ``"udpout:127.0.0.1:14550"`` for QGroundControl);
+    ``log_path`` writes every sent byte to a raw MAVLink file.
+    """
+
+    def __init__(
+        self,
+        channel: Any,
+        origin: Origin | tuple[float, float, float],
+        rates: LinkRates | None = None,
+        gcs_id: str = "gcs",
+        udp_mirror: str | None = None,
+        log_path: str | None = None,
+        bit_error_rate: float = 0.0,
+        rng: np.random.Generator | None = None,
+    ) -> None:
+        self.channel = channel
+        self.origin = origin if isinstance(origin, Origin) else Origin(*origin)
+        self.rates = rates or LinkRates()
+        self.gcs_id = gcs_id
+        self.bit_error_rate = bit_error_rate
+        if bit_error_rate > 0.0 and rng is None:
+            raise ValueError("bit_error_rate > 0 needs an rng (numpy.random.Generator)")
+        self._rng = rng
+        self._nodes: dict[str, _Node] = {}
+        self._by_sysid: dict[int, str] = {}
+        self._decoders: dict[str, MavlinkDecoder] = {}
+        self._cache: dict[bytes, tuple[list[Any], DecodeCounters]] = {}
+        self._udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if udp_mirror else None
+        self._udp_addr = parse_udp_address(udp_mirror) if udp_mirror else None
+        self._log = open(log_path, "wb") if log_path else None  # noqa: SIM115 - closed in close()
+        self.sent_datagrams = 0
+        self.sent_bytes = 0
+        self.corrupted_datagrams = 0
+        self._add(gcs_id, GCS_SYSID, "gcs", mavlink2.MAV_TYPE_GCS, listen=True)
+
+    # -------------------------------------------------------------------------------- membership
+    def _add(self, id: str, sysid: int, kind: str, mav_type: int, listen: bool, **kw: Any) -> int:
+        if id in self._nodes or sysid in self._by_sysid:
+            raise ValueError(f"duplicate link member {id!r} / sysid {sysid}")
+        self._nodes[id] = _Node(MavlinkEndpoint(sysid, self.origin, mav_type=mav_type), kind, **kw)
+        self._by_sysid[sysid] = id
+        if listen:
+            self.channel.attach(id)
+            self._decoders[id] = MavlinkDecoder()
+        return sysid
+
+    def _free_sysid(self) -> int:
+        return next(s for s in range(1, 255) if s not in self._by_sysid)
+
+    def add_uav(self, id: str, sysid: int | None = None) -> int:
+        """Register a UAV (sends telemetry, receives traffic and set-points); returns its sysid."""
+        return self._add(id, sysid or self._free_sysid(), "uav", mavlink2.MAV_TYPE_QUADROTOR, listen=True)
+
+    def add_piloted(self, id: str, icao: int | None = None, callsign: str | None = None) -> int:
+        """Register a piloted aircraft seen through ADSB_VEHICLE (it does not listen); returns its sysid."""
+        sysid = self._free_sysid()
+        return self._add(
+            id, sysid, "piloted", mavlink2.MAV_TYPE_FIXED_WING, listen=False,
+            icao=icao if icao is not None else 0xC0FFEE + sysid, callsign=callsign or id.upper()[:8],
+        )
+
+    def sysid(self, id: str) -> int:
+        """MAVLink system id of link member ``id``."""
+        return self._nodes[id].endpoint.sysid
+
+    # -------------------------------------------------------------------------------- sending
+    def _send(
+        self, t_s: float, src: str, payload: bytes, src_pos: np.ndarray | None, dst: str | None = None
+    ) -> None:
+        self.channel.send(t_s, src, payload, src_pos=src_pos, dst=dst)
+        self.sent_datagrams += 1
+        self.sent_bytes += len(payload)
+        if self._udp is not None:
+            self._udp.sendto(payload, self._udp_addr)
+        if self._log is not None:
+            self._log.write(payload)
+
+    def publish(
+        self, t_s: float, ids: Iterable[str], position: np.ndarray, velocity: np.ndarray, yaw: np.ndarray
+    ) -> None:
+        """Send every message due at ``t_s`` for the registered aircraft among ``ids`` (struct of
+        arrays in ENU, e.g. a WorldSnapshot's ids/position/velocity/heading); the GCS heartbeat too."""
+        for k, id in enumerate(ids):
+            node = self._nodes.get(str(id))
+            if node is not None and node.kind != "gcs":
+                self._publish_one(t_s, str(id), node, position[k], velocity[k], float(yaw[k]))
+        gcs = self._nodes[self.gcs_id]
+        if t_s + 1e-9 >= gcs.next_hb_s:
+            gcs.next_hb_s = _next_due(gcs.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
+            self._send(t_s, self.gcs_id, gcs.endpoint.heartbeat(), None)
+
+    def _publish_one(self, t_s: float, id: str, node: _Node, p: np.ndarray, v: np.ndarray, yaw: float) -> None:
+        ep, frames = node.endpoint, []
+        if node.kind == "uav" and t_s + 1e-9 >= node.next_hb_s:
+            node.next_hb_s = _next_due(node.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
+            frames.append(ep.heartbeat())
+        rate = self.rates.position_hz if node.kind == "uav" else self.rates.adsb_hz
+        if t_s + 1e-9 >= node.next_pos_s:
+            node.next_pos_s = _next_due(node.next_pos_s, t_s, 1.0 / rate)
+            if node.kind == "uav":
+                frames += [ep.global_position_int(t_s, p, v, yaw), ep.local_position_ned(t_s, p, v)]
+            else:
+                frames.append(ep.adsb_vehicle(node.icao, node.callsign, p, v))
+        if frames:
+            self._send(t_s, id, b"".join(frames), np.asarray(p, float))
+
+    def command(
+        self,
+        t_s: float,
+        target_id: str,
+        p_enu: np.ndarray | None = None,
+        v_enu: np.ndarray | None = None,
+        yaw_rad: float | None = None,
+    ) -> None:
+        """Ground station -> ``target_id``: SET_POSITION_TARGET_LOCAL_NED (unicast)."""
+        gcs = self._nodes[self.gcs_id].endpoint
+        payload = gcs.set_position_target_local_ned(t_s, self.sysid(target_id), p_enu, v_enu, yaw_rad)
+        self._send(t_s, self.gcs_id, payload, None, dst=target_id)
+
+    def inject(self, t_s: float, src: str, payload: bytes, dst: str | None = None) -> None:
+        """Put raw bytes (garbage, a hand-made frame) on the channel as if ``src`` had sent them."""
+        self._send(t_s, src, bytes(payload), None, dst=dst)
+
+    # -------------------------------------------------------------------------------- receiving
+    def receive(self, t_s: float) -> Inbox:
+        """Deliver, corrupt (if configured), decode; traffic reports and set-points of this instant."""
+        inbox = Inbox()
+        self._cache.clear()
+        for d in self.channel.deliver(t_s):
+            dec = self._decoders.get(d.dst)
+            if dec is None or not isinstance(d.payload, bytes | bytearray):
+                continue
+            msgs = self._decode(dec, self._corrupt(bytes(d.payload)))
+            self._route(inbox, d, msgs)
+        return inbox
+
+    def _corrupt(self, payload: bytes) -> bytes:
+        if self.bit_error_rate <= 0.0:
+            return payload
+        n_bits = len(payload) * 8
+        k = int(self._rng.binomial(n_bits, self.bit_error_rate))
+        if k == 0:
+            return payload
+        self.corrupted_datagrams += 1
+        buf = bytearray(payload)
+        for b in self._rng.choice(n_bits, size=k, replace=False):
+            buf[b // 8] ^= 1 << (b % 8)
+        return bytes(buf)
+
+    def _decode(self, dec: MavlinkDecoder, payload: bytes) -> list[Any]:
+        """Datagram decode, memoised within one receive() for copies of the same bytes."""
+        hit = self._cache.get(payload)
+        if hit is None:
+            scratch = MavlinkDecoder()
+            msgs = scratch.decode_datagram(payload)
+            hit = self._cache[payload] = (msgs, scratch.counters)
+        dec.counters.add(hit[1])
+        return hit[0]
+
+    def _route(self, inbox: Inbox, d: Any, msgs: list[Any]) -> None:
+        if not msgs:
+            return
+        report = report_from_messages(msgs, self.origin, d.src, d.t_sent_s, d.t_recv_s)
+        if report is not None:
+            inbox.reports.setdefault(d.dst, []).append(report)
+        my_sysid = self._nodes[d.dst].endpoint.sysid
+        for m in msgs:
+            if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED" and m.target_system == my_sysid:
+                inbox.setpoints.append(setpoint_from_message(m, d.dst, d.t_sent_s, d.t_recv_s))
+
+    # -------------------------------------------------------------------------------- statistics
+    def counters(self) -> DecodeCounters:
+        """Decode counters summed over every receiver."""
+        total = DecodeCounters()
+        for dec in self._decoders.values():
+            total.add(dec.counters)
+        return total
+
+    def stats(self, prefix: str = "mavlink_") -> dict[str, float]:
+        """Flat link statistics for a results row."""
+        c = self.counters()
+        return {
+            prefix + "sent_datagrams": float(self.sent_datagrams),
+            prefix + "sent_bytes": float(self.sent_bytes),
+            prefix + "messages": float(c.messages),
+            prefix + "bad_crc": float(c.bad_crc),
+            prefix + "bad_data": float(c.bad_data),
+            prefix + "bytes_dropped": float(c.bytes_dropped),
+            prefix + "corrupted_datagrams": float(self.corrupted_datagrams),
+        }
+
+    def close(self) -> None:
+        """Close the UDP mirror socket and the byte log."""
+        if self._udp is not None:
+            self._udp.close()
+            self._udp = None
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+
+
+def _next_due(prev_due_s: float, t_s: float, period_s: float) -> float:
+    """Next send time on the grid prev_due + k * period strictly after ``t_s``."""
+    k = np.floor((t_s - prev_due_s) / period_s + 1e-9) + 1.0
+    return prev_due_s + max(k, 1.0) * period_s
