@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from pydantic import ValidationError
 
 from corridor.cli import main
 from corridor.scenario import load
@@ -91,5 +92,5 @@ def test_extends_cycle(capsys, tmp_path):
 
 def test_scenario_is_frozen():
     sc, _ = load(MERGING)
-    with pytest.raises(Exception):
+    with pytest.raises(ValidationError):
         sc.duration = 5  # type: ignore[misc]
