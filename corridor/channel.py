@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -97,9 +97,8 @@ class ChannelConfig(_Frozen):
         return self.latency_s + 0.5 * self.jitter_s
 
 
-@dataclass(frozen=True, slots=True)
-class Delivery:
-    """One message copy that reached receiver ``dst``."""
+class Delivery(NamedTuple):
+    """One message copy that reached receiver ``dst`` (a NamedTuple: cheap to create in bulk)."""
 
     src: str
     dst: str

@@ -48,6 +48,7 @@ class Registry:
 
 # The component tables of corridor.  Each entry point is a class with a nested pydantic ``Params``
 # model (validated at scenario load) and a constructor ``cls(name, params, scenario)``.
+BACKENDS = Registry("backend")
 CONTROLLERS = Registry("controller")
 MONITORS = Registry("monitor")
 

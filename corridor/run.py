@@ -18,7 +18,7 @@ import numpy as np
 
 from corridor.engine import Component, RunContext, Simulation
 from corridor.errors import CorridorError
-from corridor.registry import CONTROLLERS, MONITORS
+from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
@@ -39,7 +39,7 @@ class RunSpec:
 
 
 def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> Component:
-    registry = CONTROLLERS if table == "controllers" else MONITORS
+    registry = {"backends": BACKENDS, "controllers": CONTROLLERS, "monitors": MONITORS}[table]
     cls = registry.get(spec.type)
     params_model = getattr(cls, "Params", None)
     params = params_model.model_validate(spec.params) if params_model else spec.params
@@ -56,6 +56,8 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None)
         from corridor.traffic.sumo_backend import SumoBackend
 
         comps.append(SumoBackend("sumo", sc))
+    for name, spec in sc.backends.items():
+        comps.append(make_component("backends", name, spec, sc))
     for name, spec in sc.controllers.items():
         if spec.type != "none":
             comps.append(make_component("controllers", name, spec, sc))

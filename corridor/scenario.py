@@ -105,7 +105,7 @@ class RoadSpec(Strict):
 
 # ---------------------------------------------------------------- components, specs, batches
 class ComponentSpec(Strict):
-    type: str  # a registry name (CONTROLLERS or MONITORS)
+    type: str  # a registry name (BACKENDS, CONTROLLERS or MONITORS)
     period: float | None = Field(None, gt=0)  # [s]; None = the component's default
     params: dict[str, Any] = Field(default_factory=dict)
 
@@ -159,6 +159,7 @@ class Scenario(Strict):
     warmup: float = Field(0.0, ge=0)  # [s] metrics ignore vehicles departing before this
     origin: Origin = Field(default_factory=Origin)
     road: RoadSpec | None = None
+    backends: dict[str, ComponentSpec] = Field(default_factory=dict)  # more dynamics (e.g. jsbsim_fleet)
     controllers: dict[str, ComponentSpec] = Field(default_factory=dict)
     monitors: dict[str, ComponentSpec] = Field(default_factory=dict)
     channels: dict[str, ChannelConfig] = Field(default_factory=dict)
@@ -321,9 +322,9 @@ def validate(data: dict[str, Any], source: str) -> Scenario:
 
 
 def _validate_component_params(sc: Scenario, source: str) -> None:
-    from corridor.registry import CONTROLLERS, MONITORS
+    from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 
-    for table, registry in (("controllers", CONTROLLERS), ("monitors", MONITORS)):
+    for table, registry in (("backends", BACKENDS), ("controllers", CONTROLLERS), ("monitors", MONITORS)):
         for name, spec in getattr(sc, table).items():
             if spec.type not in registry:
                 close = difflib.get_close_matches(spec.type, list(registry), n=1)

@@ -64,7 +64,10 @@ def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
 
 class SumoBackend(Backend):
     """Road traffic in SUMO.  Exposes lane-frame arrays aligned with its snapshot rows for road
-    monitors (``lane_id``, ``lane_pos``, ``accel``) and per-vehicle facts in ``info``."""
+    monitors (``lane_id``, ``lane_pos``, ``accel``) and per-vehicle facts in ``info``.
+
+    SUMO-side modules (detectors, ramp meters) may use ``libsumo`` (the module, valid between setup
+    and close) for reads, and send writes as commands with an ``apply_to_sumo(libsumo)`` method."""
 
     def __init__(self, name: str, scenario: Any, network: BuiltNetwork | None = None,
                  cache_dir: Path | None = None) -> None:
@@ -90,7 +93,7 @@ class SumoBackend(Backend):
     def setup(self, ctx: RunContext) -> None:
         import libsumo
 
-        self._ls = libsumo
+        self._ls = self.libsumo = libsumo
         self._rng = ctx.rng(f"{self.name}.demand")
         self._flow_of = {fid: fl for fid, fl in self.road.demand.flows.items()}
         routes_file = self._write_demand(ctx)
@@ -207,6 +210,9 @@ class SumoBackend(Backend):
         v = self._ls.vehicle
         live = set(self.active)
         for c in commands:
+            if hasattr(c, "apply_to_sumo"):  # commands of other SUMO-side modules (ramp meters, ...)
+                c.apply_to_sumo(self._ls)
+                continue
             vid = getattr(c, "vid", None)
             if vid is None or not isinstance(c, cmd.SetSpeed | cmd.SetAccel | cmd.ChangeLane |
                                                  cmd.MoveToXY | cmd.Release):
