@@ -31,11 +31,9 @@ class CollisionMonitor(Component):
             for t, a, v, kind in getattr(b, "new_collisions", ()):
                 self._add(ctx, t, a, v, f"{b.name} ({kind})")
         s = ctx.snapshot
-        if len(s) < 2:
-            return
+        if len(s) < 2 or (s.role.max() < Role.CONTROLLED and s.kind.max() <= Kind.TRUCK):
+            return  # only backend-driven road vehicles: their backend reports collisions
         special = (s.role == Role.CONTROLLED) | ((s.kind != Kind.CAR) & (s.kind != Kind.TRUCK))
-        if not special.any():
-            return
         pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
                                   s.position[:, 2], s.size[:, 2])
         for i, j in pairs:

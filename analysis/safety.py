@@ -47,11 +47,10 @@ def _edge_normals(corners: np.ndarray) -> np.ndarray:
     return np.stack([e1, e2], axis=1)  # rectangle: two edge directions are the two axes
 
 
-def lane_leaders(lane_id: np.ndarray, lane_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(follower, leader) row indices of consecutive vehicles on the same lane."""
-    if len(lane_id) < 2:
+def lane_leaders(code: np.ndarray, lane_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(follower, leader) row indices of consecutive vehicles on the same lane (integer lane codes)."""
+    if len(code) < 2:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-    _, code = np.unique(lane_id.astype(str), return_inverse=True)
     order = np.lexsort((lane_pos, code))
     same = code[order[:-1]] == code[order[1:]]
     return order[:-1][same], order[1:][same]

@@ -38,20 +38,21 @@ class SurrogateSafety(Component):
         self.warmup = scenario.warmup
         self.min_ttc, self.max_drac, self.tet = np.inf, 0.0, 0.0
         self.hard_brakes = 0
-        self._braking: set[str] = set()
+        self._braking = np.zeros(0, dtype=bool)  # per uid: was braking hard at the previous tick
 
     def setup(self, ctx: RunContext) -> None:
         self.road = road_backend(ctx)
 
     def tick(self, ctx: RunContext) -> None:
         r = self.road
-        ids = r.active
-        braking = {ids[k] for k in np.nonzero(r.accel < self.p.hard_brake_mps2)[0]} if ids else set()
+        if len(self._braking) < r.n_uids:
+            self._braking = np.concatenate([self._braking, np.zeros(r.n_uids + 256, dtype=bool)])
+        braking = r.accel < self.p.hard_brake_mps2
         counting = ctx.t >= self.warmup
         if counting:
-            self.hard_brakes += len(braking - self._braking)
-        self._braking = braking
-        f, lead = lane_leaders(r.lane_id, r.lane_pos)
+            self.hard_brakes += int(np.count_nonzero(braking & ~self._braking[r.uid]))
+        self._braking[r.uid] = braking
+        f, lead = lane_leaders(r.lane_code, r.lane_pos)
         ttc_now = np.inf
         if len(f):
             s = r.snapshot_part()
@@ -84,7 +85,7 @@ class TrafficKpis(Component):
         self.p = params
         self.period = scenario.road.sumo.step_length
         self.warmup = scenario.warmup
-        self.passed: set[str] = set()
+        self.passed = np.zeros(0, dtype=bool)  # per uid
         self.count = 0
 
     def setup(self, ctx: RunContext) -> None:
@@ -96,14 +97,13 @@ class TrafficKpis(Component):
         n = len(r.active)
         if n == 0:
             return
+        if len(self.passed) < r.n_uids:
+            self.passed = np.concatenate([self.passed, np.zeros(r.n_uids + 256, dtype=bool)])
         part = r.snapshot_part()
-        x = part.position[:, 0]
-        for k in np.nonzero(x > self.line_x)[0]:
-            vid = r.active[k]
-            if vid not in self.passed:
-                self.passed.add(vid)
-                if ctx.t >= self.warmup:
-                    self.count += 1
+        new = (part.position[:, 0] > self.line_x) & ~self.passed[r.uid]
+        self.passed[r.uid[new]] = True
+        if ctx.t >= self.warmup:
+            self.count += int(np.count_nonzero(new))
         ctx.signals.record("vehicles", ctx.t, n)
         ctx.signals.record("mean_speed", ctx.t, float(part.speed.mean()))
 

@@ -64,7 +64,8 @@ def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
 
 class SumoBackend(Backend):
     """Road traffic in SUMO.  Exposes lane-frame arrays aligned with its snapshot rows for road
-    monitors (``lane_id``, ``lane_pos``, ``accel``) and per-vehicle facts in ``info``.
+    monitors (``uid``, ``lane_id``, ``lane_code``, ``lane_pos``, ``accel``) and per-vehicle facts in
+    ``info``; ``n_uids`` is the number of vehicles departed so far.
 
     SUMO-side modules (detectors, ramp meters) may use ``libsumo`` (the module, valid between setup
     and close) for reads, and send writes as commands with an ``apply_to_sumo(libsumo)`` method."""
@@ -84,7 +85,15 @@ class SumoBackend(Backend):
         self.teleports: list[tuple[float, str]] = []
         self.commands_ignored = 0
         self._part = WorldSnapshot()
+        # per-vehicle integer ids (uid: order of departure) index static per-uid arrays, so monitors
+        # can keep vectorised per-vehicle state (np arrays indexed by uid) instead of Python sets
+        self._uid_of: dict[str, int] = {}
+        self._length, self._width = np.zeros(0), np.zeros(0)
+        self._role = np.zeros(0, dtype=np.int8)
+        self._lane_codes: dict[str, int] = {}
+        self.uid = np.zeros(0, dtype=np.int64)
         self.lane_id = np.zeros(0, dtype=object)
+        self.lane_code = np.zeros(0, dtype=np.int64)  # small integer per lane id
         self.lane_pos = np.zeros(0)
         self.accel = np.zeros(0)
         self._started = False
@@ -165,10 +174,18 @@ class SumoBackend(Backend):
         desired = ls.vehicle.getSpeedFactor(vid)
         vmax = vt.max_speed if vt else 50.0
         ff = sum(length / min(vmax, lim * desired) for length, lim in self._route_ff.get(route, []))
-        self.info[vid] = VehicleInfo(
+        info = VehicleInfo(
             flow=flow, route=route, role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
             connected=connected, length=vt.length if vt else 5.0, width=vt.width if vt else 1.8,
             depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff)
+        self.info[vid] = info
+        k = self._uid_of[vid] = len(self._uid_of)
+        if k >= len(self._length):  # grow the per-uid static arrays geometrically
+            grow = max(256, len(self._length))
+            self._length = np.concatenate([self._length, np.zeros(grow)])
+            self._width = np.concatenate([self._width, np.zeros(grow)])
+            self._role = np.concatenate([self._role, np.zeros(grow, dtype=np.int8)])
+        self._length[k], self._width[k], self._role[k] = info.length, info.width, info.role
 
     def _read_state(self, res: dict[str, dict[int, Any]]) -> None:
         ls = self._ls
@@ -177,33 +194,43 @@ class SumoBackend(Backend):
         self.active = ids
         if n == 0:
             self._part = WorldSnapshot()
+            self.uid = np.zeros(0, dtype=np.int64)
             self.lane_id, self.lane_pos, self.accel = np.zeros(0, dtype=object), np.zeros(0), np.zeros(0)
+            self.lane_code = np.zeros(0, dtype=np.int64)
             return
-        rows = [res[v] for v in ids]
-        front = np.array([r[ls.VAR_POSITION] for r in rows], dtype=float)
-        speed = np.array([r[ls.VAR_SPEED] for r in rows], dtype=float)
-        yaw = yaw_from_sumo_angle([r[ls.VAR_ANGLE] for r in rows])
-        info = [self.info[v] for v in ids]
-        length = np.array([i.length for i in info])
-        width = np.array([i.width for i in info])
+        rows = list(res.values())
+        P, S, A, ACC, LP = ls.VAR_POSITION, ls.VAR_SPEED, ls.VAR_ANGLE, ls.VAR_ACCELERATION, ls.VAR_LANEPOSITION
+        num = np.array([(*r[P], r[S], r[A], r[ACC], r[LP]) for r in rows], dtype=float)  # one pass
+        lanes = [r[ls.VAR_LANE_ID] for r in rows]
+        uidx = self._uid_of
+        uid = np.fromiter((uidx[v] for v in ids), dtype=np.int64, count=n)
+        speed, yaw = num[:, 2], yaw_from_sumo_angle(num[:, 3])
+        length, width = self._length[uid], self._width[uid]
         cos, sin = np.cos(yaw), np.sin(yaw)
         pos = np.zeros((n, 3))
-        pos[:, 0] = front[:, 0] - 0.5 * length * cos  # SUMO reports the front bumper; store the centre
-        pos[:, 1] = front[:, 1] - 0.5 * length * sin
+        pos[:, 0] = num[:, 0] - 0.5 * length * cos  # SUMO reports the front bumper; store the centre
+        pos[:, 1] = num[:, 1] - 0.5 * length * sin
         vel = np.zeros((n, 3))
         vel[:, 0], vel[:, 1] = speed * cos, speed * sin
-        role = np.array([Role.CONTROLLED if v in self.controlled else i.role for v, i in zip(ids, info)],
-                        dtype=np.int8)
+        role = self._role[uid].copy()
+        if self.controlled:
+            role[[k for k, v in enumerate(ids) if v in self.controlled]] = Role.CONTROLLED
         self._part = WorldSnapshot(
             t=0.0, ids=np.array(ids, dtype=object), kind=np.full(n, Kind.CAR, dtype=np.int8), role=role,
-            position=pos, velocity=vel, heading=yaw,
-            size=np.column_stack([length, width, np.full(n, 1.5)]))
-        self.lane_id = np.array([r[ls.VAR_LANE_ID] for r in rows], dtype=object)
-        self.lane_pos = np.array([r[ls.VAR_LANEPOSITION] for r in rows], dtype=float)
-        self.accel = np.array([r[ls.VAR_ACCELERATION] for r in rows], dtype=float)
+            position=pos, velocity=vel, heading=yaw, size=np.column_stack([length, width, np.full(n, 1.5)]))
+        self.uid = uid
+        self.lane_id = np.array(lanes, dtype=object)
+        codes = self._lane_codes
+        self.lane_code = np.fromiter((codes.setdefault(ln, len(codes)) for ln in lanes), dtype=np.int64, count=n)
+        self.lane_pos = num[:, 5]
+        self.accel = num[:, 4]
 
     def snapshot_part(self) -> WorldSnapshot:
         return self._part
+
+    @property
+    def n_uids(self) -> int:
+        return len(self._uid_of)
 
     # ------------------------------------------------------------------ commands
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
