@@ -1,0 +1,253 @@
+"""Roadside-unit merge coordinator: crossing order and times for vehicles in the control zone.
+
+Vehicles entering the control zone (length ``control_zone_m`` before the merge point) are given a
+crossing time at the merge point.  Consecutive crossings are separated by a headway that depends on
+the roads of the two vehicles (``headway_same_s`` when both come from the same road, the larger
+``headway_cross_s`` when a ramp vehicle follows a mainline one or vice versa — the merging vehicle
+needs a gap it can enter).
+
+Policies
+--------
+``fifo``  First in, first served: order of control-zone entry (``entered_s``, ties by id);
+          ``t_i = max(earliest_i, t_{i-1} + h(road_{i-1}, road_i))``.  Assigned times never move,
+          except to repair a vehicle that can no longer make its slot (see below).
+
+``cps``   Rolling-horizon **constrained position shifting** (Balakrishnan & Chandran, "Algorithms
+          for scheduling runway operations under constrained position shifting", Operations
+          Research 58(6), 2010; Dear 1976 for CPS itself).  The coordinator re-sequences the next
+          ``horizon`` not-yet-frozen vehicles whenever the set changes, by an exact branch-and-bound
+          search over the orders in which no vehicle sits more than ``max_shift`` positions away from
+          its first-come-first-served position.  Grouping vehicles of the same road saves the extra
+          cross-road headway, which cuts total delay at high demand (the same mechanism that makes
+          CPS pay off on runways with wake-vortex separations); the position-shift bound is the
+          fairness guarantee — nobody is overtaken by more than ``max_shift`` later arrivals.
+          The objective is the convex delay cost ``Σ w_road · d · (1 + d / fairness_delay_s)``
+          (``d`` = crossing time − earliest arrival): the quadratic part prefers several small delays
+          to one large one, which balances ramp against mainline when one stream dominates
+          (a road's ``w`` can tilt the priority explicitly).  Rolling re-optimisation adapts to
+          changing densities without tuning.
+
+Frozen vehicles: a vehicle whose assigned crossing is within ``freeze_s`` of now keeps its time and
+position (its trajectory is committed).  Repair: if a vehicle's reported earliest arrival is later
+than its assigned time by more than ``repair_tol_s`` it and every later vehicle are pushed back
+(keeping the order), in both policies — a slot that cannot be met would be unsafe.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+Road = Literal["main", "ramp"]
+
+
+class CoordinatorConfig(BaseModel):
+    """Coordinator parameters (scenario ``v2x.coordinator``)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    control_zone_m: float = Field(250.0, gt=0.0)  # [m] length of the control zone before the merge
+    headway_same_s: float = Field(1.2, gt=0.0)  # [s] crossing headway, same road
+    headway_cross_s: float = Field(2.0, gt=0.0)  # [s] crossing headway, different roads
+    freeze_s: float = Field(2.0, ge=0.0)  # [s] assignments this close to now are committed
+    repair_tol_s: float = Field(0.3, ge=0.0)  # [s] slack before a missed slot is repaired
+    max_shift: int = Field(2, ge=0)  # cps: max positions a vehicle may move from its FCFS position
+    horizon: int = Field(8, ge=1)  # cps: vehicles re-sequenced at once
+    fairness_delay_s: float = Field(10.0, gt=0.0)  # cps: delay scale of the quadratic cost term
+    weight_main: float = Field(1.0, gt=0.0)  # cps: delay weight of mainline vehicles
+    weight_ramp: float = Field(1.0, gt=0.0)  # cps: delay weight of ramp vehicles
+
+
+@dataclass(frozen=True)
+class ZoneVehicle:
+    """A vehicle in the control zone as the roadside unit sees it (from V2X tracks or sensors)."""
+
+    id: str
+    road: Road
+    dist_to_merge_m: float  # [m]
+    speed_mps: float  # [m/s]
+    earliest_arrival_s: float  # [s] earliest feasible crossing time of the merge point
+    entered_s: float  # [s] control-zone entry time (defines the FCFS order)
+
+
+@dataclass
+class _Slot:
+    vid: str
+    road: Road
+    rank: int  # FCFS rank (global, in order of entry)
+    earliest_s: float
+    t_s: float  # assigned crossing time
+
+
+@dataclass
+class _State:
+    slots: list[_Slot] = field(default_factory=list)  # current sequence (crossing order)
+    n_done: int = 0  # vehicles that left the zone (sequence positions before slots[0])
+    n_ranked: int = 0  # FCFS ranks handed out so far
+    tail: tuple[float, Road] | None = None  # last crossing (time, road) of a departed vehicle
+
+
+class Coordinator:
+    """Assigns merge crossing times; call ``assign`` every coordinator period with the zone's vehicles."""
+
+    def __init__(self, policy: Literal["fifo", "cps"], cfg: CoordinatorConfig | None = None) -> None:
+        if policy not in ("fifo", "cps"):
+            raise ValueError(f"unknown policy {policy!r} (fifo | cps)")
+        self.policy = policy
+        self.cfg = cfg or CoordinatorConfig()
+        self._st = _State()
+        self.max_shift_seen = 0  # largest |position - FCFS rank| ever assigned (diagnostic)
+
+    def headway(self, road_a: Road, road_b: Road) -> float:
+        """Required crossing headway [s] of a vehicle on road_b behind one on road_a."""
+        return self.cfg.headway_same_s if road_a == road_b else self.cfg.headway_cross_s
+
+    def assign(self, t_s: float, vehicles: list[ZoneVehicle]) -> dict[str, float]:
+        """Crossing times [s] of every vehicle in ``vehicles`` (the zone's current occupants)."""
+        self._drop_departed(vehicles)
+        self._update_earliest(vehicles)
+        new = sorted((v for v in vehicles if v.id not in self._ids()), key=lambda v: (v.entered_s, v.id))
+        for v in new:
+            self._st.slots.append(_Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan))
+            self._st.n_ranked += 1
+        if self.policy == "cps" and (new or self._needs_repair()):
+            self._resequence(t_s)
+        self._retime()
+        self._track_shift()
+        return {s.vid: s.t_s for s in self._st.slots}
+
+    @property
+    def sequence(self) -> list[str]:
+        """Current crossing order of the vehicles still in the zone."""
+        return [s.vid for s in self._st.slots]
+
+    # -- bookkeeping ----------------------------------------------------------------------------
+    def _ids(self) -> set[str]:
+        return {s.vid for s in self._st.slots}
+
+    def _drop_departed(self, vehicles: list[ZoneVehicle]) -> None:
+        present = {v.id for v in vehicles}
+        keep = []
+        for s in self._st.slots:
+            if s.vid in present:
+                keep.append(s)
+                continue
+            self._st.n_done += 1
+            if not np.isnan(s.t_s) and (self._st.tail is None or s.t_s >= self._st.tail[0]):
+                self._st.tail = (s.t_s, s.road)
+        self._st.slots = keep
+
+    def _update_earliest(self, vehicles: list[ZoneVehicle]) -> None:
+        by_id = {v.id: v for v in vehicles}
+        for s in self._st.slots:
+            s.earliest_s = by_id[s.vid].earliest_arrival_s
+
+    def _needs_repair(self) -> bool:
+        return any(
+            s.earliest_s > s.t_s + self.cfg.repair_tol_s for s in self._st.slots if not np.isnan(s.t_s)
+        )
+
+    def _n_frozen(self, t_s: float) -> int:
+        """Length of the committed prefix of the sequence."""
+        n = 0
+        for s in self._st.slots:
+            if np.isnan(s.t_s) or s.t_s > t_s + self.cfg.freeze_s:
+                break
+            n += 1
+        return n
+
+    def _retime(self) -> None:
+        """Times along the sequence: keep assigned times unless headway or a missed slot forces later."""
+        prev = self._st.tail
+        for s in self._st.slots:
+            t_head = -np.inf if prev is None else prev[0] + self.headway(prev[1], s.road)
+            too_close = s.t_s < t_head - 1e-9
+            missed = s.earliest_s > s.t_s + self.cfg.repair_tol_s
+            if np.isnan(s.t_s) or too_close or missed:
+                s.t_s = max(s.earliest_s, t_head)
+            prev = (s.t_s, s.road)
+
+    def _track_shift(self) -> None:
+        for k, s in enumerate(self._st.slots):
+            self.max_shift_seen = max(self.max_shift_seen, abs(self._st.n_done + k - s.rank))
+
+    # -- constrained position shifting ----------------------------------------------------------
+    def _resequence(self, t_s: float) -> None:
+        """Exact CPS search over the next ``horizon`` unfrozen vehicles; the rest keep FCFS order."""
+        n_fix = self._n_frozen(t_s)
+        fixed, free = self._st.slots[:n_fix], self._st.slots[n_fix:]
+        free.sort(key=lambda s: s.rank)
+        window, rest = free[: self.cfg.horizon], free[self.cfg.horizon :]
+        prev = (fixed[-1].t_s, fixed[-1].road) if fixed else self._st.tail
+        pos0 = self._st.n_done + n_fix
+        order = _CpsSearch(self, window, prev, pos0).best_order()
+        for s in window:
+            s.t_s = np.nan  # re-timed along the new order
+        for s in rest:
+            s.t_s = np.nan
+        self._st.slots = fixed + [window[i] for i in order] + rest
+
+
+class _CpsSearch:
+    """Branch and bound over position-shift-constrained orders of a window of slots."""
+
+    def __init__(self, coord: Coordinator, window: list[_Slot], prev: tuple[float, Road] | None, pos0: int):
+        cfg = coord.cfg
+        self.coord, self.window, self.prev, self.pos0 = coord, window, prev, pos0
+        self.k = cfg.max_shift
+        self.w = [cfg.weight_ramp if s.road == "ramp" else cfg.weight_main for s in window]
+        self.h_min = min(cfg.headway_same_s, cfg.headway_cross_s)
+        self.best_cost = np.inf
+        self.best: list[int] = list(range(len(window)))  # FCFS fallback
+
+    def cost(self, i: int, t: float) -> float:
+        d = max(0.0, t - self.window[i].earliest_s)
+        return self.w[i] * d * (1.0 + d / self.coord.cfg.fairness_delay_s)
+
+    def best_order(self) -> list[int]:
+        self._dfs([], set(), self.prev, 0.0)
+        return self.best
+
+    def _candidates(self, used: set[int], p: int) -> list[int]:
+        """Window indices allowed at global position p (a vehicle at its shift limit must go now)."""
+        free = [i for i in range(len(self.window)) if i not in used]
+        overdue = [i for i in free if self.window[i].rank + self.k <= p]
+        if overdue:
+            return [min(overdue, key=lambda i: self.window[i].rank)]
+        ok = [i for i in free if abs(p - self.window[i].rank) <= self.k]
+        return ok or [min(free, key=lambda i: self.window[i].rank)]
+
+    def _bound(self, used: set[int], t_last: float) -> float:
+        """Lower bound of the remaining cost: everyone left crosses at least h_min after t_last."""
+        return sum(self.cost(i, t_last + self.h_min) for i in range(len(self.window)) if i not in used)
+
+    def _dfs(self, seq: list[int], used: set[int], prev: tuple[float, Road] | None, cost: float) -> None:
+        if len(seq) == len(self.window):
+            if cost < self.best_cost - 1e-12:
+                self.best_cost, self.best = cost, list(seq)
+            return
+        p = self.pos0 + len(seq)
+        for i in self._candidates(used, p):
+            s = self.window[i]
+            t = (
+                s.earliest_s
+                if prev is None
+                else max(s.earliest_s, prev[0] + self.coord.headway(prev[1], s.road))
+            )
+            c = cost + self.cost(i, t)
+            used.add(i)
+            if c + self._bound(used, t) < self.best_cost:
+                seq.append(i)
+                self._dfs(seq, used, (t, s.road), c)
+                seq.pop()
+            used.discard(i)
+
+
+def jain_index(values: np.ndarray | list[float]) -> float:
+    """Jain's fairness index (Σx)² / (n Σx²) ∈ [1/n, 1]; 1 = perfectly equal (1.0 if all zero)."""
+    x = np.asarray(values, dtype=float)
+    den = x.size * np.sum(x**2)
+    return float(np.sum(x) ** 2 / den) if den > 0 else 1.0
