@@ -53,7 +53,15 @@ CONTROLLERS = Registry("controller")
 MONITORS = Registry("monitor")
 
 CONTROLLERS.register("none", "corridor.engine:NoController")
+CONTROLLERS.register("v2x_merging", "corridor.controllers.v2x_merging:V2XMerging")
 
 MONITORS.register("collisions", "corridor.analysis.monitors:CollisionMonitor")
 MONITORS.register("surrogate_safety", "corridor.traffic.monitors:SurrogateSafety")
 MONITORS.register("traffic_kpis", "corridor.traffic.monitors:TrafficKpis")
+
+BACKENDS.register("jsbsim_fleet", "corridor.vehicles.air_backend:AirBackend")
+BACKENDS.register("mavlink_link", "corridor.vehicles.air_link:AirLink")
+CONTROLLERS.register("uav_none", "corridor.controllers.uav_avoidance:UavNone")
+CONTROLLERS.register("potential_field", "corridor.controllers.uav_avoidance:PotentialFieldController")
+CONTROLLERS.register("control_tube", "corridor.controllers.uav_avoidance:ControlTubeController")
+MONITORS.register("uav_separation", "corridor.analysis.separation:SeparationMonitor")

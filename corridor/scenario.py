@@ -83,6 +83,8 @@ class DemandSpec(Strict):
     @model_validator(mode="after")
     def _types_exist(self) -> DemandSpec:
         for name, fl in self.flows.items():
+            if "." in name:
+                raise ValueError(f"flows.{name}: flow names cannot contain '.'")
             if fl.vtype not in self.vehicle_types:
                 raise ValueError(f"flows.{name}.vtype: unknown vehicle type {fl.vtype!r}")
         return self

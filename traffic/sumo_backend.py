@@ -166,7 +166,7 @@ class SumoBackend(Backend):
     def _on_depart(self, vid: str, t: float) -> None:
         ls = self._ls
         ls.vehicle.subscribe(vid, self._vars)
-        flow = vid.rsplit(".", 1)[0]
+        flow = vid.split(".", 1)[0]  # vehicle ids are <flow>.<step>.<n> (flow names have no dots)
         spec = self._flow_of.get(flow)
         route = spec.route if spec else ls.vehicle.getRouteID(vid)
         vt = self.road.demand.vehicle_types[spec.vtype] if spec else None

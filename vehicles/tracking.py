@@ -18,6 +18,7 @@ cannot rewind, and with CAM-rate data the lost information is negligible.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Literal
 
 import numpy as np
@@ -39,6 +40,21 @@ class Track:
         """Position block of ``cov`` [m²]."""
         d = self.pos.size
         return self.cov[:d, :d]
+
+
+@lru_cache(maxsize=4096)
+def _model_matrices(dt_key: int, order: int, dim: int, q: float) -> tuple[np.ndarray, np.ndarray]:
+    """Cached (F, Q) for a time step given in nanoseconds: message intervals repeat (they lie on the
+    senders' period grid), so the hot path never rebuilds them."""
+    dt_s = dt_key * 1e-9
+    f, qm = transition(dt_s, order, dim), process_cov(dt_s, order, dim, q)
+    f.flags.writeable = False
+    qm.flags.writeable = False
+    return f, qm
+
+
+def model_matrices(dt_s: float, order: int, dim: int, q: float) -> tuple[np.ndarray, np.ndarray]:
+    return _model_matrices(round(dt_s * 1e9), order, dim, q)
 
 
 def transition(dt_s: float, order: int, dim: int) -> np.ndarray:
@@ -97,6 +113,7 @@ class TrackTable:
         self.stale_after_s = float(stale_after_s)
         self._init_std = (init_vel_std, init_acc_std)
         self._tracks: dict[str, _Entry] = {}
+        self._hr: dict[bool, tuple[np.ndarray, np.ndarray]] = {}  # measurement model cache
 
     # -- updates --------------------------------------------------------------------------------
     def update(self, track_id: str, t_s: float, pos: np.ndarray, vel: np.ndarray | None = None) -> bool:
@@ -112,8 +129,7 @@ class TrackTable:
         kf = entry.kf
         dt_s = t_s - entry.t_s
         if dt_s > 0:
-            kf.F = transition(dt_s, self.order, self.dim)
-            kf.Q = process_cov(dt_s, self.order, self.dim, self.q)
+            kf.F, kf.Q = model_matrices(dt_s, self.order, self.dim, self.q)
             kf.predict()
         z, h, r = self._measurement(z_pos, z_vel)
         kf.update(z, R=r, H=h)
@@ -138,13 +154,19 @@ class TrackTable:
 
     def _measurement(self, z_pos: np.ndarray, z_vel: np.ndarray | None) -> tuple[np.ndarray, ...]:
         """Measurement vector, matrix H and covariance R (position, optionally velocity)."""
+        z = z_pos if z_vel is None else np.concatenate([z_pos, z_vel])
+        key = z_vel is not None
+        if key not in self._hr:
+            self._hr[key] = self._measurement_model(key)
+        return (z, *self._hr[key])
+
+    def _measurement_model(self, with_vel: bool) -> tuple[np.ndarray, np.ndarray]:
         d, n = self.dim, self.order * self.dim
-        rows = 2 * d if z_vel is not None else d
+        rows = 2 * d if with_vel else d
         h = np.zeros((rows, n))
         h[:rows, :rows] = np.eye(rows)
-        z = z_pos if z_vel is None else np.concatenate([z_pos, z_vel])
         r_diag = np.r_[np.full(d, self.r_pos), np.full(rows - d, self.r_vel)]
-        return z, h, np.diag(r_diag)
+        return h, np.diag(r_diag)
 
     # -- queries --------------------------------------------------------------------------------
     def predict_all(self, t_s: float) -> dict[str, Track]:
@@ -157,9 +179,9 @@ class TrackTable:
 
     def _predicted(self, e: _Entry, t_s: float) -> Track:
         age_s = max(0.0, t_s - e.t_s)
-        f = transition(age_s, self.order, self.dim)
+        f, q = model_matrices(age_s, self.order, self.dim, self.q)
         x = f @ e.kf.x
-        p = f @ e.kf.P @ f.T + process_cov(age_s, self.order, self.dim, self.q)
+        p = f @ e.kf.P @ f.T + q
         d = self.dim
         acc = x[2 * d :].copy() if self.order == 3 else None
         return Track(pos=x[:d].copy(), vel=x[d : 2 * d].copy(), cov=p, age_s=age_s, acc=acc)
