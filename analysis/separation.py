@@ -1,0 +1,178 @@
+"""UAV separation monitor: separation minima, loss of separation, NMAC, time to goal, path ratio.
+
+Reads only the world snapshot (every UAV and AIRCRAFT entity), all pairs at once with numpy.
+
+Thresholds (Params; the scenario may override each):
+
+- **NMAC** ``nmac_h_m = 30.48`` m (100 ft) horizontal AND ``nmac_v_m = 4.572`` m (15 ft) vertical:
+  the small-UAS near mid-air collision cylinder of Weinert et al., "Well-Clear Recommendation for
+  Small Unmanned Aircraft Systems Based on Unmitigated Collision Risk", J. Air Transportation 26(3),
+  2018 (also ``controllers.uav_models.NMAC_*``). Used for every pair, piloted or not.
+- **Loss of separation, UAV-UAV** ``los_h_m = 60.96`` m (200 ft), ``los_v_m = 15.24`` m (50 ft):
+  no standard exists for UAV-to-UAV separation; corridor uses twice the sNMAC cylinder in both
+  axes (a design choice, stated here so that reports are read with it in mind).
+- **Loss of separation, UAV-piloted** ``los_piloted_h_m = 609.6`` m (2000 ft), ``los_piloted_v_m =
+  76.2`` m (250 ft): the sUAS "well clear" volume recommended by Weinert et al. 2018 (adopted by ASTM
+  F3442/F3442M-20 for small UAS detect and avoid).
+
+A pair *enters* a violated state when both its horizontal and vertical separation fall below the
+thresholds; each entry counts once (an encounter that stays inside for many ticks is one event) and
+emits an event (``los`` or ``nmac``). Signals ``min_sep_h`` (smallest horizontal separation over all
+pairs) and ``min_sep_3d`` (smallest 3-D distance) are recorded at the monitor's period for reports,
+STL specs and the Rerun view. ``sep_min_v_m`` is the smallest vertical separation of pairs closer
+than ``nmac_h_m`` horizontally (NaN if no pair came that close). Per UAV with a goal (from the air backend): time to goal (first time
+within ``goal_radius_m``) and the ratio of flown path length to the straight start-goal distance.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.engine import Component, Phase, RunContext
+from corridor.snapshot import Kind
+
+
+class SeparationMonitor(Component):
+    """DETECT-phase monitor of aircraft separation (registered as ``uav_separation``)."""
+
+    phase = Phase.DETECT
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+        nmac_h_m: float = Field(30.48, gt=0.0)  # [m] 100 ft
+        nmac_v_m: float = Field(4.572, gt=0.0)  # [m] 15 ft
+        los_h_m: float = Field(60.96, gt=0.0)  # [m] 200 ft
+        los_v_m: float = Field(15.24, gt=0.0)  # [m] 50 ft
+        los_piloted_h_m: float = Field(609.6, gt=0.0)  # [m] 2000 ft
+        los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
+        goal_radius_m: float = Field(5.0, gt=0.0)  # [m]
+        backend: str | None = "air"  # air backend holding the goals (None: no goal metrics)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.params = params
+        self.period = float(scenario.dt)
+        self.ids: np.ndarray | None = None
+        self.min_h = self.min_3d = np.inf
+        self.min_v_close = np.inf  # [m] min vertical separation among pairs closer than nmac_h_m
+        self.los_events = self.nmac_events = 0  # pair-encounters entering LoS / NMAC (whole run)
+
+    # ---- pair geometry ---------------------------------------------------------------------------
+    def _init_pairs(self, ids: np.ndarray, kind: np.ndarray) -> None:
+        n = len(ids)
+        self.ids = ids.copy()
+        self.i, self.j = np.triu_indices(n, k=1)
+        piloted = kind == Kind.AIRCRAFT
+        mixed = piloted[self.i] | piloted[self.j]
+        p = self.params
+        self.los_h = np.where(mixed, p.los_piloted_h_m, p.los_h_m)
+        self.los_v = np.where(mixed, p.los_piloted_v_m, p.los_v_m)
+        self.in_los = np.zeros(len(self.i), dtype=bool)
+        self.in_nmac = np.zeros(len(self.i), dtype=bool)
+        self.pair_los = np.zeros(len(self.i), dtype=int)
+        self.pair_nmac = np.zeros(len(self.i), dtype=int)
+        self.last_pos: np.ndarray | None = None
+        self.path_m = np.zeros(n)
+        self.arrived_s = np.full(n, np.nan)
+
+    def setup(self, ctx: RunContext) -> None:
+        self.goals: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        if self.params.backend is not None and self.params.backend in ctx.components:
+            self.goals = ctx.get(self.params.backend).goals()
+
+    def tick(self, ctx: RunContext) -> None:
+        s = ctx.snapshot
+        air = (s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT)
+        ids, pos = s.ids[air], s.position[air]
+        if len(ids) == 0:
+            return
+        if self.ids is None or len(ids) != len(self.ids) or np.any(ids != self.ids):
+            self._init_pairs(ids, s.kind[air])
+        self._progress(ctx.t, pos)
+        if len(self.i) == 0:
+            return
+        d = pos[self.i] - pos[self.j]
+        dh = np.hypot(d[:, 0], d[:, 1])
+        dv = np.abs(d[:, 2])
+        d3 = np.hypot(dh, dv)
+        self.min_h = min(self.min_h, float(dh.min()))
+        self.min_3d = min(self.min_3d, float(d3.min()))
+        close = dh < self.params.nmac_h_m
+        if close.any():
+            self.min_v_close = min(self.min_v_close, float(dv[close].min()))
+        ctx.signals.record("min_sep_h", ctx.t, float(dh.min()))
+        ctx.signals.record("min_sep_3d", ctx.t, float(d3.min()))
+        p = self.params
+        self.in_los = self._count(ctx, (dh < self.los_h) & (dv < self.los_v), self.in_los, self.pair_los, "los", dh, dv)
+        self.in_nmac = self._count(ctx, (dh < p.nmac_h_m) & (dv < p.nmac_v_m), self.in_nmac, self.pair_nmac,
+                                   "nmac", dh, dv)
+
+    def _count(self, ctx: RunContext, now: np.ndarray, before: np.ndarray, per_pair: np.ndarray, kind: str,
+               dh: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """Count and report pairs that enter the violated state this tick."""
+        for k in np.flatnonzero(now & ~before):
+            a, b = str(self.ids[self.i[k]]), str(self.ids[self.j[k]])
+            per_pair[k] += 1
+            if kind == "nmac":
+                self.nmac_events += 1
+            else:
+                self.los_events += 1
+            ctx.events.emit(ctx.t, self.name, kind, f"{a} x {b}: {dh[k]:.1f} m horizontal, {dv[k]:.1f} m vertical",
+                            a=a, b=b, h_m=float(dh[k]), v_m=float(dv[k]))
+        return now
+
+    def _progress(self, t: float, pos: np.ndarray) -> None:
+        """Path length and first arrival at the goal, per aircraft."""
+        if self.last_pos is not None:
+            self.path_m += np.linalg.norm(pos - self.last_pos, axis=1)
+        self.last_pos = pos.copy()
+        for k, aid in enumerate(self.ids):
+            g = self.goals.get(str(aid))
+            if g is not None and np.isnan(self.arrived_s[k]) and np.linalg.norm(pos[k] - g[1]) < self.params.goal_radius_m:
+                self.arrived_s[k] = t
+
+    # ---- results ---------------------------------------------------------------------------------
+    def per_uav(self) -> dict[str, dict[str, float]]:
+        """Per aircraft with a goal: time to goal [s] (NaN if never) and path-length ratio."""
+        out = {}
+        if self.ids is None:
+            return out
+        for k, aid in enumerate(self.ids):
+            g = self.goals.get(str(aid))
+            if g is not None:
+                straight = float(np.linalg.norm(g[1] - g[0]))
+                out[str(aid)] = {"time_to_goal_s": float(self.arrived_s[k]),
+                                 "path_ratio": float(self.path_m[k] / max(straight, 1e-9))}
+        return out
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        out: dict[str, Any] = {
+            "nmac": self.nmac_events,
+            "los": self.los_events,
+            "nmac_pairs": int(np.count_nonzero(self.pair_nmac)) if self.ids is not None else 0,
+            "sep_min_h_m": float(self.min_h),
+            "sep_min_v_m": float(self.min_v_close) if np.isfinite(self.min_v_close) else float("nan"),
+            "sep_min_3d_m": float(self.min_3d),
+        }
+        return {**out, **self._goal_metrics()}
+
+    def _goal_metrics(self) -> dict[str, float]:
+        nan = float("nan")
+        per = self.per_uav()
+        if not per:
+            return dict.fromkeys(("goal_reached_frac", "time_to_goal_mean_s", "time_to_goal_max_s",
+                                  "path_ratio_mean", "path_ratio_max"), nan)
+        ttg = np.array([v["time_to_goal_s"] for v in per.values()])
+        ratio = np.array([v["path_ratio"] for v in per.values()])
+        reached = ~np.isnan(ttg)
+        return {
+            "goal_reached_frac": float(reached.mean()),
+            "time_to_goal_mean_s": float(ttg[reached].mean()) if reached.any() else nan,
+            "time_to_goal_max_s": float(ttg[reached].max()) if reached.any() else nan,
+            "path_ratio_mean": float(ratio.mean()),
+            "path_ratio_max": float(ratio.max()),
+        }

@@ -1,0 +1,197 @@
+"""UAV avoidance controllers for the engine: ``uav_none``, ``potential_field``, ``control_tube``.
+
+Each controller governs the quadcopters of the air backend that have a goal (or the ``uavs`` listed
+in its params). At every decision (default period 0.2 s) it builds, per governed UAV, an
+``AvoidanceObservation`` from
+
+- the UAV's *own* state (its row of the world snapshot: the aircraft knows where it is), and
+- the other aircraft ONLY as the MAVLink link delivered and tracked them (``AirLink.picture``),
+
+steps the method and puts ``AircraftCommand(id, autopilot.VelocityCommand)`` on the bus; the air
+backend's quad cascade flies it. ``uav_none`` flies straight to the goal at cruise speed and never
+looks at the others (the baseline that shows the encounters are real conflicts). Each UAV's speed
+limit is its cruise speed, so an avoiding UAV never outruns its nominal plan.
+
+Modes: every UAV is ``cruise`` or ``avoid`` (the method's ``avoiding`` flag); each transition is a
+``mode`` event, so the Rerun timeline shows when and why a UAV deviated. Two guards sit between a
+method and the autopilot: a non-finite command becomes "hold position" (a ``fallback`` event), and a
+vertical geofence (``min_alt_m`` .. ``max_alt_m``) limits the climb/descent the method may command.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.controllers.uav_models import AvoidanceObservation
+from corridor.controllers.uav_models import VelocityCommand as MethodCommand
+from corridor.engine import Controller, RunContext
+from corridor.vehicles.air_backend import AircraftCommand
+from corridor.vehicles.autopilot import VelocityCommand
+
+
+class UavAvoidanceParams(BaseModel):
+    """Shared by the three controllers so that a ``sweep`` can swap ``type`` alone."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    backend: str = "air"  # air backend (aircraft list, goals, cruise speeds)
+    link: str = "link"  # MAVLink link component (the tracked picture)
+    uavs: list[str] | None = None  # governed UAVs; None = every non-piloted aircraft with a goal
+    goal_gain_per_s: float = Field(0.5, gt=0.0)  # [1/s] uav_none: v = sat(k (goal - x), cruise)
+    min_alt_m: float = 15.0  # [m] vertical geofence: no descent command below it (ENU up)
+    max_alt_m: float = 150.0  # [m] no climb command above it
+    fence_gain_per_s: float = Field(0.5, gt=0.0)  # [1/s] vertical speed allowed = k x distance to fence
+    potential_field: dict[str, Any] = Field(default_factory=dict)  # PotentialFieldParams overrides
+    control_tube: dict[str, Any] = Field(default_factory=dict)  # ControlTubeParams overrides
+
+
+class _UavController(Controller):
+    """Engine glue common to the three methods: observe via the link, step per UAV, emit commands."""
+
+    Params = UavAvoidanceParams
+    period = 0.2  # [s]
+    uses_link = True  # False: the method never looks at the others (uav_none)
+
+    def __init__(self, name: str, params: UavAvoidanceParams, scenario: Any) -> None:
+        super().__init__(name)
+        self.params = params
+        self.uav_ids: list[str] = []
+        self.goal: dict[str, np.ndarray] = {}
+        self.cruise: dict[str, float] = {}
+        self.mode: dict[str, str] = {}
+        self.avoid_decisions = 0
+        self.decisions = 0
+        self.fallbacks = 0
+
+    def setup(self, ctx: RunContext) -> None:
+        backend = ctx.get(self.params.backend)
+        self.link = ctx.get(self.params.link)
+        specs = {a.id: a for a in backend.aircraft}
+        ids = self.params.uavs or [a.id for a in backend.aircraft if a.goal_enu is not None and not a.is_piloted]
+        for uid in ids:
+            self.goal[uid] = np.asarray(specs[uid].goal_enu, float)
+            self.cruise[uid] = float(specs[uid].cruise_speed_mps)
+            self.mode[uid] = "cruise"
+        self.uav_ids = list(ids)
+        self.build_methods()
+        super().setup(ctx)
+
+    def build_methods(self) -> None:
+        """Create the per-UAV method objects (after goals and cruise speeds are known)."""
+
+    def observe(self, ctx: RunContext) -> dict[str, AvoidanceObservation]:
+        s = ctx.snapshot
+        index = s.index()
+        obs = {}
+        for uid in self.uav_ids:
+            k = index.get(uid)
+            if k is None:
+                continue
+            others = self.link.picture(uid, ctx.t, s.position[k]) if self.uses_link else ()
+            obs[uid] = AvoidanceObservation(ctx.t, s.position[k].copy(), s.velocity[k].copy(),
+                                            self.goal[uid], others)
+        return obs
+
+    def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
+        raise NotImplementedError
+
+    def step(self, obs: dict[str, AvoidanceObservation]) -> list[Any]:
+        out: list[Any] = []
+        for uid, o in obs.items():
+            cmd = self.decide(uid, o)
+            self._track_mode(uid, o.t, cmd.avoiding)
+            v = np.asarray(cmd.vel_mps, float)
+            if not np.all(np.isfinite(v)):  # a method failure must never reach the autopilot
+                self.fallbacks += 1
+                self.events.emit(o.t, self.name, "fallback", f"{uid}: non-finite command, hold position", uav=uid)
+                v = np.zeros(3)
+            v = self.fence(o.own_pos, v)
+            out.append(AircraftCommand(uid, VelocityCommand(tuple(float(x) for x in v))))
+        return out
+
+    def fence(self, pos: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Vertical geofence: climb/descent limited to k x the distance to the ceiling/floor, so the
+        avoidance's vertical escape never flies a UAV into the ground (or above the ceiling)."""
+        p = self.params
+        lo = p.fence_gain_per_s * (p.min_alt_m - pos[2])
+        hi = p.fence_gain_per_s * (p.max_alt_m - pos[2])
+        out = v.copy()
+        out[2] = float(np.clip(v[2], lo, hi))
+        return out
+
+    def _track_mode(self, uid: str, t: float, avoiding: bool) -> None:
+        self.decisions += 1
+        self.avoid_decisions += int(avoiding)
+        new = "avoid" if avoiding else "cruise"
+        if new != self.mode[uid]:
+            self.events.emit(t, self.name, "mode", f"{uid}: {self.mode[uid]} -> {new}", uav=uid, mode=new)
+            self.mode[uid] = new
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"avoid_share": self.avoid_decisions / max(self.decisions, 1), "avoid_fallbacks": self.fallbacks}
+
+
+def _saturated_goal_velocity(obs: AvoidanceObservation, gain: float, speed: float) -> np.ndarray:
+    """v = k (goal - x), horizontal norm clipped to ``speed``, vertical to 2 m/s."""
+    v = gain * (obs.goal - obs.own_pos)
+    h = float(np.linalg.norm(v[:2]))
+    if h > speed:
+        v[:2] *= speed / h
+    v[2] = float(np.clip(v[2], -2.0, 2.0))
+    return v
+
+
+class UavNone(_UavController):
+    """No avoidance: straight to the goal at cruise speed (the others are never looked at)."""
+
+    uses_link = False
+
+    def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
+        v = _saturated_goal_velocity(obs, self.params.goal_gain_per_s, self.cruise[uid])
+        return MethodCommand(obs.t, v, False)
+
+
+class PotentialFieldController(_UavController):
+    """``controllers.potential_field.PotentialFieldAvoidance`` per UAV (speed limit = its cruise)."""
+
+    def build_methods(self) -> None:
+        from corridor.controllers.potential_field import PotentialFieldAvoidance, PotentialFieldParams
+
+        base = PotentialFieldParams(**self.params.potential_field)
+        self.methods = {uid: PotentialFieldAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
+                        for uid in self.uav_ids}
+
+    def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
+        return self.methods[uid].step(obs)
+
+
+class ControlTubeController(_UavController):
+    """``controllers.control_tube.ControlTubeAvoidance`` per UAV (one CasADi QP each, warm plans)."""
+
+    def build_methods(self) -> None:
+        from corridor.controllers.control_tube import ControlTubeAvoidance, ControlTubeParams
+        from corridor.vehicles.jsbsim_fleet import quiet_fds
+
+        base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube})
+        self._quiet = quiet_fds
+        self.methods = {uid: ControlTubeAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
+                        for uid in self.uav_ids}
+        self._first = True
+
+    def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
+        if self._first:  # qpOASES prints a licence banner on its first solve in a process
+            self._first = False
+            with self._quiet():
+                return self.methods[uid].step(obs)
+        return self.methods[uid].step(obs)
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        ms = list(self.methods.values())
+        times = [t for m in ms for t in m.solve_times_s]
+        return {**super().finish(ctx),
+                "tube_infeasible_steps": sum(m.infeasible_steps for m in ms),
+                "tube_solver_failures": sum(m.solver_failures for m in ms),
+                "tube_solve_ms_mean": 1e3 * float(np.mean(times)) if times else float("nan")}

@@ -1,0 +1,242 @@
+"""The engine's air backend: a JSBSim fleet (F450 quadcopters, c172x) behind corridor's ``Backend``.
+
+A scenario lists its aircraft under ``backends.<name>.params.aircraft`` (id, model, start ENU, yaw,
+goal / waypoints, cruise speed, role), or lets a generator build them from a few numbers that
+``randomize`` can draw:
+
+- ``encounter``: a pairwise encounter of two quadcopters whose straight paths pass the conflict point
+  at the same instant (geometry 0 head-on, 1 crossing, 2 overtaking), so with no avoidance the pair
+  is a real conflict; optionally a crossing c172x (the piloted intruder UAVs must give way to).
+- ``swarm``: N quadcopters on a circle, each flying to the diametrically opposite point, i.e. all of
+  them swap positions through the common centre at the same time.
+
+Each tick (period = the scenario's ``dt``) the backend applies the autopilot commands found on the bus
+(:class:`AircraftCommand` wrapping an ``autopilot`` command), steps the fleet with its own 120 Hz
+JSBSim sub-steps, and exports the fleet's snapshot block. Yaw angles are ENU (CCW from east).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from corridor.engine import Backend, RunContext
+from corridor.snapshot import Role, WorldSnapshot
+
+from .autopilot import Command, HoldCommand, Hover, WaypointCommand
+
+Vec3 = tuple[float, float, float]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class AircraftSpec(_Frozen):
+    """One aircraft of the scenario. Quadcopters with a ``goal_enu`` are the ones avoidance
+    controllers govern; a c172x follows ``waypoints_enu`` (or holds its yaw/altitude/speed)."""
+
+    id: str
+    model: Literal["F450", "c172x"] = "F450"
+    start_enu: Vec3  # [m]
+    yaw_deg: float = 0.0  # [deg] ENU, CCW from east
+    speed_mps: float = Field(0.0, ge=0.0)  # [m/s] initial speed (c172x: trimmed airspeed, default 50)
+    cruise_speed_mps: float = Field(6.0, gt=0.0)  # [m/s] speed towards the goal / along waypoints
+    goal_enu: Vec3 | None = None  # [m]
+    waypoints_enu: list[Vec3] | None = None  # [m]
+    role: Literal["controlled", "piloted", "other"] = "controlled"
+
+    @property
+    def is_piloted(self) -> bool:
+        return self.model == "c172x" or self.role == "piloted"
+
+    def initial_command(self) -> Command:
+        """Quad: straight to the goal at cruise speed (or hover); c172x: waypoints or a hold."""
+        if self.waypoints_enu:
+            return WaypointCommand(tuple(self.waypoints_enu), self.cruise_speed_mps,
+                                   accept_radius_m=2.0 if self.model == "F450" else 60.0)
+        if self.goal_enu is not None:
+            return WaypointCommand((self.goal_enu,), self.cruise_speed_mps)
+        if self.model == "c172x":
+            return HoldCommand(np.radians(self.yaw_deg), self.start_enu[2], self.speed_mps or 50.0)
+        return Hover()
+
+
+class EncounterSpec(_Frozen):
+    """Two quadcopters meeting at ``conflict_enu`` after ``time_to_conflict_s`` of straight flight.
+
+    A flies along ``course_deg``; B's course is A's plus 180 (head-on), 90 (crossing) or 0
+    (overtaking) degrees, plus ``heading_offset_deg``. In the overtaking geometry B is the faster
+    one (``overtake_speed_mps``) and starts farther back. ``alt_offset_m`` puts B above/below A.
+    """
+
+    geometry: int = Field(0, ge=0, le=2)  # 0 head-on, 1 crossing, 2 overtaking
+    conflict_enu: Vec3 = (0.0, 0.0, 60.0)  # [m]
+    course_deg: float = 0.0  # [deg] ENU course of A
+    heading_offset_deg: float = 0.0  # [deg] added to B's course
+    alt_offset_m: float = 0.0  # [m] B's altitude minus A's
+    speed_mps: float = Field(6.0, gt=0.0)  # [m/s] cruise of A (and of B unless overtaking)
+    overtake_speed_mps: float = Field(7.5, gt=0.0)  # [m/s] B's cruise when overtaking
+    overtake_lead_speed_mps: float = Field(3.0, gt=0.0)  # [m/s] A's cruise when overtaking
+    time_to_conflict_s: float = Field(25.0, gt=0.0)  # [s] of cruise before the conflict point
+    beyond_m: float = Field(120.0, gt=0.0)  # [m] goal distance past the conflict point (faster UAV)
+    piloted: bool = True  # add the crossing c172x
+    piloted_course_deg: float = 90.0  # [deg] relative to A's course
+    piloted_alt_offset_m: float = 30.0  # [m] above the conflict point
+    piloted_time_s: float = 25.0  # [s] when the c172x passes over the conflict point
+    piloted_speed_mps: float = Field(50.0, gt=0.0)  # [m/s]
+
+
+class SwarmSpec(_Frozen):
+    """``n`` quadcopters evenly spaced on a circle, each flying to the opposite point."""
+
+    n: int = Field(20, ge=2, le=250)
+    centre_enu: Vec3 = (0.0, 0.0, 60.0)  # [m]
+    radius_m: float = Field(150.0, gt=0.0)
+    speed_mps: float = Field(6.0, gt=0.0)  # [m/s]
+    alt_jitter_m: float = Field(0.0, ge=0.0)  # [m] +-amplitude of a deterministic altitude pattern
+
+
+def _unit(deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    return np.array([np.cos(a), np.sin(a), 0.0])
+
+
+def _quad(id: str, start: np.ndarray, goal: np.ndarray, speed: float) -> AircraftSpec:
+    d = goal - start
+    return AircraftSpec(id=id, start_enu=tuple(map(float, start)), goal_enu=tuple(map(float, goal)),
+                        yaw_deg=float(np.degrees(np.arctan2(d[1], d[0]))), cruise_speed_mps=speed)
+
+
+def encounter_aircraft(e: EncounterSpec) -> list[AircraftSpec]:
+    """The aircraft of one pairwise encounter (see :class:`EncounterSpec`)."""
+    c = np.asarray(e.conflict_enu, float)
+    rel = {0: 180.0, 1: 90.0, 2: 0.0}[e.geometry]
+    v_a, v_b = e.speed_mps, e.speed_mps
+    if e.geometry == 2:
+        v_a, v_b = e.overtake_lead_speed_mps, e.overtake_speed_mps
+    u_a, u_b = _unit(e.course_deg), _unit(e.course_deg + rel + e.heading_offset_deg)
+    lift = np.array([0.0, 0.0, e.alt_offset_m])
+    # goals: both fly on for the same time after the conflict (the slower one stops shorter), so in
+    # the overtaking geometry the two goals are (beyond_m (1 - v_a / v_b)) apart, not one point
+    beyond_a = e.beyond_m * v_a / max(v_a, v_b)
+    beyond_b = e.beyond_m * v_b / max(v_a, v_b)
+    out = [
+        _quad("uav_a", c - u_a * v_a * e.time_to_conflict_s, c + u_a * beyond_a, v_a),
+        _quad("uav_b", c + lift - u_b * v_b * e.time_to_conflict_s, c + lift + u_b * beyond_b, v_b),
+    ]
+    if e.piloted:
+        u_m = _unit(e.course_deg + e.piloted_course_deg)
+        over = c + np.array([0.0, 0.0, e.piloted_alt_offset_m])
+        start = over - u_m * e.piloted_speed_mps * e.piloted_time_s
+        end = over + u_m * e.piloted_speed_mps * 60.0
+        out.append(AircraftSpec(id="c172", model="c172x", start_enu=tuple(map(float, start)),
+                                yaw_deg=float(e.course_deg + e.piloted_course_deg),
+                                speed_mps=e.piloted_speed_mps, cruise_speed_mps=e.piloted_speed_mps,
+                                waypoints_enu=[tuple(map(float, end))], role="piloted"))
+    return out
+
+
+def swarm_aircraft(s: SwarmSpec) -> list[AircraftSpec]:
+    """The aircraft of a position swap through the centre (see :class:`SwarmSpec`)."""
+    c = np.asarray(s.centre_enu, float)
+    out = []
+    for k in range(s.n):
+        a = 2.0 * np.pi * k / s.n
+        r = s.radius_m * np.array([np.cos(a), np.sin(a), 0.0])
+        dz = np.array([0.0, 0.0, s.alt_jitter_m * np.sin(3.0 * a)])
+        out.append(_quad(f"uav_{k:02d}", c + r + dz, c - r + dz, s.speed_mps))
+    return out
+
+
+@dataclass(frozen=True)
+class AircraftCommand:
+    """A bus command for the air backend: an ``autopilot`` command addressed to one aircraft."""
+
+    aircraft_id: str
+    command: Command
+
+
+class AirBackend(Backend):
+    """JSBSim fleet as an engine backend (registered as ``jsbsim_fleet``)."""
+
+    class Params(_Frozen):
+        aircraft: list[AircraftSpec] = Field(default_factory=list)
+        encounter: EncounterSpec | None = None
+        swarm: SwarmSpec | None = None
+        rate_hz: float = Field(120.0, gt=0.0)  # [Hz] JSBSim integration rate
+
+        @model_validator(mode="after")
+        def _unique_ids(self) -> AirBackend.Params:
+            ids = [a.id for a in self.expanded()]
+            if len(set(ids)) != len(ids):
+                raise ValueError(f"aircraft ids must be unique: {ids}")
+            return self
+
+        def expanded(self) -> list[AircraftSpec]:
+            """Explicit aircraft, then the encounter's, then the swarm's."""
+            out = list(self.aircraft)
+            if self.encounter is not None:
+                out += encounter_aircraft(self.encounter)
+            if self.swarm is not None:
+                out += swarm_aircraft(self.swarm)
+            return out
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.params = params
+        self.period = float(scenario.dt)
+        o = scenario.origin
+        self.origin = (o.lat, o.lon, o.alt)
+        self.aircraft = params.expanded()
+        self.fleet: Any = None
+        self.commands_applied = 0
+
+    # ---- lookup helpers used by the link, the controllers and the monitors ------------------------
+    def spec(self, aircraft_id: str) -> AircraftSpec:
+        return next(a for a in self.aircraft if a.id == aircraft_id)
+
+    def goals(self) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+        """Aircraft id -> (start, goal) [m] of every aircraft that has a goal."""
+        return {a.id: (np.asarray(a.start_enu, float), np.asarray(a.goal_enu, float))
+                for a in self.aircraft if a.goal_enu is not None}
+
+    # ---- Backend ---------------------------------------------------------------------------------
+    def setup(self, ctx: RunContext) -> None:
+        from .jsbsim_fleet import JSBSimFleet
+
+        self.fleet = JSBSimFleet(self.origin, rate_hz=self.params.rate_hz)
+        for a in self.aircraft:
+            role = Role.CONTROLLED if a.role == "controlled" else Role.OTHER
+            self.fleet.add(a.id, a.model, a.start_enu, np.radians(a.yaw_deg), a.speed_mps, role)
+            self.fleet.command(a.id, a.initial_command())
+
+    def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        if self.fleet is None:
+            return
+        for c in commands:
+            if isinstance(c, AircraftCommand) and c.aircraft_id in self.fleet.ids:
+                self.fleet.command(c.aircraft_id, c.command)
+                self.commands_applied += 1
+
+    def tick(self, ctx: RunContext) -> None:
+        self.fleet.step(self.period)
+        self._check_finite()
+
+    def _check_finite(self) -> None:
+        """JSBSim returns NaN once an aircraft hits the ground or leaves its envelope: fail loudly."""
+        raw = self.fleet.state().position
+        bad = ~np.all(np.isfinite(raw), axis=1)
+        if bad.any():
+            ids = [self.fleet.ids[i] for i in np.flatnonzero(bad)]
+            raise RuntimeError(f"JSBSim state of {', '.join(ids)} is not finite at t={self.fleet.t_s:.1f} s "
+                               "(ground impact or loss of control)")
+
+    def snapshot_part(self) -> WorldSnapshot:
+        return WorldSnapshot() if self.fleet is None else self.fleet.snapshot_part()
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"aircraft": len(self.aircraft), "air_commands": self.commands_applied}

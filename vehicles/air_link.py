@@ -1,0 +1,176 @@
+"""The engine's MAVLink link: every aircraft's telemetry as MAVLink 2 bytes over a scenario channel,
+and, per receiving UAV, a filterpy-tracked picture of the other aircraft.
+
+Each COMMUNICATE tick (period 1 / position rate, default 0.1 s) the link
+
+1. takes the air entities of the world snapshot (UAVs and piloted aircraft of the air backend),
+2. publishes what is due (HEARTBEAT 1 Hz, GLOBAL_POSITION_INT + LOCAL_POSITION_NED for UAVs,
+   ADSB_VEHICLE for piloted aircraft) through :class:`~corridor.vehicles.mavlink_link.MavlinkLink`
+   over a :class:`~corridor.channel.Channel` configured from the scenario's ``channels.<name>``,
+3. decodes what the channel delivered (CRC-checked; corrupted bytes are counted and dropped) and
+   keeps, per receiver and source, the newest report.
+
+Avoidance controllers call :meth:`AirLink.picture` at their own period: the buffered reports of that
+receiver are fused into its :class:`~corridor.vehicles.tracking.TrackTable` (one constant-velocity
+Kalman filter per source) and every track is predicted to the query time. Only the newest report
+per source since the previous query is fused: the reports carry position *and* velocity, so an
+intermediate sample 0.1 s older adds almost nothing, and lazy fusion keeps the cost proportional to
+the controllers' rate (the ``none`` variant tracks nothing). Each receiver tracks only its
+``max_tracks`` nearest reporting UAVs (default 8, the control tube's intruder limit) plus every
+piloted aircraft: a swarm's far side cannot matter within an avoidance horizon, and the Kalman
+updates are the link's main cost. Tracks without a report for ``stale_after_s`` are dropped, so a
+silent aircraft disappears from the picture (never ground truth).
+
+The avoidance runs on board each UAV, so its commands go straight to the UAV's own autopilot (the
+command bus), not through a ground-station uplink. The first link tick (t = 0) precedes the first
+world snapshot and publishes nothing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.channel import Channel, ChannelConfig
+from corridor.controllers.uav_models import TrackedAgent
+from corridor.engine import Component, Phase, RunContext
+from corridor.snapshot import Kind
+
+from .mavlink_link import LinkRates, MavlinkLink, TrafficReport
+from .tracking import TrackTable
+
+
+class AirLink(Component):
+    """MAVLink link + per-UAV track tables (registered in BACKENDS as ``mavlink_link``)."""
+
+    phase = Phase.COMMUNICATE
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+
+        backend: str = "air"  # name of the air backend whose aircraft join the link
+        channel: str | None = None  # name in the scenario's ``channels``; None = ChannelConfig()
+        heartbeat_hz: float = Field(1.0, gt=0.0)
+        position_hz: float = Field(10.0, gt=0.0)
+        adsb_hz: float = Field(10.0, gt=0.0)
+        bit_error_rate: float = Field(0.0, ge=0.0, le=0.5)  # per received bit
+        udp_mirror: str | None = None  # e.g. "udpout:127.0.0.1:14550" for a real ground station
+        log_path: str | None = None  # write every sent byte to this raw MAVLink file
+        process_noise: float = Field(2.0, gt=0.0)  # [m^2/s^3] white acceleration density of the CV model
+        meas_noise_m: float = Field(0.5, gt=0.0)  # [m] position measurement std
+        vel_noise_mps: float = Field(0.3, gt=0.0)  # [m/s] velocity measurement std
+        stale_after_s: float = Field(3.0, gt=0.0)  # [s] drop a track without reports for this long
+        sigma_factor: float = Field(3.0, ge=0.0)  # uncertainty radius = factor x position std
+        max_tracks: int = Field(8, ge=1)  # per receiver: nearest reporting UAVs tracked (+ every piloted)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.params = params
+        self.period = 1.0 / params.position_hz
+        if params.channel is not None and params.channel not in scenario.channels:
+            known = ", ".join(scenario.channels) or "none"
+            raise ValueError(f"{name}.params.channel: no channel {params.channel!r} in the scenario (known: {known})")
+        self.cfg = scenario.channels[params.channel] if params.channel else ChannelConfig()
+        o = scenario.origin
+        self.origin = (o.lat, o.lon, o.alt)
+        self.link: MavlinkLink | None = None
+        self.tables: dict[str, TrackTable] = {}
+        self.piloted: set[str] = set()
+        self.log_path = Path(params.log_path) if params.log_path else None
+        self._pending: dict[str, dict[str, TrafficReport]] = {}
+        self.fused = 0
+
+    def setup(self, ctx: RunContext) -> None:
+        p = self.params
+        backend = ctx.get(p.backend)
+        channel = Channel(self.cfg, ctx.rng(f"{self.name}/channel"))
+        self.link = MavlinkLink(
+            channel, self.origin, LinkRates(p.heartbeat_hz, p.position_hz, p.adsb_hz),
+            udp_mirror=p.udp_mirror, log_path=str(self.log_path) if self.log_path else None,
+            bit_error_rate=p.bit_error_rate, rng=ctx.rng(f"{self.name}/bits"),
+        )
+        for a in backend.aircraft:
+            if a.is_piloted:
+                self.link.add_piloted(a.id)
+                self.piloted.add(a.id)
+            else:
+                self.link.add_uav(a.id)
+                self.tables[a.id] = TrackTable(dim=3, process_noise=p.process_noise, meas_noise=p.meas_noise_m,
+                                               stale_after_s=p.stale_after_s, vel_noise=p.vel_noise_mps)
+                self._pending[a.id] = {}
+
+    def tick(self, ctx: RunContext) -> None:
+        s = ctx.snapshot
+        air = (s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT)
+        if air.any():
+            ids = s.ids[air]
+            pos = s.position[air]
+            self.link.channel.set_positions_arrays(ids, pos)
+            self.link.publish(ctx.t, ids, pos, s.velocity[air], s.heading[air])
+        inbox = self.link.receive(ctx.t)
+        for dst, reports in inbox.reports.items():
+            pend = self._pending.get(dst)
+            if pend is None:
+                continue
+            for r in reports:
+                old = pend.get(r.src)
+                if old is None or r.t_meas_s >= old.t_meas_s:
+                    pend[r.src] = r
+
+    def inject(self, t_s: float, src: str, payload: bytes, dst: str | None = None) -> None:
+        """Put raw bytes on the channel (tests: garbage must be counted and dropped)."""
+        self.link.inject(t_s, src, payload, dst)
+
+    def picture(self, uav_id: str, t_s: float, own_pos: np.ndarray | None = None) -> tuple[TrackedAgent, ...]:
+        """The other aircraft as ``uav_id`` knows them at ``t_s``: fused, tracked, predicted.
+
+        With ``own_pos`` [m], only the ``max_tracks`` nearest reporting UAVs (plus every piloted
+        aircraft) are fused; tracks of UAVs that drop out of that set are removed.
+        """
+        table = self.tables[uav_id]
+        chosen = self._nearest(self._pending[uav_id], own_pos)
+        for src in [tid for tid in table.ids if tid not in chosen and tid in self._pending[uav_id]]:
+            table.remove(src)
+        for src, r in chosen.items():
+            if table.update(src, r.t_meas_s, r.p_enu, r.v_enu):
+                self.fused += 1
+        self._pending[uav_id] = {}
+        table.drop_stale(t_s)
+        k = self.params.sigma_factor
+        return tuple(
+            TrackedAgent(tid, tr.pos, tr.vel, k * float(np.sqrt(np.max(np.diag(tr.pos_cov)))),
+                         tid in self.piloted)
+            for tid, tr in table.predict_all(t_s).items()
+        )
+
+    def _nearest(self, pend: dict[str, TrafficReport], own_pos: np.ndarray | None) -> dict[str, TrafficReport]:
+        """Every piloted report plus the ``max_tracks`` UAV reports nearest to ``own_pos``."""
+        n = self.params.max_tracks
+        if own_pos is None or len(pend) <= n:
+            return pend
+        uav = [src for src in pend if src not in self.piloted]
+        dist = np.array([np.linalg.norm(pend[src].p_enu - own_pos) for src in uav])
+        keep = {uav[i] for i in np.argsort(dist, kind="stable")[:n]}
+        return {src: r for src, r in pend.items() if src in keep or src in self.piloted}
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        st = self.link.channel.stats()
+        out = {
+            "link_delivery_ratio": st.delivery_ratio,
+            "link_aoi_mean_s": st.aoi_mean_s,
+            "link_aoi_max_s": st.aoi_max_s,
+            "link_sent": float(st.sent),
+            "link_delivered": float(st.delivered),
+            "link_lost": float(st.lost_random),
+            "link_out_of_range": float(st.out_of_range),
+            "link_fused_reports": float(self.fused),
+        }
+        out.update(self.link.stats("mavlink_"))
+        return out
+
+    def close(self) -> None:
+        if self.link is not None:
+            self.link.close()
