@@ -28,17 +28,12 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.merging_coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
-from corridor.controllers.merging_trajectory import (
-    MotionLimits,
-    feasible_horizon,
-    merge_accel,
-    min_time_to_go,
-)
+from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, min_time_to_go
 from corridor.controllers.safety_layer import SafetyParams, safe_accel
 from corridor.engine import Controller, RunContext
 from corridor.traffic.commands import Release, SetSpeed
 from corridor.traffic.monitors import road_backend
-from corridor.traffic.v2x import CamGenerator, CamMessage, broadcast
+from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracking import TrackTable
 
 RSU = "rsu"
@@ -65,7 +60,7 @@ class V2XMerging(Controller):
         safety: SafetyParams = Field(default_factory=SafetyParams)
         stale_after_s: float = Field(0.6, gt=0)  # [s] older information counts as lost
         send_margin_m: float = Field(100.0, ge=0)  # [m] CAMs are sent this far before the zone
-        release_after_m: float = Field(20.0, ge=0)  # [m] past the merge point: back to SUMO
+        release_after_m: float = Field(20.0, ge=0)  # [m] past the merge point a vehicle stops listening
         sensor_noise_m: float = Field(1.0, ge=0)  # [m] RSU sensor noise on human-driven vehicles
         sensor_noise_mps: float = Field(0.5, ge=0)  # [m/s]
         track_process_noise: float = Field(1.0, gt=0)  # [m/s^2] white acceleration density
@@ -82,9 +77,9 @@ class V2XMerging(Controller):
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: dict[str, TrackTable] = {}  # per controlled vehicle (and the RSU)
         self.entered: dict[str, float] = {}
-        self.earliest: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._senders: set[str] = set()
+        self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
         self.stale_releases = 0
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
@@ -129,7 +124,7 @@ class V2XMerging(Controller):
         on_ramp_edge = np.array([lane.startswith("ramp") for lane in r.lane_id])
         dist = self.x_merge - front_x
         dist[ramp & on_ramp_edge] /= np.cos(np.radians(5.0))  # along the inclined ramp
-        right = np.array([lane in self.right_lanes for lane in r.lane_id])
+        right = np.array([lane in self.right_lanes or lane.startswith(":n_merge") for lane in r.lane_id])
         connected = np.array([i.connected for i in info])
         return {"ids": ids, "dist": dist, "speed": part.speed, "accel": r.accel, "ramp": ramp,
                 "right": right, "connected": connected, "pos": part.position, "heading": part.heading,
@@ -158,7 +153,18 @@ class V2XMerging(Controller):
         msgs = self.cams.build(t, sel, pos[idx], s["speed"][idx], s["accel"][idx], s["heading"][idx],
                                s["lane"][idx], road=["ramp" if s["ramp"][k] else "main" for k in idx],
                                dist_to_merge_m=s["dist"][idx])
-        broadcast(self.channel, msgs)
+        # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicle whose
+        # assigned predecessor sent it), so only those copies are simulated: each is drawn with the
+        # same per-link range, loss and delay as the broadcast copy would be, at O(N) not O(N^2) cost.
+        followers: dict[str, list[str]] = {}
+        for vid, (_, a) in self.assigned.items():
+            if a.pred is not None and vid in self.tracks:
+                followers.setdefault(a.pred, []).append(vid)
+        for m in msgs:
+            src_pos = m.position_m
+            self.channel.send(t, m.sender_id, m, src_pos=src_pos, dst=RSU)
+            for f in followers.get(m.sender_id, ()):
+                self.channel.send(t, m.sender_id, m, src_pos=src_pos, dst=f)
         for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
@@ -198,15 +204,21 @@ class V2XMerging(Controller):
             else:
                 d = float(dist[k] + self.sensor_rng.normal(0, self.p.sensor_noise_m))
                 v = float(max(speed[k] + self.sensor_rng.normal(0, self.p.sensor_noise_mps), 0.1))
+            # earliest physical arrival (full acceleration from the current state): from standstill
+            # this stays finite, unlike d / v, so a stopped vehicle never gets a slot far away
+            earliest = t + min_time_to_go(max(d, 0.0), v, self.p.limits)
             if vid not in self.entered:
-                self.entered[vid] = t
-                window = feasible_horizon(v, max(d, 1.0), self.p.limits) if s["connected"][k] else None
-                self.earliest[vid] = t + (window[0] if window else d / v)
-            earliest = max(self.earliest[vid], t + min_time_to_go(max(d, 0.0), v, self.p.limits))
-            if not s["connected"][k]:
-                earliest = t + d / v  # a human driver keeps their own pace
+                # first come, first served *at the merge point*: rank by the arrival time expected
+                # at zone entry (ranking by entry time would let slow ramp traffic hold the mainline)
+                self.entered[vid] = earliest
             zone.append(ZoneVehicle(vid, "ramp" if s["ramp"][k] else "main", d, v, earliest, self.entered[vid]))
             index[vid] = k
+        for z in zone:  # age of information at the RSU, sampled per tick over coordinated vehicles
+            if z.id in rsu:
+                age = t - rsu.last_update_s(z.id)
+                self._aoi_sum += age
+                self._aoi_n += 1
+                self._aoi_max = max(self._aoi_max, age)
         if not zone:
             return {}
         times = self.coord.assign(t, zone)
@@ -229,13 +241,19 @@ class V2XMerging(Controller):
         live = {v: k for k, v in enumerate(ids)}
         for vid in list(self.controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
-            if k is None or dist[k] < -self.p.release_after_m:
+            if k is None or dist[k] < 0:  # past the nose: SUMO's lane-change model completes the merge
                 self.controlled.discard(vid)
                 if k is not None:
                     cmds.append(Release(vid))
         for vid, (_t_recv, a) in list(self.assigned.items()):
             k = live.get(vid)
             if k is None or dist[k] < 0:
+                continue
+            if not (s["ramp"][k] or s["right"][k]):  # changed to the left lane: out of the conflict
+                if vid in self.controlled:
+                    self.controlled.discard(vid)
+                    cmds.append(Release(vid))
+                del self.assigned[vid]
                 continue
             if t - a.t_sent_s > self.p.stale_after_s:  # the RSU went quiet: onboard car-following
                 self._fallback(t, vid, cmds)
@@ -249,8 +267,9 @@ class V2XMerging(Controller):
                     continue
                 lead_len = float(length[live[a.pred]]) if a.pred in live else 5.0
                 gap = float(dist[k]) + float(trk.pos[0]) - lead_len  # both projected on the merge point
-                self.min_virtual_gap = min(self.min_virtual_gap, gap)
-                acc = safe_accel(gap, float(speed[k]), max(float(trk.vel[0]), 0.0), acc, self.p.safety)
+                if gap > -lead_len:  # the predecessor is ahead of (or beside) the ego: keep a safe gap
+                    self.min_virtual_gap = min(self.min_virtual_gap, gap)
+                    acc = safe_accel(gap, float(speed[k]), max(float(trk.vel[0]), 0.0), acc, self.p.safety)
             v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
             cmds.append(SetSpeed(vid, v_next))
             self.controlled.add(vid)
@@ -271,7 +290,8 @@ class V2XMerging(Controller):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         st = self.channel.stats()
-        return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_aoi_mean_s": st.aoi_mean_s,
-                "v2x_aoi_max_s": st.aoi_max_s, "v2x_sent": st.sent, "v2x_fallbacks": self.stale_releases,
-                "v2x_commands": self.commands_sent, "coordinator_max_shift": self.coord.max_shift_seen,
+        aoi_mean = self._aoi_sum / self._aoi_n if self._aoi_n else np.nan
+        return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_aoi_mean_s": aoi_mean,
+                "v2x_aoi_max_s": self._aoi_max if self._aoi_n else np.nan, "v2x_sent": st.sent, "v2x_fallbacks": self.stale_releases,
+                "v2x_commands": self.commands_sent,
                 "min_virtual_gap_m": self.min_virtual_gap if math.isfinite(self.min_virtual_gap) else np.nan}

@@ -10,6 +10,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.safety import lane_leaders, ttc_drac
+from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Phase, RunContext
 from corridor.traffic.sumo_backend import SumoBackend
 
@@ -72,7 +73,9 @@ class SurrogateSafety(Component):
 
 
 class TrafficKpis(Component):
-    """Throughput past a line (the merge end) and travel-time delay by role (mainline / ramp)."""
+    """Throughput past a line (the merge end), travel-time delay by role (mainline / ramp) with
+    Jain's fairness index between the two mean delays, and an energy proxy (mean over arrived
+    vehicles of ∫ a² dt)."""
 
     phase = Phase.DETECT
 
@@ -86,6 +89,7 @@ class TrafficKpis(Component):
         self.period = scenario.road.sumo.step_length
         self.warmup = scenario.warmup
         self.passed = np.zeros(0, dtype=bool)  # per uid
+        self.energy = np.zeros(0)  # per uid: ∫ a² dt [m²/s³] after warm-up
         self.count = 0
 
     def setup(self, ctx: RunContext) -> None:
@@ -98,8 +102,12 @@ class TrafficKpis(Component):
         if n == 0:
             return
         if len(self.passed) < r.n_uids:
-            self.passed = np.concatenate([self.passed, np.zeros(r.n_uids + 256, dtype=bool)])
+            grow = r.n_uids + 256
+            self.passed = np.concatenate([self.passed, np.zeros(grow, dtype=bool)])
+            self.energy = np.concatenate([self.energy, np.zeros(grow)])
         part = r.snapshot_part()
+        if ctx.t >= self.warmup:
+            self.energy[r.uid] += r.accel**2 * self.period
         new = (part.position[:, 0] > self.line_x) & ~self.passed[r.uid]
         self.passed[r.uid[new]] = True
         if ctx.t >= self.warmup:
@@ -116,6 +124,10 @@ class TrafficKpis(Component):
             out[f"delay_{role}_p95_s"] = float(np.percentile(d, 95)) if len(d) else np.nan
             out[f"n_{role}"] = len(d)
         both = np.concatenate(list(delays.values()))
+        means = [out["delay_mainline_mean_s"], out["delay_ramp_mean_s"]]
+        out["delay_jain_index"] = jain_index(np.maximum(means, 0.0)) if all(np.isfinite(means)) else np.nan
+        measured = self.road.measured_uids(self.warmup)
+        out["energy_proxy_mean"] = float(self.energy[measured].mean()) if len(measured) else np.nan
         out["delay_mean_s"] = float(both.mean()) if len(both) else np.nan
         out["delay_total_vh"] = float(both.sum() / 3600.0)
         return out

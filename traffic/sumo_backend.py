@@ -8,6 +8,7 @@ SUMO x/y [m] are used as the scenario's local ENU east/north (the generated netw
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -84,6 +85,9 @@ class SumoBackend(Backend):
         self.new_collisions: list[tuple[float, str, str, str]] = []
         self.teleports: list[tuple[float, str]] = []
         self.commands_ignored = 0
+        # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
+        # place themselves here, so SUMO moves everyone to the same time instant
+        self.pre_step: list[Callable[[RunContext], None]] = []
         self._part = WorldSnapshot()
         # per-vehicle integer ids (uid: order of departure) index static per-uid arrays, so monitors
         # can keep vectorised per-vehicle state (np arrays indexed by uid) instead of Python sets
@@ -147,6 +151,8 @@ class SumoBackend(Backend):
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
         ls = self._ls
+        for hook in self.pre_step:
+            hook(ctx)
         ls.simulationStep()
         t = ls.simulation.getTime()
         sim = ls.simulation.getSubscriptionResults()
@@ -176,7 +182,8 @@ class SumoBackend(Backend):
         ff = sum(length / min(vmax, lim * desired) for length, lim in self._route_ff.get(route, []))
         info = VehicleInfo(
             flow=flow, route=route, role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
-            connected=connected, length=vt.length if vt else 5.0, width=vt.width if vt else 1.8,
+            connected=connected, length=vt.length if vt else ls.vehicle.getLength(vid),
+            width=vt.width if vt else ls.vehicle.getWidth(vid),  # vehicles added by id, not by a flow
             depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff)
         self.info[vid] = info
         k = self._uid_of[vid] = len(self._uid_of)
@@ -278,6 +285,11 @@ class SumoBackend(Backend):
             "merge_failures": sum(1 for _, vid in self.teleports
                                   if vid in self.info and self.info[vid].role == Role.RAMP),
         }
+
+    def measured_uids(self, warmup_s: float) -> np.ndarray:
+        """uids of the vehicles that departed after the warm-up and arrived."""
+        return np.array([self._uid_of[v] for v, i in self.info.items()
+                         if not math.isnan(i.arrive_s) and i.depart_s >= warmup_s], dtype=np.int64)
 
     def delays(self, warmup_s: float) -> dict[str, np.ndarray]:
         """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role."""
