@@ -25,6 +25,7 @@ from corridor.scenario import load
 
 ROOT = Path(__file__).resolve().parent.parent
 BASELINES = ROOT / "tests" / "baselines"
+SAFETY_COUNTS = ("collisions", "nmac")  # counts that must never rise
 DEFAULT_SHORT_S = 60.0  # [s] simulated per baseline run unless the scenario is shorter
 
 
@@ -94,8 +95,9 @@ def check(path: Path) -> list[str]:
         if cur["status"] != "ok":
             problems.append(f"{run_id}: {cur['status']}: {cur.get('error', '')}")
             continue
-        if cur["collisions"] > base["collisions"]:
-            problems.append(f"{run_id}: collisions rose from {base['collisions']} to {cur['collisions']}")
+        for count in SAFETY_COUNTS:
+            if count in base and cur.get(count, 0) > base[count]:
+                problems.append(f"{run_id}: {count} rose from {base[count]:g} to {cur.get(count, 0):g}")
         for k, v in base.items():
             if k.startswith("spec.") and k.endswith(".space") and cur.get(k, -math.inf) < v - 1e-6:
                 problems.append(f"{run_id}: {k} dropped from {v} to {cur.get(k)}")
