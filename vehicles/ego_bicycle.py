@@ -1,0 +1,164 @@
+"""The ego vehicle in SUMO: a kinematic bicycle integrated by corridor and placed into SUMO every step.
+
+Why a backend of its own: the ego's dynamics are corridor's (the shared ``f(x, u, p)`` with RK4 from
+``controllers.bicycle``, the very model the MPC plans with), not SUMO's car-following model.  SUMO only
+*shows* the ego to its traffic: the ego is inserted with ``vehicle.add`` (id ``ego``) and, right before
+every ``simulationStep`` (the SUMO backend's ``pre_step`` hook), integrated by one step and put at its
+new pose with ``moveToXY`` (keepRoute=2, SUMO angle = 90 - degrees(yaw), front-bumper position).  So
+after the step SUMO's row of the ego and every SUMO vehicle refer to the same instant, SUMO traffic
+reacts to the ego (followers brake for it, it is a leader on whichever lane it is mapped to), and
+SUMO's collision check sees it (its SUMO length and width are set to the bicycle's box).
+
+The snapshot holds the ego once: this backend emits no snapshot part; the SUMO row stands for it and
+is marked ``Role.CONTROLLED``, which makes the kernel's collision monitor box-check it against every
+other entity in addition to SUMO's own collision report (collisions are checked in both directions).
+
+Inputs arrive on the command bus as ``EgoInput`` (zero-order hold until the next one).  Other vehicles
+of the scenario that must start next to the ego (the slow lead, close followers) are inserted with it
+(``companions``), SUMO-driven, with an optional maximum speed (``vehicle.setMaxSpeed``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.controllers.bicycle import BicycleParams, clip_input, rk4_step
+from corridor.engine import Backend, RunContext
+from corridor.traffic.sumo_backend import SumoBackend
+
+SPEED_MODE_NONE = 0  # SUMO speed mode without any safety check (corridor owns the dynamics)
+LANE_CHANGE_MODE_NONE = 0  # no autonomous lane changes by SUMO
+
+
+@dataclass(frozen=True)
+class EgoInput:
+    """Longitudinal acceleration [m/s^2] and front steering angle [rad] for the ego ``vid``."""
+
+    vid: str
+    accel_mps2: float
+    steer_rad: float
+
+
+class CompanionSpec(BaseModel):
+    """A SUMO-driven vehicle inserted together with the ego, ``offset_m`` ahead of it along its route."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    route: str = "east"
+    vtype: str = "car"
+    offset_m: float = 30.0  # [m] front bumper relative to the ego's front bumper (negative: behind)
+    speed_mps: float = Field(15.0, ge=0.0)  # [m/s] at insertion (at most max_speed_mps)
+    max_speed_mps: float | None = Field(None, gt=0.0)  # [m/s] vehicle.setMaxSpeed (None: the vType's)
+
+
+class EgoBicycle(Backend):
+    """A kinematic-bicycle ego driven by ``EgoInput`` commands and mirrored into SUMO each step.
+
+    ``state`` is the rear-axle state ``(x [m], y [m], yaw [rad], v [m/s])`` in the ENU frame (SUMO x/y);
+    ``active`` tells whether the ego is on the road (it departs at ``depart_s``).
+    """
+
+    class Params(BaseModel):
+        model_config = ConfigDict(frozen=True, extra="forbid")
+
+        vid: str = "ego"
+        route: str = "east"
+        vtype: str = "ego"  # a vehicle type of road.demand.vehicle_types (SUMO's view: decel, ...)
+        depart_s: float = Field(0.0, ge=0.0)  # [s]
+        depart_pos_m: float = Field(100.0, ge=0.0)  # [m] front bumper along the route
+        depart_speed_mps: float = Field(15.0, ge=0.0)  # [m/s]
+        bicycle: BicycleParams = BicycleParams()
+        companions: dict[str, CompanionSpec] = Field(default_factory=dict)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.p = params
+        self.vid = params.vid
+        self.period = scenario.road.sumo.step_length if scenario.road else scenario.dt
+        self.state = np.zeros(4)
+        self.active = False
+        self.departed_s = math.nan
+        self._u = np.zeros(2)
+        self.sumo: SumoBackend | None = None
+
+    # ------------------------------------------------------------------ set-up
+    def setup(self, ctx: RunContext) -> None:
+        sumo = next((b for b in ctx.backends() if isinstance(b, SumoBackend)), None)
+        if sumo is None:
+            raise ValueError(f"{self.name}: the ego bicycle needs a road (SUMO) backend: add `road:`")
+        if abs(sumo.period - self.period) > 1e-9:
+            raise ValueError(f"{self.name}: period {self.period} s must equal SUMO's step {sumo.period} s")
+        self.sumo = sumo
+        sumo.pre_step.append(self._pre_step)
+        self._insert(sumo.libsumo)
+
+    def _insert(self, ls: Any) -> None:
+        """Queue the ego and its companions for insertion at ``depart_s``."""
+        p = self.p
+        depart = f"{p.depart_s:g}"
+        ls.vehicle.add(self.vid, p.route, typeID=p.vtype, depart=depart, departLane="0",
+                       departPos=f"{p.depart_pos_m:g}", departSpeed=f"{p.depart_speed_mps:g}")
+        ls.vehicle.setLength(self.vid, p.bicycle.length_m)  # SUMO's box = the bicycle's box
+        ls.vehicle.setWidth(self.vid, p.bicycle.width_m)
+        ls.vehicle.setSpeedMode(self.vid, SPEED_MODE_NONE)
+        ls.vehicle.setLaneChangeMode(self.vid, LANE_CHANGE_MODE_NONE)
+        for cid, c in p.companions.items():
+            speed = c.speed_mps if c.max_speed_mps is None else min(c.speed_mps, c.max_speed_mps)
+            ls.vehicle.add(cid, c.route, typeID=c.vtype, depart=depart, departLane="0",
+                           departPos=f"{max(p.depart_pos_m + c.offset_m, 0.0):g}", departSpeed=f"{speed:g}")
+            if c.max_speed_mps is not None:
+                ls.vehicle.setMaxSpeed(cid, c.max_speed_mps)
+
+    # ------------------------------------------------------------------ the step
+    def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        for c in commands:
+            if isinstance(c, EgoInput) and c.vid == self.vid:
+                self._u = np.array([c.accel_mps2, c.steer_rad], dtype=float)
+
+    def _pre_step(self, ctx: RunContext) -> None:
+        """Before SUMO's step: start from SUMO's insertion pose once, else integrate; then place."""
+        sumo = self.sumo
+        assert sumo is not None
+        if not self.active:
+            if self.vid not in sumo.active:
+                return
+            self._start(sumo.libsumo, ctx.t)
+        self.state = rk4_step(self.state, clip_input(self._u, self.p.bicycle), self.period, self.p.bicycle)
+        self.state[3] = max(float(self.state[3]), 0.0)  # brakes stop the car, never reverse it
+        self._place(sumo.libsumo)
+
+    def _start(self, ls: Any, t_s: float) -> None:
+        """Take over the ego where SUMO inserted it (front bumper and angle -> rear axle)."""
+        fx, fy = ls.vehicle.getPosition(self.vid)
+        yaw = math.radians(90.0 - ls.vehicle.getAngle(self.vid))
+        back = 0.5 * self.p.bicycle.length_m + 0.5 * self.p.bicycle.wheelbase_m  # front bumper -> rear axle
+        self.state = np.array([fx - back * math.cos(yaw), fy - back * math.sin(yaw), yaw,
+                               ls.vehicle.getSpeed(self.vid)])
+        self.active, self.departed_s = True, t_s
+        self.sumo.controlled.add(self.vid)  # SUMO row = the ego: role CONTROLLED, box-checked
+
+    def front_bumper(self) -> tuple[float, float]:
+        """ENU (x, y) [m] of the front bumper centre, the point SUMO positions vehicles by."""
+        x, y, yaw, _ = self.state
+        ahead = 0.5 * self.p.bicycle.wheelbase_m + 0.5 * self.p.bicycle.length_m
+        return float(x + ahead * math.cos(yaw)), float(y + ahead * math.sin(yaw))
+
+    def _place(self, ls: Any) -> None:
+        fx, fy = self.front_bumper()
+        angle_deg = 90.0 - math.degrees(float(self.state[2]))
+        ls.vehicle.moveToXY(self.vid, "", -1, fx, fy, angle_deg, 2)
+
+    def tick(self, ctx: RunContext) -> None:
+        """After SUMO's step: notice when the ego left the network (end of its route)."""
+        if self.active and self.sumo is not None and self.vid not in self.sumo.active:
+            self.active = False
+            ctx.events.emit(ctx.t, self.name, "ego_left", f"{self.vid} left the network")
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"ego_departed_s": self.departed_s, "ego_final_x_m": float(self.state[0])}
+
