@@ -52,7 +52,8 @@ def distribution_plot(ok: pd.DataFrame, column: str, title: str) -> str:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6.5, 3.2))
-    groups = [(v, pd.to_numeric(g[column], errors="coerce").dropna().to_numpy()) for v, g in ok.groupby("variant", sort=False)]
+    groups = [(v, pd.to_numeric(g[column], errors="coerce").dropna().to_numpy(dtype=float))
+              for v, g in ok.groupby("variant", sort=False)]
     groups = [(v, x) for v, x in groups if len(x)]
     if not groups:
         plt.close(fig)
