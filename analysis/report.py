@@ -106,7 +106,8 @@ def collision_table(df: pd.DataFrame) -> str:
 
 def problem_runs(df: pd.DataFrame) -> str:
     spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
-    bad = df[(df["status"] != "ok") | (df.get("collisions", 0).fillna(0) > 0)]
+    coll = df["collisions"].fillna(0) if "collisions" in df else pd.Series(0, index=df.index)
+    bad = df[(df["status"] != "ok") | (coll > 0)]
     for c in spec_cols:
         bad = pd.concat([bad, df[df[c] == False]])  # noqa: E712 (pandas comparison)
     bad = bad.drop_duplicates("run_id")

@@ -1,0 +1,343 @@
+"""Ramp-metering controllers for the SUMO beltway: ``ramp_none``, ``ramp_alinea`` and ``ramp_mpc``
+(and ``ramp_fixed``, every meter at one rate).
+
+All three read the ``ramp_detectors`` peer (loops, ramp queues) and return meter commands of
+``corridor.traffic.meters`` (applied by the SUMO backend).  They tick every ``tick_s`` (a few
+seconds, so route guidance catches drivers while they are on their origin arterial) and decide new
+rates every ``control_step_s`` (60 s).
+
+* ``ramp_none``: every meter switched off (SUMO's ``off`` program), no guidance.
+* ``ramp_alinea``: one ALINEA per ramp on the occupancy downstream of its merge (``Alinea``, gain
+  ~70 veh/h per %, set point near critical occupancy) with the queue override that keeps each ramp
+  queue under its storage; no guidance.
+* ``ramp_mpc``: the coordinated ramp-metering + route-guidance MPC (``RampMeteringMPC``) on a
+  METANET model of the same ring (``MetanetBeltway``); state from the detectors by a direct mapping
+  (see ``estimate_state``); a solver failure falls back to ALINEA for that step and is logged as a
+  ``fallback`` event and counted.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.controllers.alinea import Alinea, AlineaConfig
+from corridor.engine import Controller, RunContext
+from corridor.traffic.detectors import RampDetectors, RampMeasurement
+from corridor.traffic.meters import (
+    MeterOff,
+    MeterTiming,
+    Reroute,
+    SetMeterRate,
+    guidance_assignments,
+    parse_od_route,
+)
+from corridor.traffic.monitors import road_backend
+from corridor.traffic.ramp_monitors import find_detectors
+
+
+class RampParams(BaseModel):
+    """Settings shared by the ramp controllers."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    tick_s: float = Field(5.0, gt=0)  # [s] controller tick (guidance); a multiple of dt
+    control_step_s: float = Field(60.0, gt=0)  # [s] between metering decisions
+    green_s: float = Field(2.0, gt=0)  # [s] one vehicle per green
+    min_red_s: float = Field(1.0, gt=0)  # [s]
+    open_rate_vph: float = Field(1800.0, gt=0)  # [veh/h] at or above: meter off
+    rate_min_vph: float = Field(240.0, ge=0)  # [veh/h]
+    alinea_gain_vph_per_pct: float = Field(70.0, gt=0)  # K_R
+    alinea_setpoint_pct: float = Field(14.0, gt=0)  # near critical occupancy of the SUMO loops [%]
+    override_frac: float = Field(0.7, gt=0, le=1)  # queue override at this share of storage
+
+
+@dataclass
+class RampObservation:
+    """What a ramp controller sees at one tick."""
+
+    t: float  # [s]
+    ramps: dict[str, RampMeasurement]
+    new_on_origin: dict[int, list[tuple[str, str]]] = field(default_factory=dict)  # (vid, route id)
+
+
+class RampControl(Controller):
+    """Common engine glue: observe the detectors, decide every control step, record rates."""
+
+    Params = RampParams
+
+    def __init__(self, name: str, params: RampParams | None = None, scenario: Any = None) -> None:
+        super().__init__(name)
+        self.p = params or self.Params()
+        self.period = self.p.tick_s
+        self.scenario = scenario
+        self.timing = MeterTiming(self.p.green_s, self.p.min_red_s, self.p.open_rate_vph)
+        self.rates_vph: dict[str, float] = {}
+        self._next_control_s = 0.0
+        self._ctx: RunContext | None = None
+
+    def setup(self, ctx: RunContext) -> None:
+        self.det: RampDetectors = find_detectors(ctx)
+        self._ctx = ctx
+        super().setup(ctx)
+
+    def observe(self, ctx: RunContext) -> RampObservation:
+        info = self.det.road.info
+        fresh = {k: [(v, info[v].route if v in info else "") for v in vids]
+                 for k, vids in self.det.new_on_origin.items()}
+        return RampObservation(t=ctx.t, ramps=self.det.latest, new_on_origin=fresh)
+
+    def step(self, obs: RampObservation) -> list[Any]:
+        cmds: list[Any] = self.guide(obs)
+        if obs.t + 1e-9 < self._next_control_s:
+            return cmds
+        self._next_control_s += self.p.control_step_s
+        new = self.decide(obs)
+        for key, rate in new.items():
+            if key not in self.rates_vph or abs(self.rates_vph[key] - rate) > 1.0:
+                cmds.append(self.meter_command(obs.ramps[key].tls, rate))
+            self.rates_vph[key] = rate
+            if self._ctx is not None:
+                self._ctx.signals.record(f"rate_{key}", obs.t, min(rate, self.p.open_rate_vph))
+        return cmds
+
+    def meter_command(self, tls: str, rate_vph: float) -> Any:
+        return SetMeterRate(tls, rate_vph, self.timing)
+
+    def decide(self, obs: RampObservation) -> dict[str, float]:
+        """New rate [veh/h] per ramp key (>= open rate: meter off)."""
+        return {key: math.inf for key in obs.ramps}
+
+    def guide(self, obs: RampObservation) -> list[Any]:
+        """Route-guidance commands for this tick (none by default)."""
+        return []
+
+
+class RampNone(RampControl):
+    """No control: meters off from the first tick on."""
+
+    def meter_command(self, tls: str, rate_vph: float) -> Any:
+        return MeterOff(tls)
+
+
+class FixedParams(RampParams):
+    fixed_rate_vph: float = Field(600.0, gt=0)  # [veh/h] every meter (>= open_rate_vph: off)
+
+
+class RampFixed(RampControl):
+    """Every meter at one fixed rate (a baseline and a check that a meter really limits ramp flow)."""
+
+    Params = FixedParams
+
+    def decide(self, obs: RampObservation) -> dict[str, float]:
+        return {key: self.p.fixed_rate_vph for key in obs.ramps}
+
+
+class RampAlinea(RampControl):
+    """ALINEA with queue override on every ramp (local feedback, no coordination, no guidance)."""
+
+    def reset(self, rng: np.random.Generator) -> None:
+        super().reset(rng)
+        self.alineas: dict[str, Alinea] = {}
+
+    def _alinea(self, m: RampMeasurement) -> Alinea:
+        if m.key not in self.alineas:
+            p = self.p
+            self.alineas[m.key] = Alinea(AlineaConfig(
+                gain_vph_per_pct=p.alinea_gain_vph_per_pct, setpoint_pct=p.alinea_setpoint_pct,
+                rate_min_vph=p.rate_min_vph, rate_max_vph=p.open_rate_vph, storage_veh=m.storage_veh,
+                override_frac=p.override_frac, period_s=p.control_step_s))
+        return self.alineas[m.key]
+
+    def decide(self, obs: RampObservation) -> dict[str, float]:
+        return {key: self._alinea(m).step(m.occupancy_down_pct, m.queue_veh, m.demand_vph)
+                for key, m in obs.ramps.items()}
+
+
+
+# ---------------------------------------------------------------------------------------------------
+# MPC: coordinated ramp metering + route guidance on METANET
+
+SUMO_DIR_OF_MODEL = ("ccw", "cw")  # METANET direction 0 runs k -> k+1 (SUMO "ccw"), 1 runs k -> k-1
+RHO_FLOOR = 0.1  # [veh/km/lane] lowest density handed to the MPC (empty loops at the start)
+DEFAULT_FD = {"v_free_kmh": 100.0, "rho_crit": 28.0, "a": 1.867, "rho_max": 160.0}  # before calibration
+
+
+class RampMpcParams(RampParams):
+    """Settings of ``ramp_mpc`` (besides the shared ones)."""
+
+    horizon_ctrl_steps: int = Field(4, ge=1)  # 4 x 60 s
+    model_step_s: float = Field(15.0, gt=0)  # [s] METANET step (4 per control step; 10 s: p95 > 2 s here)
+    seg_target_km: float = Field(1.25, gt=0)  # [km] target METANET segment length
+    weight_rate_change: float = Field(0.4, ge=0)
+    weight_split_change: float = Field(0.4, ge=0)
+    compliance: float = Field(0.2, ge=0, le=1)  # largest change of an origin's loop share by guidance
+    storage_frac: float = Field(0.8, gt=0, le=1)  # MPC queue limit = this x ramp storage
+    max_cpu_time_s: float = Field(5.0, gt=0)  # IPOPT time limit per solve [s]; beyond: ALINEA fallback
+    vehicle_length_m: float = Field(5.0, gt=0)  # occupancy -> density: rho = occ[%] 10 / length
+    calibration_file: str | None = "ramp_metering.calibration.json"  # FD fit; see ``load_calibration``
+    guidance: bool = True
+
+
+def load_calibration(name: str | None) -> dict[str, float]:
+    """Fundamental-diagram parameters from a calibration JSON (``corridor.traffic.calibrate``).
+
+    A relative name is looked up in the working directory, its ``scenarios/`` folder and the
+    repository's ``scenarios/`` folder; missing file -> the defaults of ``DEFAULT_FD``.
+    """
+    import json
+    from pathlib import Path
+
+    out = dict(DEFAULT_FD)
+    if not name:
+        return out
+    repo = Path(__file__).resolve().parents[1]
+    for cand in (Path(name), Path("scenarios") / name, repo / "scenarios" / name):
+        if cand.is_file():
+            fit = json.loads(cand.read_text())
+            out.update({k: float(fit[k]) for k in DEFAULT_FD if k in fit})
+            out["source"] = str(cand)  # type: ignore[assignment]
+            break
+    return out
+
+
+def od_matrix(flows: dict[str, Any], n: int) -> np.ndarray:
+    """OD matrix [veh/h] (mean rate of each od_{i}_{j}_{d} flow over its profile, both loops summed)."""
+    od = np.zeros((n, n))
+    for fl in flows.values():
+        parsed = parse_od_route(fl.route)
+        if parsed is None:
+            continue
+        prof = np.asarray(fl.rate_profile(1.0, 1.0), dtype=float)
+        od[parsed[0], parsed[1]] += float(prof[:, 1].mean())
+    return od
+
+
+class DemandForecast:
+    """Expected arterial demand of each interchange [veh/h] from the scenario's flow profiles.
+
+    The MPC is given the demand profile the scenario declares (the expected demand; the realised
+    arrivals are random), like the perfect forecast of Hegyi et al. (2005).
+    """
+
+    def __init__(self, scenario: Any, n: int) -> None:
+        d = scenario.road.demand
+        self.profiles: list[tuple[int, np.ndarray]] = []
+        for fl in d.flows.values():
+            parsed = parse_od_route(fl.route)
+            if parsed is not None:
+                self.profiles.append((parsed[0], np.asarray(fl.rate_profile(scenario.duration, d.scale), float)))
+        self.n = n
+
+    def __call__(self, times_s: np.ndarray) -> np.ndarray:
+        """(len(times), n) demand per interchange."""
+        out = np.zeros((len(times_s), self.n))
+        for i, prof in self.profiles:
+            out[:, i] += np.interp(times_s, prof[:, 0], prof[:, 1])
+        return out
+
+
+def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
+                   vehicle_length_m: float) -> np.ndarray:
+    """METANET state from the detectors by a direct mapping (no filter).
+
+    Density [veh/km/lane] = occupancy [%] x 10 / vehicle length [m] and speed [km/h] of the loops just
+    downstream of merge k and just upstream of the next merge, interpolated linearly over the m
+    segments of the link between them (a missing speed takes the equilibrium speed of the density).
+    Queues are the vehicles on each on-ramp storage (E2).  Densities are floored at ``RHO_FLOOR``: at
+    rho = 0 the derivative of (rho/rho_crit)^a is NaN in CasADi and IPOPT stops at once.
+    """
+    from corridor.controllers.metanet import equilibrium_speed
+
+    rho, v = np.zeros(net.n_seg), np.zeros(net.n_seg)
+    for dirn, d in enumerate(SUMO_DIR_OF_MODEL):
+        hop = 1 if dirn == 0 else -1
+        for k in range(n):
+            a, b = ramps[f"{d}{k}"], ramps[f"{d}{(k + hop) % n}"]
+            for s in range(m):
+                f = (s + 0.5) / m
+                i = (dirn * n + k) * m + s
+                rho[i] = ((1 - f) * a.occupancy_down_pct + f * b.occupancy_up_pct) * 10.0 / vehicle_length_m
+                speeds = [x for x in (a.speed_down_mps, b.speed_up_mps) if math.isfinite(x)]
+                v[i] = 3.6 * float(np.mean(speeds)) if speeds else math.nan
+    rho = np.maximum(rho, RHO_FLOOR)
+    v_eq = equilibrium_speed(rho, net.v_free_kmh, net.rho_crit, net.a)
+    v = np.where(np.isfinite(v), v, v_eq)
+    w = np.array([ramps[f"{SUMO_DIR_OF_MODEL[j % 2]}{j // 2}"].queue_veh for j in range(net.n_orig)])
+    return np.concatenate([rho, v, w])
+
+
+class RampMpc(RampControl):
+    """Coordinated ramp metering + route guidance by METANET MPC, ALINEA fallback on solver failure."""
+
+    Params = RampMpcParams
+
+    def setup(self, ctx: RunContext) -> None:
+        super().setup(ctx)
+        self._build(ctx)
+
+    def _build(self, ctx: RunContext) -> None:
+        from corridor.controllers.metanet import MetanetParams
+        from corridor.controllers.metanet_networks import BeltwayLayout, beltway
+        from corridor.controllers.ramp_mpc import MPCConfig, RampMeteringMPC
+
+        p, lm = self.p, road_backend(ctx).net.landmarks  # peers' setup may not have run yet
+        self.n = n = len(lm["interchanges"])
+        fd = self.fd = load_calibration(p.calibration_file)
+        ring_km = float(np.mean(list(lm["ring_length_m"].values()))) / 1000.0
+        storage = float(lm["interchanges"][0]["ccw"]["ramp_storage_veh"]) * p.storage_frac
+        layout = BeltwayLayout(n_interchanges=n, spacing_km=ring_km / n, seg_target_km=p.seg_target_km,
+                               lanes=int(lm["lanes"]), v_free_kmh=fd["v_free_kmh"], rho_crit=fd["rho_crit"],
+                               a=fd["a"], rho_max=fd["rho_max"], ramp_cap_vph=p.open_rate_vph,
+                               ramp_storage_veh=storage, compliance=p.compliance if p.guidance else 0.0)
+        sc = ctx.scenario
+        self.net = beltway(layout, od_matrix(sc.road.demand.flows, n),
+                           MetanetParams(step_h=p.model_step_s / 3600.0))
+        self.m_seg = self.net.n_seg // (2 * n)
+        cfg = MPCConfig(horizon_ctrl_steps=p.horizon_ctrl_steps, control_step_s=p.control_step_s,
+                        weight_rate_change=p.weight_rate_change, weight_split_change=p.weight_split_change,
+                        rate_min=p.rate_min_vph / p.open_rate_vph, rate_max=1.0,
+                        max_cpu_time_s=p.max_cpu_time_s, occupancy_eff_length_m=p.vehicle_length_m,
+                        alinea_gain_vph_per_pct=p.alinea_gain_vph_per_pct, alinea_override_frac=p.override_frac)
+        self.mpc = RampMeteringMPC(self.net, cfg)
+        self.forecast = DemandForecast(sc, n)
+        self.u_prev = self.net.default_u()
+        self.targets: dict[int, float] = {}
+        self.defaults = {k: float(s) for k, s in enumerate(self.net.split_default)}
+
+    @property
+    def solve_times_s(self) -> list[float]:
+        return self.mpc.solve_times_s if hasattr(self, "mpc") else []
+
+    @property
+    def n_fallbacks(self) -> int:
+        return self.mpc.n_fallbacks if hasattr(self, "mpc") else 0
+
+    def decide(self, obs: RampObservation) -> dict[str, float]:
+        net, mpc = self.net, self.mpc
+        x0 = estimate_state(net, obs.ramps, self.n, self.m_seg, self.p.vehicle_length_m)
+        times = obs.t + np.arange(mpc.n) * self.p.model_step_s
+        keys = [f"{SUMO_DIR_OF_MODEL[int(j) % 2]}{int(j) // 2}" for j in net.metered_idx]
+        occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])
+        res = mpc.solve(x0, self.forecast(times), self.u_prev, occupancy_pct=occ)
+        if res.fallback:
+            self.events.emit(obs.t, self.name, "fallback", f"MPC failed ({res.status}); ALINEA rates this step",
+                             status=res.status, solve_s=res.solve_s)
+        self.u_prev = res.u
+        if self.p.guidance:
+            self.targets = {k: float(s) for k, s in enumerate(res.split)}
+            if self._ctx is not None:
+                for k, s in self.targets.items():
+                    self._ctx.signals.record(f"split_ccw_{k}", obs.t, s)
+        cap = self.p.open_rate_vph
+        return {key: (math.inf if r >= 0.97 * cap else float(r)) for key, r in zip(keys, res.rates_vph)}
+
+    def guide(self, obs: RampObservation) -> list[Any]:
+        if not self.targets:
+            return []
+        fresh = [vr for vids in obs.new_on_origin.values() for vr in vids]
+        moves = guidance_assignments(fresh, self.targets, self.defaults, self.rng)
+        return [Reroute(moves)] if moves else []

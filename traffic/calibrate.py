@@ -1,0 +1,129 @@
+"""Calibrate METANET's fundamental diagram from SUMO detector data of a ramp-metering scenario.
+
+    python -m corridor.traffic.calibrate scenarios/ramp_metering.yaml [--scale 1.1] [--seed 0]
+
+Runs the scenario once without control (``ramp_none``: meters off) with its ``ramp_detectors``,
+collects every mainline loop interval (up- and downstream of each merge) as a point
+(density, flow, speed) per lane, and fits
+
+    V(rho) = v_free exp(-(1/a) (rho / rho_crit)^a)          [km/h], rho [veh/km/lane]
+
+to the (density, speed) points with ``scipy.optimize.least_squares`` (bounded, soft-L1 loss against
+outliers).  Density is occupancy x 10 / vehicle length (SUMO loops report the share of time a vehicle
+body covers the loop).  Capacity per lane is V(rho_crit) rho_crit = v_free rho_crit exp(-1/a).
+The result, the points and the fit error are stored beside the scenario as
+``<name>.calibration.json``; ``ramp_mpc`` reads it when present.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+RHO_MAX_DEFAULT = 160.0  # [veh/km/lane] jam density (not identifiable from loop data; 1000/(l+gap))
+
+
+@dataclass(frozen=True)
+class FdFit:
+    """Fitted fundamental diagram and how well it fits."""
+
+    v_free_kmh: float
+    rho_crit: float  # [veh/km/lane]
+    a: float
+    capacity_vph_per_lane: float
+    rmse_kmh: float
+    n_points: int
+
+    def speed(self, rho: np.ndarray) -> np.ndarray:
+        return self.v_free_kmh * np.exp(-(1.0 / self.a) * (np.asarray(rho) / self.rho_crit) ** self.a)
+
+
+def fit_fundamental_diagram(rho: np.ndarray, v_kmh: np.ndarray, v_free_guess: float = 100.0) -> FdFit:
+    """Least-squares fit of the METANET V(rho) to (density [veh/km/lane], speed [km/h]) points."""
+    rho, v = np.asarray(rho, float), np.asarray(v_kmh, float)
+    ok = np.isfinite(rho) & np.isfinite(v) & (rho > 0)
+    rho, v = rho[ok], v[ok]
+    if len(rho) < 5:
+        raise ValueError(f"need at least 5 detector points with traffic, got {len(rho)}")
+
+    def resid(th: np.ndarray) -> np.ndarray:
+        vf, rc, a = th
+        return vf * np.exp(-(1.0 / a) * (rho / rc) ** a) - v
+
+    x0 = np.array([max(v_free_guess, float(np.percentile(v, 95))), 30.0, 2.0])
+    sol = least_squares(resid, x0, bounds=([30.0, 5.0, 0.5], [200.0, 120.0, 6.0]), loss="soft_l1", f_scale=5.0)
+    vf, rc, a = (float(x) for x in sol.x)
+    rmse = float(np.sqrt(np.mean(resid(sol.x) ** 2)))
+    return FdFit(vf, rc, a, vf * rc * math.exp(-1.0 / a), rmse, len(rho))
+
+
+def detector_points(history: list[tuple[float, str, str, float, float, float]], lanes: int,
+                    vehicle_length_m: float) -> dict[str, np.ndarray]:
+    """Per-lane points from ``RampDetectors.history``: density [veh/km/lane], flow [veh/h/lane], speed."""
+    arr = [(occ, q, v) for _, _, _, occ, q, v in history if q > 0 and math.isfinite(v) and v >= 0]
+    if not arr:
+        return {"rho": np.zeros(0), "q": np.zeros(0), "v_kmh": np.zeros(0)}
+    occ, q, v = (np.asarray(c, float) for c in zip(*arr))
+    return {"rho": occ * 10.0 / vehicle_length_m, "q": q / lanes, "v_kmh": v * 3.6}
+
+
+def collect(scenario_path: Path, seed: int, scale: float, duration_s: float | None) -> tuple[Any, Any]:
+    """Run the scenario once without metering; return (scenario, detectors component)."""
+    from corridor.run import build
+    from corridor.scenario import load
+    from corridor.traffic.detectors import RampDetectors
+
+    sets = ["controllers={ramps: {type: ramp_none}}", f"road.demand.scale={scale}"]
+    if duration_s is not None:
+        sets.append(f"duration={duration_s}")
+    sc, _ = load(scenario_path, sets)
+    with tempfile.TemporaryDirectory(prefix="corridor-cal-") as tmp:
+        sim = build(sc, seed, Path(tmp))
+        sim.run()
+    det = next(c for c in sim.ctx.components.values() if isinstance(c, RampDetectors))
+    return sc, det
+
+
+def calibrate(scenario_path: Path, seed: int = 0, scale: float = 1.0, duration_s: float | None = None,
+              out: Path | None = None) -> Path:
+    """Collect detector points, fit the diagram, write ``<scenario>.calibration.json``; returns its path."""
+    sc, det = collect(scenario_path, seed, scale, duration_s)
+    lanes = int(sc.road.network.params.get("lanes", 2))
+    veh_len = float(next(iter(sc.road.demand.vehicle_types.values())).length)
+    pts = detector_points(det.history, lanes, veh_len)
+    fit = fit_fundamental_diagram(pts["rho"], pts["v_kmh"], sc.road.network.params.get("mainline_speed_mps", 27.8) * 3.6)
+    out = out or scenario_path.with_suffix("").with_suffix(".calibration.json")
+    doc = {"scenario": scenario_path.name, "seed": seed, "demand_scale": scale, "duration_s": sc.duration,
+           "v_free_kmh": fit.v_free_kmh, "rho_crit": fit.rho_crit, "a": fit.a, "rho_max": RHO_MAX_DEFAULT,
+           "capacity_vph_per_lane": fit.capacity_vph_per_lane, "rmse_kmh": fit.rmse_kmh,
+           "n_points": fit.n_points, "vehicle_length_m": veh_len,
+           "points": {k: [round(float(x), 3) for x in v] for k, v in pts.items()}}
+    out.write_text(json.dumps(doc, indent=1))
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scenario", type=Path)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--scale", type=float, default=1.0, help="demand scale (higher: more congested points)")
+    ap.add_argument("--duration", type=float, default=None, help="[s] simulated time (default: scenario's)")
+    ap.add_argument("--out", type=Path, default=None)
+    a = ap.parse_args(argv)
+    path = calibrate(a.scenario, a.seed, a.scale, a.duration, a.out)
+    doc = json.loads(path.read_text())
+    print(f"{path}: v_free={doc['v_free_kmh']:.1f} km/h  rho_crit={doc['rho_crit']:.1f} veh/km/lane  "
+          f"a={doc['a']:.2f}  capacity={doc['capacity_vph_per_lane']:.0f} veh/h/lane  "
+          f"rmse={doc['rmse_kmh']:.1f} km/h  ({doc['n_points']} points)")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,158 @@
+"""SENSE-phase detector reader for the metered beltway: loops and ramp queues per interchange.
+
+Every ``period`` (a few seconds) it samples the ramp queues (E2 lane-area detectors over each on-ramp:
+vehicles on the ramp and halting ones); every ``aggregate_s`` (the loops' own aggregation period of
+the network, ``detector_period_s``) it reads the last completed interval of every E1 loop: occupancy
+[%], flow [veh/h] and mean speed [m/s] up- and downstream of each merge, and the vehicles that passed
+each meter.  The newest values are kept in ``latest`` (one ``RampMeasurement`` per ramp key
+``"{d}{k}"``), so controllers read them as ``ctx.components[...]`` peers, never libsumo.
+
+It also lists vehicles newly seen on each origin arterial (``a{k}_in``), which route guidance may
+switch to the other loop while they are still there (``new_on_origin``, replaced every tick: a
+guiding controller must tick with the same period, as ``ramp_mpc`` does by default).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.engine import Component, Phase, RunContext
+from corridor.traffic.monitors import road_backend
+
+DIRECTIONS = ("ccw", "cw")
+
+
+@dataclass
+class RampMeasurement:
+    """What the detectors of one metered on-ramp (direction d, interchange k) saw."""
+
+    key: str  # "{d}{k}"
+    direction: str
+    interchange: int
+    tls: str
+    storage_veh: float
+    occupancy_down_pct: float = 0.0  # mean over lanes, downstream of the merge [%]
+    flow_down_vph: float = 0.0  # sum over lanes [veh/h]
+    speed_down_mps: float = math.nan  # flow-weighted mean [m/s] (nan: nobody passed)
+    occupancy_up_pct: float = 0.0  # upstream of the merge
+    flow_up_vph: float = 0.0
+    speed_up_mps: float = math.nan
+    ramp_flow_vph: float = 0.0  # vehicles past the meter [veh/h]
+    queue_veh: float = 0.0  # vehicles on the on-ramp storage now [veh]
+    halting_veh: float = 0.0  # of which halting [veh]
+    demand_vph: float = 0.0  # arrivals at the ramp over the last interval (outflow + queue growth)
+    t_loops: float = -math.inf  # [s] end of the loop interval the loop values belong to
+
+
+@dataclass
+class DetectorLog:
+    """Time series of the queue samples (for monitors): t [s] and queue [veh] per ramp key."""
+
+    t: list[float] = field(default_factory=list)
+    queue: dict[str, list[float]] = field(default_factory=dict)
+
+
+class RampDetectors(Component):
+    """Reads the beltway's E1/E2 detectors into ``latest`` (per ramp) and ``log`` (queue samples)."""
+
+    phase = Phase.SENSE
+    period = 5.0  # [s] queue sampling
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True)
+        period_s: float = Field(5.0, gt=0)  # [s] queue sampling period (a multiple of dt)
+        aggregate_s: float | None = Field(None, gt=0)  # [s] loop interval; None = the network's
+
+    def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
+        super().__init__(name)
+        self.p = params or self.Params()
+        self.period = self.p.period_s
+        self.latest: dict[str, RampMeasurement] = {}
+        self.log = DetectorLog()
+        self.new_on_origin: dict[int, list[str]] = {}
+        self._seen_origin: set[str] = set()
+        self.history: list[tuple[float, str, str, float, float, float]] = []  # (t, key, up|down, occ, q, v)
+        self.passed_total: dict[str, int] = {}  # vehicles past each meter so far (completed intervals)
+        self._queue_at_interval: dict[str, float] = {}
+        self._next_aggregate_s = 0.0
+
+    def setup(self, ctx: RunContext) -> None:
+        self.road = road_backend(ctx)
+        lm = self.road.net.landmarks
+        if "interchanges" not in lm:
+            raise ValueError(f"{self.name}: ramp detectors need the beltway network (no interchanges)")
+        self.interchanges = lm["interchanges"]
+        net_params = ctx.scenario.road.network.params if ctx.scenario else {}
+        self.aggregate_s = self.p.aggregate_s or float(net_params.get("detector_period_s", 60.0))
+        self._next_aggregate_s = self.aggregate_s
+        for ic in self.interchanges:
+            for d in DIRECTIONS:
+                r = ic[d]
+                key = f"{d}{ic['index']}"
+                self.latest[key] = RampMeasurement(key=key, direction=d, interchange=int(ic["index"]),
+                                                   tls=r["meter_tls"], storage_veh=float(r["ramp_storage_veh"]))
+                self.log.queue[key] = []
+                self._queue_at_interval[key] = 0.0
+                self.passed_total[key] = 0
+
+    def ramp(self, key: str) -> dict[str, Any]:
+        """Landmark entry (edges, detector ids) of ramp ``"{d}{k}"``."""
+        d = "ccw" if key.startswith("ccw") else "cw"
+        return self.interchanges[int(key[len(d):])][d]
+
+    def tick(self, ctx: RunContext) -> None:
+        ls = self.road.libsumo
+        self._sample_queues(ls, ctx.t)
+        self._sample_origins(ls)
+        if ctx.t + 1e-9 >= self._next_aggregate_s:
+            self._read_loops(ls, ctx.t)
+            self._next_aggregate_s += self.aggregate_s
+
+    def _sample_queues(self, ls: Any, t: float) -> None:
+        self.log.t.append(t)
+        for key, m in self.latest.items():
+            e2 = self.ramp(key)["e2_ramp"]
+            m.queue_veh = float(ls.lanearea.getLastStepVehicleNumber(e2))
+            m.halting_veh = float(ls.lanearea.getLastStepHaltingNumber(e2))
+            self.log.queue[key].append(m.queue_veh)
+
+    def _sample_origins(self, ls: Any) -> None:
+        """Vehicles on each origin arterial not seen before (candidates for route guidance)."""
+        self.new_on_origin = {}
+        for ic in self.interchanges:
+            fresh = [v for v in ls.edge.getLastStepVehicleIDs(ic["origin_edge"]) if v not in self._seen_origin]
+            self._seen_origin.update(fresh)
+            self.new_on_origin[int(ic["index"])] = fresh
+
+    def _read_loops(self, ls: Any, t: float) -> None:
+        """Last completed interval of every loop, aggregated per ramp; ramp demand by conservation."""
+        il = ls.inductionloop
+        span_h = self.aggregate_s / 3600.0
+        for key, m in self.latest.items():
+            r = self.ramp(key)
+            m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps = _loop_group(il, r["e1_downstream"], span_h)
+            m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps = _loop_group(il, r["e1_upstream"], span_h)
+            passed = il.getLastIntervalVehicleNumber(r["e1_ramp"])
+            m.ramp_flow_vph = passed / span_h
+            self.passed_total[key] += int(passed)
+            growth = m.queue_veh - self._queue_at_interval[key]
+            m.demand_vph = max(passed + growth, 0.0) / span_h
+            self._queue_at_interval[key] = m.queue_veh
+            m.t_loops = t
+            self.history.append((t, key, "down", m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps))
+            self.history.append((t, key, "up", m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
+
+
+def _loop_group(il: Any, ids: list[str], span_h: float) -> tuple[float, float, float]:
+    """(mean occupancy [%], total flow [veh/h], flow-weighted speed [m/s]) of loops across lanes."""
+    n = np.array([il.getLastIntervalVehicleNumber(i) for i in ids], dtype=float)
+    occ = np.array([il.getLastIntervalOccupancy(i) for i in ids], dtype=float)
+    spd = np.array([il.getLastIntervalMeanSpeed(i) for i in ids], dtype=float)  # -1 when empty
+    ok = (n > 0) & (spd >= 0)
+    speed = float(np.sum(spd[ok] * n[ok]) / np.sum(n[ok])) if ok.any() else math.nan
+    return float(occ.mean()), float(n.sum() / span_h), speed
