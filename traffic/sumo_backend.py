@@ -275,8 +275,12 @@ class SumoBackend(Backend):
                 v.moveToXY(vid, c.edge, c.lane, c.x, c.y, 90.0 - math.degrees(c.yaw_rad), c.keep_route)
 
     # ------------------------------------------------------------------ metrics
+    def _measured(self, warmup_s: float) -> list[tuple[str, VehicleInfo]]:
+        """Vehicles that departed after the warm-up and arrived (the ones metrics are taken over)."""
+        return [(v, i) for v, i in self.info.items() if not math.isnan(i.arrive_s) and i.depart_s >= warmup_s]
+
     def finish(self, ctx: RunContext) -> dict[str, Any]:
-        arrived = [i for i in self.info.values() if not math.isnan(i.arrive_s) and i.depart_s >= ctx.scenario.warmup]
+        arrived = self._measured(ctx.scenario.warmup)
         return {
             "vehicles_departed": len(self.info),
             "vehicles_arrived": len([i for i in self.info.values() if not math.isnan(i.arrive_s)]),
@@ -288,15 +292,12 @@ class SumoBackend(Backend):
 
     def measured_uids(self, warmup_s: float) -> np.ndarray:
         """uids of the vehicles that departed after the warm-up and arrived."""
-        return np.array([self._uid_of[v] for v, i in self.info.items()
-                         if not math.isnan(i.arrive_s) and i.depart_s >= warmup_s], dtype=np.int64)
+        return np.array([self._uid_of[v] for v, _ in self._measured(warmup_s)], dtype=np.int64)
 
     def delays(self, warmup_s: float) -> dict[str, np.ndarray]:
         """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role."""
         out: dict[str, list[float]] = {"mainline": [], "ramp": []}
-        for i in self.info.values():
-            if math.isnan(i.arrive_s) or i.depart_s < warmup_s:
-                continue
+        for _, i in self._measured(warmup_s):
             d = (i.arrive_s - i.depart_s) + i.depart_delay_s - i.freeflow_s
             out["ramp" if i.role == Role.RAMP else "mainline"].append(d)
         return {k: np.asarray(v) for k, v in out.items()}

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 INF = math.inf
 COMPARISONS = (">", ">=", "<", "<=")
@@ -277,12 +278,13 @@ class Implies(Formula):
 
 
 @dataclass(frozen=True, eq=True)
-class Always(Formula):
-    """``G[a,b] arg``: arg holds at every time in ``t + [a, b]``."""
+class _Temporal(Formula):
+    """A unary temporal operator over ``t + [a, b]`` (G and F differ only in their semantics)."""
 
     arg: Formula
     a: float = 0.0
     b: float = INF
+    symbol: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
         _check_interval(self.a, self.b)
@@ -294,28 +296,21 @@ class Always(Formula):
         return self.b + self.arg.horizon()
 
     def __str__(self) -> str:
-        return f"G{_interval_str(self.a, self.b)}{self.arg}"
+        return f"{self.symbol}{_interval_str(self.a, self.b)}{self.arg}"
 
 
 @dataclass(frozen=True, eq=True)
-class Eventually(Formula):
+class Always(_Temporal):
+    """``G[a,b] arg``: arg holds at every time in ``t + [a, b]``."""
+
+    symbol: ClassVar[str] = "G"
+
+
+@dataclass(frozen=True, eq=True)
+class Eventually(_Temporal):
     """``F[a,b] arg``: arg holds at some time in ``t + [a, b]``."""
 
-    arg: Formula
-    a: float = 0.0
-    b: float = INF
-
-    def __post_init__(self) -> None:
-        _check_interval(self.a, self.b)
-
-    def children(self) -> tuple[Formula, ...]:
-        return (self.arg,)
-
-    def horizon(self) -> float:
-        return self.b + self.arg.horizon()
-
-    def __str__(self) -> str:
-        return f"F{_interval_str(self.a, self.b)}{self.arg}"
+    symbol: ClassVar[str] = "F"
 
 
 @dataclass(frozen=True, eq=True)
