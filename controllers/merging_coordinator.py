@@ -27,10 +27,19 @@ Policies
           (a road's ``w`` can tilt the priority explicitly).  Rolling re-optimisation adapts to
           changing densities without tuning.
 
-Frozen vehicles: a vehicle whose assigned crossing is within ``freeze_s`` of now keeps its time and
-position (its trajectory is committed).  Repair: if a vehicle's reported earliest arrival is later
-than its assigned time by more than ``repair_tol_s`` it and every later vehicle are pushed back
-(keeping the order), in both policies — a slot that cannot be met would be unsafe.
+Frozen vehicles: a vehicle whose assigned crossing is within ``freeze_s`` of now keeps its position
+in the sequence (its trajectory is committed).  Times are re-packed along the sequence on every call
+(both policies): a vehicle keeps its assigned time while that time still respects the headway to its
+predecessor, is at most ``repair_tol_s`` earlier than the vehicle can make, and is at most
+``repack_tol_s`` later than it needs to be; otherwise it gets ``max(earliest, predecessor + headway)``.
+So a missed slot pushes the vehicle and its followers back (a slot that cannot be met would be
+unsafe), and a hole left by a vehicle that changed lanes out of the conflict is closed instead of
+delaying everyone behind it.
+
+The sequence is anchored on the last vehicle that actually crossed: ``assign(..., crossed_s=...)``
+reports the measured crossing times; a vehicle that leaves the zone without crossing (a lane change
+to the far lane) is simply forgotten.  Without ``crossed_s`` (a point-queue model) every vehicle
+that leaves is taken to have crossed at its assigned time.
 """
 
 from __future__ import annotations
@@ -54,6 +63,7 @@ class CoordinatorConfig(BaseModel):
     headway_cross_s: float = Field(2.0, gt=0.0)  # [s] crossing headway, different roads
     freeze_s: float = Field(2.0, ge=0.0)  # [s] assignments this close to now are committed
     repair_tol_s: float = Field(0.3, ge=0.0)  # [s] slack before a missed slot is repaired
+    repack_tol_s: float = Field(0.5, ge=0.0)  # [s] a slot this much later than needed is moved earlier
     max_shift: int = Field(2, ge=0)  # cps: max positions a vehicle may move from its FCFS position
     horizon: int = Field(8, ge=1)  # cps: vehicles re-sequenced at once
     fairness_delay_s: float = Field(10.0, gt=0.0)  # cps: delay scale of the quadratic cost term
@@ -105,9 +115,15 @@ class Coordinator:
         """Required crossing headway [s] of a vehicle on road_b behind one on road_a."""
         return self.cfg.headway_same_s if road_a == road_b else self.cfg.headway_cross_s
 
-    def assign(self, t_s: float, vehicles: list[ZoneVehicle]) -> dict[str, float]:
-        """Crossing times [s] of every vehicle in ``vehicles`` (the zone's current occupants)."""
-        self._drop_departed(vehicles)
+    def assign(
+        self, t_s: float, vehicles: list[ZoneVehicle], crossed_s: dict[str, float] | None = None
+    ) -> dict[str, float]:
+        """Crossing times [s] of every vehicle in ``vehicles`` (the zone's current occupants).
+
+        ``crossed_s``: measured merge-point crossing times of vehicles that crossed since the last
+        call; when given, departed vehicles missing from it left the conflict without crossing.
+        """
+        self._drop_departed(vehicles, crossed_s)
         self._update_earliest(vehicles)
         new = sorted((v for v in vehicles if v.id not in self._ids()), key=lambda v: (v.entered_s, v.id))
         for v in new:
@@ -128,7 +144,7 @@ class Coordinator:
     def _ids(self) -> set[str]:
         return {s.vid for s in self._st.slots}
 
-    def _drop_departed(self, vehicles: list[ZoneVehicle]) -> None:
+    def _drop_departed(self, vehicles: list[ZoneVehicle], crossed_s: dict[str, float] | None) -> None:
         present = {v.id for v in vehicles}
         keep = []
         for s in self._st.slots:
@@ -136,8 +152,9 @@ class Coordinator:
                 keep.append(s)
                 continue
             self._st.n_done += 1
-            if not np.isnan(s.t_s) and (self._st.tail is None or s.t_s >= self._st.tail[0]):
-                self._st.tail = (s.t_s, s.road)
+            t_cross = s.t_s if crossed_s is None else crossed_s.get(s.vid, np.nan)
+            if not np.isnan(t_cross) and (self._st.tail is None or t_cross >= self._st.tail[0]):
+                self._st.tail = (t_cross, s.road)
         self._st.slots = keep
 
     def _update_earliest(self, vehicles: list[ZoneVehicle]) -> None:
@@ -160,14 +177,16 @@ class Coordinator:
         return n
 
     def _retime(self) -> None:
-        """Times along the sequence: keep assigned times unless headway or a missed slot forces later."""
+        """Re-pack times along the sequence; an assigned time is kept while it is still good enough."""
         prev = self._st.tail
         for s in self._st.slots:
             t_head = -np.inf if prev is None else prev[0] + self.headway(prev[1], s.road)
+            t_need = max(s.earliest_s, t_head)
             too_close = s.t_s < t_head - 1e-9
             missed = s.earliest_s > s.t_s + self.cfg.repair_tol_s
-            if np.isnan(s.t_s) or too_close or missed:
-                s.t_s = max(s.earliest_s, t_head)
+            too_late = s.t_s > t_need + self.cfg.repack_tol_s
+            if np.isnan(s.t_s) or too_close or missed or too_late:
+                s.t_s = t_need
             prev = (s.t_s, s.road)
 
     def _track_shift(self) -> None:

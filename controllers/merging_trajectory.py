@@ -233,11 +233,18 @@ def merge_accel(
 
     Within ``min_horizon_s`` of the crossing (or past the merge point) the cubic degenerates, so the
     command is then a proportional speed hold towards ``vf`` (or the current speed when free).
+
+    A fixed terminal speed is capped at ``2·d/T − v0``, the speed a uniform acceleration over the
+    remaining distance ``d`` and time ``T`` ends with: a higher ``vf`` makes the cubic slow down first
+    (below zero speed when the vehicle is close and slow — it would then never start) only to speed
+    up again.
     """
     lim = limits or MotionLimits()
     if tf - t0 < min_horizon_s or x0 >= L:
         target = v0 if vf is None else vf
         return float(np.clip((target - v0) / max(min_horizon_s, 1e-3), lim.a_min_mps2, lim.a_max_mps2))
+    if vf is not None:
+        vf = min(vf, max(2.0 * (L - x0) / (tf - t0) - v0, 0.0))
     a, b, _, _ = cubic_coefficients(x0, v0, tf - t0, L - x0, vf)
     return float(np.clip(b, lim.a_min_mps2, lim.a_max_mps2))
 

@@ -219,9 +219,13 @@ class V2XMerging(Controller):
                 self._aoi_sum += age
                 self._aoi_n += 1
                 self._aoi_max = max(self._aoi_max, age)
+        # vehicles of the sequence that reached the merge point since the last call anchor the next
+        # headway at their measured crossing time; the others left the conflict (lane change)
+        live = dict(zip(ids, dist, strict=True))
+        crossed = {vid: t for vid in self.coord.sequence if vid not in index and live.get(vid, 1.0) <= 0.0}
+        times = self.coord.assign(t, zone, crossed)
         if not zone:
             return {}
-        times = self.coord.assign(t, zone)
         order = self.coord.sequence
         road_of = {z.id: z.road for z in zone}
         for pos_, vid in enumerate(order):

@@ -75,7 +75,11 @@ class SurrogateSafety(Component):
 class TrafficKpis(Component):
     """Throughput past a line (the merge end), travel-time delay by role (mainline / ramp) with
     Jain's fairness index between the two mean delays, and an energy proxy (mean over arrived
-    vehicles of ∫ a² dt)."""
+    vehicles of ∫ a² dt).
+
+    Delay is taken over every vehicle that entered the demand after the warm-up: vehicles that had
+    not arrived when the run ended count with their delay so far (see ``SumoBackend.delays``), and
+    ``insertion_backlog`` is the number still waiting to enter the network at the end."""
 
     phase = Phase.DETECT
 
@@ -118,7 +122,8 @@ class TrafficKpis(Component):
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
         out: dict[str, Any] = {"throughput_vph": self.count / span_h}
-        delays = self.road.delays(self.warmup)
+        delays = self.road.delays(self.warmup, unfinished=True)
+        out["insertion_backlog"] = self.road.backlog()
         for role, d in delays.items():
             out[f"delay_{role}_mean_s"] = float(d.mean()) if len(d) else np.nan
             out[f"delay_{role}_p95_s"] = float(np.percentile(d, 95)) if len(d) else np.nan

@@ -294,13 +294,46 @@ class SumoBackend(Backend):
         """uids of the vehicles that departed after the warm-up and arrived."""
         return np.array([self._uid_of[v] for v, _ in self._measured(warmup_s)], dtype=np.int64)
 
-    def delays(self, warmup_s: float) -> dict[str, np.ndarray]:
-        """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role."""
+    def delays(self, warmup_s: float, unfinished: bool = False) -> dict[str, np.ndarray]:
+        """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role.
+
+        ``unfinished``: also count, with their delay so far (a lower bound), the vehicles that
+        entered the demand after the warm-up but had not arrived when the run ended — those still
+        on the road (elapsed time minus the free-flow time of the distance covered) and those still
+        waiting to be inserted (their insertion delay).  Without them a control that jams the road
+        would look better the fewer vehicles it lets through.
+        """
         out: dict[str, list[float]] = {"mainline": [], "ramp": []}
         for _, i in self._measured(warmup_s):
             d = (i.arrive_s - i.depart_s) + i.depart_delay_s - i.freeflow_s
             out["ramp" if i.role == Role.RAMP else "mainline"].append(d)
+        if unfinished and self._started:
+            for role, d in self._unfinished_delays(warmup_s):
+                out[role].append(d)
         return {k: np.asarray(v) for k, v in out.items()}
+
+    def _unfinished_delays(self, warmup_s: float) -> list[tuple[str, float]]:
+        ls = self._ls
+        t = ls.simulation.getTime()
+        out = []
+        for vid in self.active:
+            i = self.info.get(vid)
+            if i is None or i.depart_s < warmup_s or not math.isnan(i.arrive_s):
+                continue
+            route_len = sum(length for length, _ in self._route_ff.get(i.route, [])) or 1.0
+            done = min(ls.vehicle.getDistance(vid) / route_len, 1.0)
+            role = "ramp" if i.role == Role.RAMP else "mainline"
+            out.append((role, (t - i.depart_s) + i.depart_delay_s - i.freeflow_s * done))
+        for vid in ls.simulation.getPendingVehicles():
+            wait = ls.vehicle.getDepartDelay(vid)
+            if t - wait >= warmup_s:
+                spec = self._flow_of.get(vid.split(".", 1)[0])
+                out.append(("ramp" if spec is not None and spec.route == "ramp" else "mainline", wait))
+        return out
+
+    def backlog(self) -> int:
+        """Vehicles due to depart that SUMO could not insert yet (the road at the origin is full)."""
+        return len(self._ls.simulation.getPendingVehicles()) if self._started else 0
 
     def close(self) -> None:
         if self._started:
