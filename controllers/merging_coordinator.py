@@ -231,13 +231,24 @@ class _CpsSearch:
         return self.best
 
     def _candidates(self, used: set[int], p: int) -> list[int]:
-        """Window indices allowed at global position p (a vehicle at its shift limit must go now)."""
+        """Window indices allowed at global position p (a vehicle at its shift limit must go now).
+
+        Only the first unplaced vehicle of each road is a candidate: vehicles in one lane cannot
+        pass each other, so the search interleaves the two roads' queues (the two-stream merge
+        sequencing problem) and never asks a follower to cross before its leader.
+        """
         free = [i for i in range(len(self.window)) if i not in used]
+        heads = {}
+        for i in free:  # window order within a road is FCFS rank order
+            r = self.window[i].road
+            if r not in heads or self.window[i].rank < self.window[heads[r]].rank:
+                heads[r] = i
+        free = sorted(heads.values(), key=lambda i: self.window[i].rank)
         overdue = [i for i in free if self.window[i].rank + self.k <= p]
         if overdue:
-            return [min(overdue, key=lambda i: self.window[i].rank)]
+            return [overdue[0]]
         ok = [i for i in free if abs(p - self.window[i].rank) <= self.k]
-        return ok or [min(free, key=lambda i: self.window[i].rank)]
+        return ok or [free[0]]
 
     def _bound(self, used: set[int], t_last: float) -> float:
         """Lower bound of the remaining cost: everyone left crosses at least h_min after t_last."""

@@ -5,12 +5,15 @@ Per tick (period 0.1 s), in pipeline order:
 1. *communicate*: connected vehicles near the merge broadcast CAMs over the lossy, delayed channel;
    the RSU and every controlled vehicle update filterpy Kalman tracks (1-D: distance to the merge
    point) from what arrived; the RSU's sensors see human-driven vehicles with noise.
-2. *coordinate*: the RSU gives every vehicle in the control zone a crossing time (``fifo`` or
-   ``cps``, constrained position shifting) and unicasts (time, predecessor) to connected vehicles.
+2. *coordinate*: the RSU gives every vehicle in the control zone a crossing time of the conflict
+   point (part-way along the acceleration lane, ``merge_point_frac``) by ``fifo`` or ``cps``
+   (constrained position shifting), anchored on the measured crossings, and unicasts (time,
+   predecessor) to connected vehicles.
 3. *decide*: each connected vehicle with a fresh assignment applies the closed-form energy-optimal
    acceleration (Rios-Torres & Malikopoulos 2017) capped by the safe-gap bound against its
    predecessor in the crossing order, projected onto the merge point (the "virtual leader" on the
-   other road, as estimated from its own tracks).  With stale information it hands control back to
+   other road, as estimated from its own tracks), and by a constant-time-gap rule that opens the
+   gap the lane change needs.  With stale information it hands control back to
    SUMO's car-following model (the vehicle's onboard sensing of its physical leader), and counts it.
 
 SUMO's safe-speed check (speed mode 31) stays on for commanded vehicles: it is the onboard
@@ -66,7 +69,13 @@ class V2XMerging(Controller):
         track_process_noise: float = Field(1.0, gt=0)  # [m/s^2] white acceleration density
         virtual_leader_m: float = Field(100.0, gt=0)  # [m] safe gap to the other road's predecessor
         #   (projected on the merge point) is enforced within this distance of the merge
-        target_speed_mps: float | None = None  # crossing speed; None: mean speed of the right lane
+        merge_time_gap_s: float = Field(1.0, ge=0)  # [s] bumper-to-bumper time gap kept to the
+        merge_gap_s0_m: float = Field(2.5, ge=0)  # [m]   virtual leader, plus this standstill gap
+        merge_point_frac: float = Field(0.5, ge=0, le=1)  # the conflict point, as a share of the
+        #   acceleration lane past the nose: ramp vehicles reach the stream's speed on the lane first
+        target_speed_mps: float | None = None  # crossing speed; None: mainline speed upstream of the zone
+        comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
+        #   assumes at most this acceleration towards the crossing speed
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -74,6 +83,8 @@ class V2XMerging(Controller):
         self.period = 0.1
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
         self.coord = Coordinator(params.policy, params.coordinator)
+        self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
+        self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: dict[str, TrackTable] = {}  # per controlled vehicle (and the RSU)
         self.entered: dict[str, float] = {}
@@ -89,7 +100,11 @@ class V2XMerging(Controller):
         super().setup(ctx)
         self.road = road_backend(ctx)
         lm = self.road.net.landmarks
-        self.x_merge = float(lm["merge_start_x"])  # [m] the merge point: the ramp nose
+        # [m] the conflict point: part-way along the acceleration lane, where a ramp vehicle moves over
+        # at the stream's speed (at the nose it is still ramp-slow, and a mainline follower would
+        # have to brake to a ramp vehicle that is about to accelerate)
+        nose, end = float(lm["merge_start_x"]), float(lm["merge_end_x"])
+        self.x_merge = nose + self.p.merge_point_frac * (end - nose)
         self.y_rsu = -float(lm["lane_width_m"]) * float(lm["mainline_lanes"])
         self.right_lanes = {"upstream_0", "merge_1"}  # the mainline lane that ramp vehicles join
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"))
@@ -108,8 +123,9 @@ class V2XMerging(Controller):
         if state is None:
             return
         self._communicate(ctx.t, state)
-        zone = self._coordinate(ctx.t, state)
-        ctx.commands.extend(self._decide(ctx.t, state, zone))
+        target = self.p.target_speed_mps or self._stream_speed(state)
+        zone = self._coordinate(ctx.t, state, target)
+        ctx.commands.extend(self._decide(ctx.t, state, zone, target))
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
         """Own-vehicle facts each vehicle knows exactly (GNSS/odometry): distance to the merge, road."""
@@ -153,13 +169,21 @@ class V2XMerging(Controller):
         msgs = self.cams.build(t, sel, pos[idx], s["speed"][idx], s["accel"][idx], s["heading"][idx],
                                s["lane"][idx], road=["ramp" if s["ramp"][k] else "main" for k in idx],
                                dist_to_merge_m=s["dist"][idx])
-        # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicle whose
-        # assigned predecessor sent it), so only those copies are simulated: each is drawn with the
-        # same per-link range, loss and delay as the broadcast copy would be, at O(N) not O(N^2) cost.
+        # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
+        # sender may precede in the crossing order), so only those copies are simulated: each is drawn
+        # with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
+        # O(N^2) cost.  A vehicle listens to the few vehicles ahead of it in the current order (one
+        # more than a re-sequencing can shift), so a new predecessor is already tracked.
         followers: dict[str, list[str]] = {}
-        for vid, (_, a) in self.assigned.items():
-            if a.pred is not None and vid in self.tracks:
-                followers.setdefault(a.pred, []).append(vid)
+        self._listen = {}
+        order = self.coord.sequence
+        for pos_, vid in enumerate(order):
+            if vid not in self.tracks:
+                continue
+            ahead = order[max(0, pos_ - self._listen_depth): pos_]
+            self._listen[vid] = set(ahead)
+            for src in ahead:
+                followers.setdefault(src, []).append(vid)
         for m in msgs:
             src_pos = m.position_m
             self.channel.send(t, m.sender_id, m, src_pos=src_pos, dst=RSU)
@@ -179,13 +203,10 @@ class V2XMerging(Controller):
             table.drop_stale(t)
 
     def _tracks_sender(self, dst: str, src: str) -> bool:
-        """The RSU tracks everyone; a vehicle tracks its predecessor in the crossing order."""
-        if dst == RSU:
-            return True
-        a = self.assigned.get(dst)
-        return a is not None and a[1].pred == src
+        """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
+        return dst == RSU or src in self._listen.get(dst, ())
 
-    def _coordinate(self, t: float, s: dict[str, Any]) -> dict[str, int]:
+    def _coordinate(self, t: float, s: dict[str, Any], target: float) -> dict[str, int]:
         """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
@@ -204,9 +225,13 @@ class V2XMerging(Controller):
             else:
                 d = float(dist[k] + self.sensor_rng.normal(0, self.p.sensor_noise_m))
                 v = float(max(speed[k] + self.sensor_rng.normal(0, self.p.sensor_noise_mps), 0.1))
-            # earliest physical arrival (full acceleration from the current state): from standstill
-            # this stays finite, unlike d / v, so a stopped vehicle never gets a slot far away
-            earliest = t + min_time_to_go(max(d, 0.0), v, self.p.limits)
+            # requested arrival: comfortable acceleration towards the crossing speed (cruise when
+            # faster).  From standstill it stays finite, unlike d / v, so a stopped vehicle never
+            # gets a slot far away; full-throttle arrival times instead would ask every vehicle to
+            # accelerate into its leader, and the misses would reshuffle the schedule each cycle
+            comfort = MotionLimits(v_min_mps=0.0, v_max_mps=max(v, target, 1.0), a_min_mps2=self.p.limits.a_min_mps2,
+                                   a_max_mps2=self.p.comfort_accel_mps2)
+            earliest = t + min_time_to_go(max(d, 0.0), v, comfort)
             if vid not in self.entered:
                 # first come, first served *at the merge point*: rank by the arrival time expected
                 # at zone entry (ranking by entry time would let slow ramp traffic hold the mainline)
@@ -237,11 +262,10 @@ class V2XMerging(Controller):
             self.channel.send(t, RSU, msg, src_pos=np.array([self.x_merge, self.y_rsu, 0.0]), dst=vid)
         return index
 
-    def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int]) -> list[Any]:
+    def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
         cmds: list[Any] = []
         ids, dist, speed, length = s["ids"], s["dist"], s["speed"], s["length"]
         lim = self.p.limits
-        target = self.p.target_speed_mps or self._stream_speed(s)
         live = {v: k for k, v in enumerate(ids)}
         for vid in list(self.controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
@@ -273,12 +297,25 @@ class V2XMerging(Controller):
                 gap = float(dist[k]) + float(trk.pos[0]) - lead_len  # both projected on the merge point
                 if gap > -lead_len:  # the predecessor is ahead of (or beside) the ego: keep a safe gap
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
-                    acc = safe_accel(gap, float(speed[k]), max(float(trk.vel[0]), 0.0), acc, self.p.safety)
+                    v_lead = max(float(trk.vel[0]), 0.0)
+                    acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
+                    acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)
             v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
             cmds.append(SetSpeed(vid, v_next))
             self.controlled.add(vid)
             self.commands_sent += 1
         return cmds
+
+    def _merge_gap_accel(self, gap_m: float, v: float, v_lead: float) -> float:
+        """Constant-time-gap rule towards the virtual leader: open the gap that the lane change needs.
+
+        The safety bound alone lets a follower close to a few metres behind a slow virtual leader;
+        the merging vehicle then finds no gap it may accept (SUMO's lane-change model wants about
+        its car-following gap, ``minGap + v·tau``), both wait for each other and the merge locks up.
+        So the follower also tracks ``s0 + v·h`` with the usual ACC gains (Milanés & Shladover 2014).
+        """
+        g_des = self.p.merge_gap_s0_m + v * self.p.merge_time_gap_s
+        return 0.23 * (gap_m - g_des) + 0.07 * 10.0 * (v_lead - v)
 
     def _fallback(self, t: float, vid: str, cmds: list[Any]) -> None:
         if vid in self.controlled:
@@ -288,7 +325,13 @@ class V2XMerging(Controller):
             self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, SUMO car-following")
 
     def _stream_speed(self, s: dict[str, Any]) -> float:
-        near = s["right"] & ~s["ramp"] & (np.abs(s["dist"]) < 300)
+        """Crossing speed: the mean speed of the mainline just upstream of the control zone.
+
+        Measured where no vehicle is controlled yet: a speed measured inside the zone would feed
+        the controller's own slowing back into its target (the right lane would spiral down).
+        """
+        zone = self.p.coordinator.control_zone_m
+        near = ~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)
         v = float(np.mean(s["speed"][near])) if near.any() else self.p.limits.v_max_mps
         return float(np.clip(v, 8.0, self.p.limits.v_max_mps))
 

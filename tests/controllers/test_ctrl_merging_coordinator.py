@@ -137,3 +137,27 @@ def test_jain_index_values() -> None:
     assert jain_index([0.0, 0.0]) == 1.0
     with pytest.raises(ValueError):
         Coordinator("greedy")  # type: ignore[arg-type]
+
+
+def test_a_vehicle_that_leaves_without_crossing_frees_its_slot() -> None:
+    """A lane change out of the conflict must not hold back the vehicles behind it."""
+    cfg = CoordinatorConfig(control_zone_m=200.0, headway_same_s=1.0, headway_cross_s=2.0, repack_tol_s=0.5)
+    coord = Coordinator("fifo", cfg)
+    vs = [_zv("a", "main", 0.0, cfg), _zv("b", "main", 0.1, cfg, earliest_s=10.1), _zv("c", "main", 0.2, cfg)]
+    assert coord.assign(0.2, vs) == pytest.approx({"a": 10.0, "b": 11.0, "c": 12.0})
+    # a changes lanes (gone, not crossed): b and c move up to what they can make
+    times = coord.assign(0.3, vs[1:], crossed_s={})
+    assert times == pytest.approx({"b": 10.1, "c": 11.1})
+    # b crosses late (measured 10.8 s): c keeps the headway to the measured crossing, not to b's slot
+    times = coord.assign(10.8, vs[2:], crossed_s={"b": 10.8})
+    assert times == pytest.approx({"c": 11.8})
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_cps_never_lets_a_follower_pass_its_leader_on_the_same_road(seed: int) -> None:
+    cfg = CoordinatorConfig(max_shift=2)
+    arr = _arrivals(np.random.default_rng(seed), 0.5, 0.25, 200.0)
+    res = _simulate("cps", arr, cfg)
+    for road in ("main", "ramp"):
+        fcfs = [vid for _, vid, r in arr if r == road]
+        assert [vid for vid in res["order"] if res["crossed"][vid][2] == road] == fcfs
