@@ -17,6 +17,7 @@ JSBSim sub-steps, and exports the fleet's snapshot block. Yaw angles are ENU (CC
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -194,6 +195,7 @@ class AirBackend(Backend):
         self.aircraft = params.expanded()
         self.fleet: Any = None
         self.commands_applied = 0
+        self._wall_t0: float | None = None
 
     # ---- lookup helpers used by the link, the controllers and the monitors ------------------------
     def spec(self, aircraft_id: str) -> AircraftSpec:
@@ -213,6 +215,7 @@ class AirBackend(Backend):
             role = Role.CONTROLLED if a.role == "controlled" else Role.OTHER
             self.fleet.add(a.id, a.model, a.start_enu, np.radians(a.yaw_deg), a.speed_mps, role)
             self.fleet.command(a.id, a.initial_command())
+        self._wall_t0: float | None = None  # started at the first tick: JSBSim loading excluded
 
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
         if self.fleet is None:
@@ -223,6 +226,8 @@ class AirBackend(Backend):
                 self.commands_applied += 1
 
     def tick(self, ctx: RunContext) -> None:
+        if self._wall_t0 is None:
+            self._wall_t0 = time.perf_counter()
         self.fleet.step(self.period)
         self._check_finite()
 
@@ -239,4 +244,10 @@ class AirBackend(Backend):
         return WorldSnapshot() if self.fleet is None else self.fleet.snapshot_part()
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
-        return {"aircraft": len(self.aircraft), "air_commands": self.commands_applied}
+        """Counts, and ``rtf``: the run's real-time factor, simulated seconds per wall-clock second from
+        the first tick to the end (every component's work included, JSBSim model loading excluded).
+        Like ``wall_s`` it is a measurement of the machine, not of the scenario: it varies between
+        otherwise identical runs."""
+        wall_s = time.perf_counter() - self._wall_t0 if self._wall_t0 is not None else float("nan")
+        rtf = self.fleet.t_s / wall_s if wall_s > 0.0 else float("nan")
+        return {"aircraft": len(self.aircraft), "air_commands": self.commands_applied, "rtf": rtf}

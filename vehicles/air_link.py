@@ -28,6 +28,7 @@ world snapshot and publishes nothing.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -139,10 +140,10 @@ class AirLink(Component):
                 self.fused += 1
         self._pending[uav_id] = {}
         table.drop_stale(t_s)
-        k = self.params.sigma_factor
+        k, piloted = self.params.sigma_factor, self.piloted
         return tuple(
-            TrackedAgent(tid, tr.pos, tr.vel, k * float(np.sqrt(np.max(np.diag(tr.pos_cov)))),
-                         tid in self.piloted)
+            TrackedAgent(tid, tr.pos, tr.vel, k * math.sqrt(max(tr.cov[0, 0], tr.cov[1, 1], tr.cov[2, 2])),
+                         tid in piloted)
             for tid, tr in table.predict_all(t_s).items()
         )
 
@@ -152,7 +153,8 @@ class AirLink(Component):
         if own_pos is None or len(pend) <= n:
             return pend
         uav = [src for src in pend if src not in self.piloted]
-        dist = np.array([np.linalg.norm(pend[src].p_enu - own_pos) for src in uav])
+        rel = np.array([pend[src].p_enu for src in uav]) - own_pos
+        dist = np.sqrt(np.einsum("kd,kd->k", rel, rel))
         keep = {uav[i] for i in np.argsort(dist, kind="stable")[:n]}
         return {src: r for src, r in pend.items() if src in keep or src in self.piloted}
 

@@ -9,6 +9,7 @@ pymap3d's (WGS-84, exact, vectorised over numpy arrays); this module only fixes 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import pymap3d
@@ -57,9 +58,35 @@ class Origin:
     def to_enu(
         self, lat_deg: np.ndarray | float, lon_deg: np.ndarray | float, h_m: np.ndarray | float
     ) -> np.ndarray:
-        """Geodetic -> ENU metres; returns shape (..., 3) (a (3,) array for scalars)."""
-        e, n, u = pymap3d.geodetic2enu(lat_deg, lon_deg, h_m, self.lat_deg, self.lon_deg, self.h_m)
-        return np.stack([np.asarray(e, float), np.asarray(n, float), np.asarray(u, float)], axis=-1)
+        """Geodetic -> ENU metres; returns shape (..., 3) (a (3,) array for scalars).
+
+        pymap3d's ``geodetic2enu`` formulas, operation for operation (so the result is bit-identical),
+        with the origin's ECEF point and trigonometry computed once: the flight layer converts the
+        whole fleet at every 120 Hz sub-step, where pymap3d's per-call overhead dominated.
+        """
+        lat = np.radians(lat_deg)
+        lon = np.radians(lon_deg)
+        a, b, (x0, y0, z0), (sin_lat0, cos_lat0, sin_lon0, cos_lon0) = self._frame
+        cos_lat = np.cos(lat)
+        sin_lat = np.sin(lat)
+        n = a**2 / np.hypot(a * cos_lat, b * sin_lat)  # prime-vertical radius of curvature
+        u = (n + h_m) * cos_lat * np.cos(lon) - x0
+        v = (n + h_m) * cos_lat * np.sin(lon) - y0
+        w = (n * (b / a) ** 2 + h_m) * sin_lat - z0
+        t = cos_lon0 * u + sin_lon0 * v
+        east = -sin_lon0 * u + cos_lon0 * v
+        up = cos_lat0 * t + sin_lat0 * w
+        north = -sin_lat0 * t + cos_lat0 * w
+        return np.stack([np.asarray(east, float), np.asarray(north, float), np.asarray(up, float)], axis=-1)
+
+    @cached_property
+    def _frame(self) -> tuple[float, float, tuple[float, float, float], tuple[float, ...]]:
+        """WGS-84 axes [m], the origin in ECEF [m] and sin/cos of its latitude and longitude."""
+        ell = pymap3d.Ellipsoid.from_name("wgs84")
+        lat0, lon0 = np.radians(self.lat_deg), np.radians(self.lon_deg)
+        ecef0 = pymap3d.geodetic2ecef(self.lat_deg, self.lon_deg, self.h_m)
+        trig = (np.sin(lat0), np.cos(lat0), np.sin(lon0), np.cos(lon0))
+        return ell.semimajor_axis, ell.semiminor_axis, ecef0, trig
 
     def to_geodetic(self, enu_m: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """ENU metres (shape (..., 3)) -> (lat [deg], lon [deg], h [m]) arrays of shape (...)."""

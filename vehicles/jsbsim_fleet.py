@@ -62,6 +62,8 @@ _STATE_PROPS = (
     "velocities/v-north-fps", "velocities/v-east-fps", "velocities/v-down-fps",
     "attitude/phi-rad", "attitude/theta-rad", "attitude/psi-rad", "velocities/vt-fps",
 )
+_VEL_COLS = [4, 3, 5]  # v-east, v-north, v-down columns of _STATE_PROPS
+_VEL_SIGN_M_PER_FT = np.array([1.0, 1.0, -1.0]) * M_PER_FT
 _QUAD_STICKS = ("fcs/aileron-cmd-norm", "fcs/elevator-cmd-norm", "fcs/rudder-cmd-norm", "fcs/throttle-cmd-norm")
 _C172_INPUTS = ("ap/heading_setpoint", "ap/altitude_setpoint", "fcs/throttle-cmd-norm")
 
@@ -314,10 +316,10 @@ class JSBSimFleet:
             raw = self._raw[self._quad_rows]
             p, v, euler = self._enu_rows(raw), self._vel_rows(raw), self._euler_rows(raw)
             sticks = self.quad_ap.step(p, v, euler, self.quad_targets, h_s)
-            cols = (sticks.aileron, sticks.elevator, sticks.rudder, sticks.throttle)
-            for q, nodes in enumerate(self._quad_in):
-                for node, col in zip(nodes, cols, strict=True):
-                    node.set_double_value(float(col[q]))
+            rows = np.column_stack([sticks.aileron, sticks.elevator, sticks.rudder, sticks.throttle]).tolist()
+            for nodes, values in zip(self._quad_in, rows, strict=True):
+                for node, value in zip(nodes, values, strict=True):
+                    node.set_double_value(value)
         if self._fw_rows and self._substep % self._fw_every == 0:
             self._control_fixed_wing(self._fw_every * h_s)
 
@@ -352,11 +354,13 @@ class JSBSimFleet:
 
     @staticmethod
     def _vel_rows(raw: np.ndarray) -> np.ndarray:
-        return np.column_stack([raw[:, 4], raw[:, 3], -raw[:, 5]]) * M_PER_FT
+        return raw[:, _VEL_COLS] * _VEL_SIGN_M_PER_FT  # NED [ft/s] -> ENU [m/s]
 
     @staticmethod
     def _euler_rows(raw: np.ndarray) -> np.ndarray:
-        return np.column_stack([raw[:, 6], raw[:, 7], enu_yaw_from_heading(raw[:, 8])])
+        out = raw[:, 6:9].copy()
+        out[:, 2] = enu_yaw_from_heading(raw[:, 8])
+        return out
 
     def _enu(self, row: int) -> np.ndarray:
         return self._enu_rows(self._raw[row : row + 1])[0]

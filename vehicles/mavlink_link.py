@@ -83,9 +83,15 @@ class MavlinkEndpoint:
         )
         return self.pack(self.mav.heartbeat_encode(self.mav_type, autopilot, mode, 0, mavlink2.MAV_STATE_ACTIVE))
 
-    def global_position_int(self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float) -> bytes:
-        """GLOBAL_POSITION_INT: lat/lon [1e-7 deg], alt [mm], relative_alt = ENU up [mm], NED cm/s."""
-        lat, lon, h = self.origin.to_geodetic(np.asarray(p_enu, float))
+    def global_position_int(
+        self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float,
+        geodetic: tuple[float, float, float] | None = None,
+    ) -> bytes:
+        """GLOBAL_POSITION_INT: lat/lon [1e-7 deg], alt [mm], relative_alt = ENU up [mm], NED cm/s.
+
+        ``geodetic`` = (lat [deg], lon [deg], h [m]) of ``p_enu`` when the caller converted a whole
+        fleet at once (the per-message conversion is the costly part of encoding)."""
+        lat, lon, h = geodetic if geodetic is not None else self.origin.to_geodetic(np.asarray(p_enu, float))
         ve, vn, vu = (float(x) for x in v_enu)
         msg = self.mav.global_position_int_encode(
             _ms(t_s), int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(h) * 1e3)),
@@ -100,10 +106,12 @@ class MavlinkEndpoint:
         return self.pack(self.mav.local_position_ned_encode(_ms(t_s), n, e, -u, vn, ve, -vu))
 
     def adsb_vehicle(
-        self, icao: int, callsign: str, p_enu: np.ndarray, v_enu: np.ndarray, tslc_s: int = 0
+        self, icao: int, callsign: str, p_enu: np.ndarray, v_enu: np.ndarray, tslc_s: int = 0,
+        geodetic: tuple[float, float, float] | None = None,
     ) -> bytes:
-        """ADSB_VEHICLE report of a piloted aircraft (geometric altitude, course over ground)."""
-        lat, lon, h = self.origin.to_geodetic(np.asarray(p_enu, float))
+        """ADSB_VEHICLE report of a piloted aircraft (geometric altitude, course over ground);
+        ``geodetic`` as in :meth:`global_position_int`."""
+        lat, lon, h = geodetic if geodetic is not None else self.origin.to_geodetic(np.asarray(p_enu, float))
         ve, vn, vu = (float(x) for x in v_enu)
         flags = (
             mavlink2.ADSB_FLAGS_VALID_COORDS | mavlink2.ADSB_FLAGS_VALID_ALTITUDE
@@ -149,7 +157,7 @@ class MavlinkEndpoint:
 
 def _cm_s(v_mps: float) -> int:
     """[m/s] -> int16 [cm/s], clamped."""
-    return int(np.clip(round(v_mps * 100.0), -32768, 32767))
+    return max(-32768, min(32767, round(v_mps * 100.0)))
 
 
 # ------------------------------------------------------------------------------------------ decoding
@@ -321,6 +329,46 @@ def setpoint_from_message(m: Any, dst: str, t_sent_s: float, t_recv_s: float) ->
     return Setpoint(dst, t_sent_s, t_recv_s, p, v, yaw)
 
 
+@dataclass(frozen=True)
+class _ReportFields:
+    """The receiver-independent part of a TrafficReport (what the datagram says)."""
+
+    sysid: int
+    kind: str
+    t_meas_s: float  # ADS-B: NaN, filled from the send time and ``tslc_s``
+    p_enu: np.ndarray
+    v_enu: np.ndarray
+    yaw_rad: float
+    tslc_s: float = 0.0
+
+    def received(self, src: str, t_sent_s: float, t_recv_s: float) -> TrafficReport:
+        t_meas = t_sent_s - self.tslc_s if self.kind == "adsb" else self.t_meas_s
+        return TrafficReport(src, self.sysid, self.kind, t_sent_s, t_recv_s, t_meas, self.p_enu, self.v_enu,
+                             self.yaw_rad)
+
+
+@dataclass(frozen=True)
+class _Decoded:
+    """One datagram decoded and converted once, shared by every receiver of a copy of its bytes."""
+
+    counters: DecodeCounters
+    report: _ReportFields | None
+    setpoints: tuple[Any, ...]
+
+    @staticmethod
+    def of(msgs: list[Any], counters: DecodeCounters, origin: Origin) -> _Decoded:
+        report = None
+        if msgs:
+            r = report_from_messages(msgs, origin, "", 0.0, 0.0)
+            if r is not None:
+                r.p_enu.flags.writeable = False  # shared by every receiver
+                r.v_enu.flags.writeable = False
+                tslc = next((float(m.tslc) for m in msgs if m.get_type() == "ADSB_VEHICLE"), 0.0)
+                report = _ReportFields(r.sysid, r.kind, r.t_meas_s, r.p_enu, r.v_enu, r.yaw_rad, tslc)
+        sps = tuple(m for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED")
+        return _Decoded(counters, report, sps)
+
+
 # ---------------------------------------------------------------------------------------------- link
 @dataclass(frozen=True)
 class LinkRates:
@@ -392,7 +440,7 @@ class MavlinkLink:
         self._nodes: dict[str, _Node] = {}
         self._by_sysid: dict[int, str] = {}
         self._decoders: dict[str, MavlinkDecoder] = {}
-        self._cache: dict[bytes, tuple[list[Any], DecodeCounters]] = {}
+        self._cache: dict[bytes, _Decoded] = {}
         self._udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if udp_mirror else None
         self._udp_addr = parse_udp_address(udp_mirror) if udp_mirror else None
         self._log = open(log_path, "wb") if log_path else None  # noqa: SIM115 - closed in close()
@@ -447,17 +495,23 @@ class MavlinkLink:
         self, t_s: float, ids: Iterable[str], position: np.ndarray, velocity: np.ndarray, yaw: np.ndarray
     ) -> None:
         """Send every message due at ``t_s`` for the registered aircraft among ``ids`` (struct of
-        arrays in ENU, e.g. a WorldSnapshot's ids/position/velocity/heading); the GCS heartbeat too."""
+        arrays in ENU, e.g. a WorldSnapshot's ids/position/velocity/heading); the GCS heartbeat too.
+        The geodetic conversion is done once for the whole fleet (vectorised)."""
+        lat, lon, h = self.origin.to_geodetic(np.asarray(position, float).reshape(-1, 3))
         for k, id in enumerate(ids):
             node = self._nodes.get(str(id))
             if node is not None and node.kind != "gcs":
-                self._publish_one(t_s, str(id), node, position[k], velocity[k], float(yaw[k]))
+                geo = (float(lat[k]), float(lon[k]), float(h[k]))
+                self._publish_one(t_s, str(id), node, position[k], velocity[k], float(yaw[k]), geo)
         gcs = self._nodes[self.gcs_id]
         if t_s + 1e-9 >= gcs.next_hb_s:
             gcs.next_hb_s = _next_due(gcs.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
             self._send(t_s, self.gcs_id, gcs.endpoint.heartbeat(), None)
 
-    def _publish_one(self, t_s: float, id: str, node: _Node, p: np.ndarray, v: np.ndarray, yaw: float) -> None:
+    def _publish_one(
+        self, t_s: float, id: str, node: _Node, p: np.ndarray, v: np.ndarray, yaw: float,
+        geo: tuple[float, float, float],
+    ) -> None:
         ep, frames = node.endpoint, []
         if node.kind == "uav" and t_s + 1e-9 >= node.next_hb_s:
             node.next_hb_s = _next_due(node.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
@@ -466,9 +520,9 @@ class MavlinkLink:
         if t_s + 1e-9 >= node.next_pos_s:
             node.next_pos_s = _next_due(node.next_pos_s, t_s, 1.0 / rate)
             if node.kind == "uav":
-                frames += [ep.global_position_int(t_s, p, v, yaw), ep.local_position_ned(t_s, p, v)]
+                frames += [ep.global_position_int(t_s, p, v, yaw, geo), ep.local_position_ned(t_s, p, v)]
             else:
-                frames.append(ep.adsb_vehicle(node.icao, node.callsign, p, v))
+                frames.append(ep.adsb_vehicle(node.icao, node.callsign, p, v, geodetic=geo))
         if frames:
             self._send(t_s, id, b"".join(frames), np.asarray(p, float))
 
@@ -491,15 +545,23 @@ class MavlinkLink:
 
     # -------------------------------------------------------------------------------- receiving
     def receive(self, t_s: float) -> Inbox:
-        """Deliver, corrupt (if configured), decode; traffic reports and set-points of this instant."""
+        """Deliver, corrupt (if configured), decode; traffic reports and set-points of this instant.
+
+        A broadcast datagram reaches many receivers as copies of the same bytes: each distinct payload
+        is decoded and converted once per call (:class:`_Decoded`), and its receivers share the result
+        (the counters are still added per received copy, as if every receiver had parsed it)."""
         inbox = Inbox()
         self._cache.clear()
+        decoders, reports = self._decoders, inbox.reports
         for d in self.channel.deliver(t_s):
-            dec = self._decoders.get(d.dst)
+            dec = decoders.get(d.dst)
             if dec is None or not isinstance(d.payload, bytes | bytearray):
                 continue
-            msgs = self._decode(dec, self._corrupt(bytes(d.payload)))
-            self._route(inbox, d, msgs)
+            decoded = self._decode(dec, self._corrupt(bytes(d.payload)))
+            if decoded.report is not None:
+                reports.setdefault(d.dst, []).append(decoded.report.received(d.src, d.t_sent_s, d.t_recv_s))
+            if decoded.setpoints:
+                self._route_setpoints(inbox, d, decoded)
         return inbox
 
     def _corrupt(self, payload: bytes) -> bytes:
@@ -515,25 +577,20 @@ class MavlinkLink:
             buf[b // 8] ^= 1 << (b % 8)
         return bytes(buf)
 
-    def _decode(self, dec: MavlinkDecoder, payload: bytes) -> list[Any]:
-        """Datagram decode, memoised within one receive() for copies of the same bytes."""
+    def _decode(self, dec: MavlinkDecoder, payload: bytes) -> _Decoded:
+        """Datagram decode + conversion, memoised within one receive() for copies of the same bytes."""
         hit = self._cache.get(payload)
         if hit is None:
             scratch = MavlinkDecoder()
             msgs = scratch.decode_datagram(payload)
-            hit = self._cache[payload] = (msgs, scratch.counters)
-        dec.counters.add(hit[1])
-        return hit[0]
+            hit = self._cache[payload] = _Decoded.of(msgs, scratch.counters, self.origin)
+        dec.counters.add(hit.counters)
+        return hit
 
-    def _route(self, inbox: Inbox, d: Any, msgs: list[Any]) -> None:
-        if not msgs:
-            return
-        report = report_from_messages(msgs, self.origin, d.src, d.t_sent_s, d.t_recv_s)
-        if report is not None:
-            inbox.reports.setdefault(d.dst, []).append(report)
+    def _route_setpoints(self, inbox: Inbox, d: Any, decoded: _Decoded) -> None:
         my_sysid = self._nodes[d.dst].endpoint.sysid
-        for m in msgs:
-            if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED" and m.target_system == my_sysid:
+        for m in decoded.setpoints:
+            if m.target_system == my_sysid:
                 inbox.setpoints.append(setpoint_from_message(m, d.dst, d.t_sent_s, d.t_recv_s))
 
     # -------------------------------------------------------------------------------- statistics

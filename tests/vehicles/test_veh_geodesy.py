@@ -57,3 +57,18 @@ def test_units_and_ned() -> None:
     assert m_to_ft(ft_to_m(123.4)) == pytest.approx(123.4)
     assert np.allclose(ned_to_enu(np.array([1.0, 2.0, 3.0])), [2.0, 1.0, -3.0])
     assert np.allclose(ned_to_enu(ned_to_enu(np.eye(3))), np.eye(3))
+
+
+def test_fast_to_enu_is_bit_identical_to_pymap3d() -> None:
+    """Origin.to_enu caches the origin's ECEF point and trigonometry but keeps pymap3d's formulas
+    operation for operation, so the flight layer's numbers do not change (scalars and arrays)."""
+    import pymap3d
+
+    rng = np.random.default_rng(7)
+    lat = ORIGIN.lat_deg + rng.normal(0.0, 0.05, 500)
+    lon = ORIGIN.lon_deg + rng.normal(0.0, 0.05, 500)
+    h = ORIGIN.h_m + rng.uniform(-50.0, 3000.0, 500)
+    ref = np.stack(pymap3d.geodetic2enu(lat, lon, h, ORIGIN.lat_deg, ORIGIN.lon_deg, ORIGIN.h_m), axis=-1)
+    assert np.array_equal(ORIGIN.to_enu(lat, lon, h), ref)
+    one = ORIGIN.to_enu(float(lat[0]), float(lon[0]), float(h[0]))
+    assert one.shape == (3,) and np.array_equal(one, ref[0])

@@ -18,6 +18,7 @@ from corridor.vehicles.mavlink_link import (
     MavlinkEndpoint,
     MavlinkLink,
     parse_udp_address,
+    report_from_messages,
 )
 
 ORIGIN = Origin(47.3769, 8.5417, 408.0)
@@ -227,3 +228,42 @@ def test_udp_mirror_sends_every_datagram() -> None:
     assert parse_udp_address("udpout:127.0.0.1:14550") == ("127.0.0.1", 14550)
     with pytest.raises(ValueError):
         parse_udp_address("tcp:1.2.3.4")
+
+
+def test_shared_decode_gives_every_receiver_what_its_own_parse_gives() -> None:
+    """receive() decodes each distinct datagram once and shares the result among its receivers: the
+    reports and counters must equal those of parsing every delivered copy on its own."""
+    ch, link = _link(ChannelConfig(latency_s=0.05, jitter_s=0.03, loss=BernoulliLoss(p=0.1)))
+    ids = ["u1", "u2", "c172"]
+    pos = np.array([[0.0, 0.0, 30.0], [40.0, 0.0, 30.0], [800.0, 200.0, 300.0]])
+    vel = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
+    own: dict[str, list[tuple]] = {}
+    ref_counts = MavlinkDecoder()  # one decoder fed every copy: the per-copy counters summed
+    original_deliver = ch.deliver
+
+    def deliver_and_parse(t_s: float) -> list:
+        out = original_deliver(t_s)
+        for d in out:  # the reference: a fresh decoder per copy, per-copy conversion
+            msgs = ref_counts.decode_datagram(d.payload)
+            r = report_from_messages(msgs, ORIGIN, d.src, d.t_sent_s, d.t_recv_s)
+            if r is not None:
+                own.setdefault(d.dst, []).append(r)
+        return out
+
+    ch.deliver = deliver_and_parse
+    shared: dict[str, list] = {}
+    for k in range(50):
+        t = k * 0.1
+        link.publish(t, ids, pos + vel * t, vel, np.zeros(3))
+        for dst, reports in link.receive(t).reports.items():
+            shared.setdefault(dst, []).extend(reports)
+    assert set(shared) == set(own) and sum(map(len, shared.values())) > 100
+    for dst in own:
+        assert len(shared[dst]) == len(own[dst])
+        for a, b in zip(shared[dst], own[dst], strict=True):
+            assert (a.src, a.sysid, a.kind, a.t_sent_s, a.t_recv_s, a.t_meas_s) == (
+                b.src, b.sysid, b.kind, b.t_sent_s, b.t_recv_s, b.t_meas_s)
+            assert np.array_equal(a.p_enu, b.p_enu) and np.array_equal(a.v_enu, b.v_enu)
+            assert a.yaw_rad == b.yaw_rad or (np.isnan(a.yaw_rad) and np.isnan(b.yaw_rad))
+    assert link.counters() == ref_counts.counters  # counters still count every received copy
+    assert ref_counts.counters.messages > sum(map(len, own.values()))  # heartbeats are not reports
