@@ -18,6 +18,7 @@ rates every ``control_step_s`` (60 s).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -29,10 +30,12 @@ from corridor.controllers.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, RunContext
 from corridor.traffic.detectors import RampDetectors, RampMeasurement
 from corridor.traffic.meters import (
+    ChoiceSet,
     MeterOff,
     MeterTiming,
     Reroute,
     SetMeterRate,
+    choice_set,
     guidance_assignments,
     parse_od_route,
 )
@@ -51,8 +54,12 @@ class RampParams(BaseModel):
     open_rate_vph: float = Field(1800.0, gt=0)  # [veh/h] at or above: meter off
     rate_min_vph: float = Field(240.0, ge=0)  # [veh/h]
     alinea_gain_vph_per_pct: float = Field(70.0, gt=0)  # K_R
-    alinea_setpoint_pct: float = Field(14.0, gt=0)  # near critical occupancy of the SUMO loops [%]
+    # ALINEA set point [%]; None: the critical occupancy of the calibrated fundamental diagram,
+    # rho_crit [veh/km/lane] x vehicle_length_m / 10 (``setpoint_from_calibration``)
+    alinea_setpoint_pct: float | None = Field(None, gt=0)
     override_frac: float = Field(0.7, gt=0, le=1)  # queue override at this share of storage
+    vehicle_length_m: float = Field(5.0, gt=0)  # occupancy <-> density: rho = occ[%] 10 / length
+    calibration_file: str | None = "ramp_metering.calibration.json"  # FD fit; see ``load_calibration``
 
 
 @dataclass
@@ -142,12 +149,13 @@ class RampAlinea(RampControl):
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
         self.alineas: dict[str, Alinea] = {}
+        self.setpoint_pct = setpoint_from_calibration(self.p)
 
     def _alinea(self, m: RampMeasurement) -> Alinea:
         if m.key not in self.alineas:
             p = self.p
             self.alineas[m.key] = Alinea(AlineaConfig(
-                gain_vph_per_pct=p.alinea_gain_vph_per_pct, setpoint_pct=p.alinea_setpoint_pct,
+                gain_vph_per_pct=p.alinea_gain_vph_per_pct, setpoint_pct=self.setpoint_pct,
                 rate_min_vph=p.rate_min_vph, rate_max_vph=p.open_rate_vph, storage_veh=m.storage_veh,
                 override_frac=p.override_frac, period_s=p.control_step_s))
         return self.alineas[m.key]
@@ -170,15 +178,14 @@ class RampMpcParams(RampParams):
     """Settings of ``ramp_mpc`` (besides the shared ones)."""
 
     horizon_ctrl_steps: int = Field(4, ge=1)  # 4 x 60 s
-    model_step_s: float = Field(15.0, gt=0)  # [s] METANET step (4 per control step; 10 s: p95 > 2 s here)
+    model_step_s: float = Field(20.0, gt=0)  # [s] METANET step (3 per control step; shorter: p95 > 2 s here)
     seg_target_km: float = Field(1.25, gt=0)  # [km] target METANET segment length
     weight_rate_change: float = Field(0.4, ge=0)
     weight_split_change: float = Field(0.4, ge=0)
-    compliance: float = Field(0.2, ge=0, le=1)  # largest change of an origin's loop share by guidance
+    compliance: float = Field(1.0, ge=0, le=1)  # share of drivers with a real choice who follow guidance
+    guidance_extra_hops: int = Field(0, ge=0)  # a trip has a choice if the other loop is <= this longer
     storage_frac: float = Field(0.8, gt=0, le=1)  # MPC queue limit = this x ramp storage
     max_cpu_time_s: float = Field(5.0, gt=0)  # IPOPT time limit per solve [s]; beyond: ALINEA fallback
-    vehicle_length_m: float = Field(5.0, gt=0)  # occupancy -> density: rho = occ[%] 10 / length
-    calibration_file: str | None = "ramp_metering.calibration.json"  # FD fit; see ``load_calibration``
     guidance: bool = True
 
 
@@ -204,6 +211,17 @@ def load_calibration(name: str | None) -> dict[str, float]:
     return out
 
 
+def setpoint_from_calibration(p: RampParams) -> float:
+    """ALINEA set point [%]: the given one, else the critical occupancy of the calibrated diagram.
+
+    SUMO loops report the share of time a vehicle body covers them, so occupancy [%] = density
+    [veh/km/lane] x vehicle length [m] / 10; without a calibration file ``DEFAULT_FD`` is used.
+    """
+    if p.alinea_setpoint_pct is not None:
+        return float(p.alinea_setpoint_pct)
+    return float(load_calibration(p.calibration_file)["rho_crit"]) * p.vehicle_length_m / 10.0
+
+
 def od_matrix(flows: dict[str, Any], n: int) -> np.ndarray:
     """OD matrix [veh/h] (mean rate of each od_{i}_{j}_{d} flow over its profile, both loops summed)."""
     od = np.zeros((n, n))
@@ -214,6 +232,29 @@ def od_matrix(flows: dict[str, Any], n: int) -> np.ndarray:
         prof = np.asarray(fl.rate_profile(1.0, 1.0), dtype=float)
         od[parsed[0], parsed[1]] += float(prof[:, 1].mean())
     return od
+
+
+def od_by_loop(flows: dict[str, Any]) -> dict[tuple[int, int, str], float]:
+    """Mean rate [veh/h] of every od_{i}_{j}_{d} flow, keyed (i, j, d)."""
+    out: dict[tuple[int, int, str], float] = {}
+    for fl in flows.values():
+        parsed = parse_od_route(fl.route)
+        if parsed is not None:
+            prof = np.asarray(fl.rate_profile(1.0, 1.0), dtype=float)
+            out[parsed] = out.get(parsed, 0.0) + float(prof[:, 1].mean())
+    return out
+
+
+def with_guidance_bounds(net: Any, choices: ChoiceSet, compliance: float) -> Any:
+    """The network with split bounds only guidance can reach: s0 - c e_ccw <= s <= s0 + c e_cw.
+
+    The model's split is the share of an origin's drivers on direction 0 (SUMO ``ccw``); guidance
+    moves only drivers with a real choice (``choices``), and only the complying share c of them.
+    """
+    mov = np.array([choices.movable.get(k, (0.0, 0.0)) for k in range(len(net.split_default))])
+    lo = np.clip(net.split_default - compliance * mov[:, 0], 0.0, 1.0)
+    hi = np.clip(net.split_default + compliance * mov[:, 1], 0.0, 1.0)
+    return dataclasses.replace(net, split_lo=lo, split_hi=hi)
 
 
 class DemandForecast:
@@ -292,10 +333,11 @@ class RampMpc(RampControl):
         layout = BeltwayLayout(n_interchanges=n, spacing_km=ring_km / n, seg_target_km=p.seg_target_km,
                                lanes=int(lm["lanes"]), v_free_kmh=fd["v_free_kmh"], rho_crit=fd["rho_crit"],
                                a=fd["a"], rho_max=fd["rho_max"], ramp_cap_vph=p.open_rate_vph,
-                               ramp_storage_veh=storage, compliance=p.compliance if p.guidance else 0.0)
+                               ramp_storage_veh=storage, compliance=0.0)
         sc = ctx.scenario
-        self.net = beltway(layout, od_matrix(sc.road.demand.flows, n),
-                           MetanetParams(step_h=p.model_step_s / 3600.0))
+        self.choices = choice_set(od_by_loop(sc.road.demand.flows), n, p.guidance_extra_hops)
+        net = beltway(layout, od_matrix(sc.road.demand.flows, n), MetanetParams(step_h=p.model_step_s / 3600.0))
+        self.net = with_guidance_bounds(net, self.choices, p.compliance if p.guidance else 0.0)
         self.m_seg = self.net.n_seg // (2 * n)
         cfg = MPCConfig(horizon_ctrl_steps=p.horizon_ctrl_steps, control_step_s=p.control_step_s,
                         weight_rate_change=p.weight_rate_change, weight_split_change=p.weight_split_change,
@@ -339,5 +381,5 @@ class RampMpc(RampControl):
         if not self.targets:
             return []
         fresh = [vr for vids in obs.new_on_origin.values() for vr in vids]
-        moves = guidance_assignments(fresh, self.targets, self.defaults, self.rng)
+        moves = guidance_assignments(fresh, self.targets, self.defaults, self.rng, self.choices)
         return [Reroute(moves)] if moves else []

@@ -46,6 +46,9 @@ class MPCConfig:
     rate_max: float = 1.0  # highest meter rate [fraction of ramp capacity]
     max_cpu_time_s: float = 5.0  # IPOPT cpu (and wall) time limit per solve [s]
     max_iter: int = 500
+    tol: float = 1e-5  # IPOPT convergence tolerance (TTS is ~1e2 veh h: 1e-5 is far below what matters)
+    acceptable_tol: float = 1e-3  # IPOPT stops after ``acceptable_iter`` iterations at this tolerance
+    acceptable_iter: int = 5
     smooth_vph: float = 20.0  # width of the smooth min in the prediction model's origin flows [veh/h]
     smooth_rho: float = 1.0  # width of the smooth min/max at destinations [veh/km/lane]
     occupancy_eff_length_m: float = 7.0  # vehicle + loop length, converts density to occupancy [m]
@@ -171,7 +174,8 @@ class RampMeteringMPC:
         p = ca.vertcat(x0, ca.vec(D), u_prev)
         self._tts_fun = ca.Function("tts", [z, p], [cost])
         opts = {"expand": True, "print_time": False,
-                "ipopt": {"print_level": 0, "sb": "yes", "max_iter": c.max_iter,
+                "ipopt": {"print_level": 0, "sb": "yes", "max_iter": c.max_iter, "tol": c.tol,
+                          "acceptable_tol": c.acceptable_tol, "acceptable_iter": c.acceptable_iter,
                           "max_cpu_time": c.max_cpu_time_s, "max_wall_time": c.max_cpu_time_s}}
         solver = ca.nlpsol("ramp_mpc", "ipopt", {"x": z, "p": p, "f": cost, "g": ca.vertcat(*g)}, opts)
         lbz, ubz = self._bounds()
@@ -230,7 +234,12 @@ class RampMeteringMPC:
         return d[: self.n].T
 
     def _initial_guess(self, x0: np.ndarray, dmat: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
-        """Shifted previous solution, or a forward simulation of the prediction model holding u_prev."""
+        """Shifted previous solution, or a forward simulation of the prediction model holding u_prev.
+
+        (A start re-simulated from x0 under the shifted inputs was tried: it is dynamically consistent
+        but sits in the local optimum "meters open" of this nonconvex problem, and the Hegyi benchmark
+        MPC then never meters; the shifted previous trajectory does not have that problem.)
+        """
         if self._warm.valid:
             return self._warm.z
         f, lay = self._pred_f, self.lay

@@ -134,11 +134,52 @@ def divert_probability(default_share: float, target_share: float) -> tuple[str, 
     return "ccw", (s0 - s) / s0
 
 
+def loop_hops(i: int, j: int, n: int, d: str) -> int:
+    """Interchanges passed from i to j on loop d of an n-interchange ring (ccw: k -> k+1)."""
+    return (j - i) % n if d == "ccw" else (i - j) % n
+
+
+@dataclass(frozen=True)
+class ChoiceSet:
+    """Which drivers route guidance may switch: only trips with a real choice of loop.
+
+    A trip i -> j has a real choice when the other loop is at most ``max_extra_hops`` interchanges
+    longer (0: only the ties, e.g. the opposite interchange); sending a short trip the long way round
+    costs far more than it relieves.  ``movable[i] = (ccw, cw)`` are the shares of origin i's drivers
+    that have a choice and drive ccw / cw by default: guidance can move the ccw share of origin i
+    by at most these amounts.
+    """
+
+    n: int
+    max_extra_hops: int
+    movable: dict[int, tuple[float, float]]
+
+    def has_choice(self, i: int, j: int) -> bool:
+        cw, ccw = loop_hops(i, j, self.n, "cw"), loop_hops(i, j, self.n, "ccw")
+        return abs(cw - ccw) <= self.max_extra_hops
+
+
+def choice_set(od_dir_vph: dict[tuple[int, int, str], float], n: int, max_extra_hops: int = 0) -> ChoiceSet:
+    """The ``ChoiceSet`` of a ring from its demand per (origin, destination, loop) [veh/h]."""
+    probe = ChoiceSet(n, max_extra_hops, {})
+    total, mov = np.zeros(n), np.zeros((n, 2))
+    for (i, j, d), q in od_dir_vph.items():
+        total[i] += q
+        if probe.has_choice(i, j):
+            mov[i, DIRECTIONS.index(d)] += q
+    share = mov / np.maximum(total, 1e-12)[:, None]
+    return ChoiceSet(n, max_extra_hops, {i: (float(share[i, 0]), float(share[i, 1])) for i in range(n)})
+
+
 def guidance_assignments(new_vehicles: Iterable[tuple[str, str]], target_share: dict[int, float],
-                         default_share: dict[int, float], rng: np.random.Generator) -> tuple[tuple[str, str], ...]:
+                         default_share: dict[int, float], rng: np.random.Generator,
+                         choices: ChoiceSet | None = None) -> tuple[tuple[str, str], ...]:
     """Pick which newly departed vehicles switch loop: ((vid, new route id), ...).
 
     ``new_vehicles`` are (vehicle id, current route id); origins without a target keep their drivers.
+    Without ``choices`` every driver of the giving loop may switch (``divert_probability``); with it
+    only drivers with a real choice do, each with the probability that moves the origin's ccw share
+    by the same amount (change / movable share of the giving loop, at most 1).
     """
     out: list[tuple[str, str]] = []
     for vid, route in new_vehicles:
@@ -146,7 +187,13 @@ def guidance_assignments(new_vehicles: Iterable[tuple[str, str]], target_share: 
         if od is None or od[0] not in target_share:
             continue
         i, j, d = od
-        from_dir, p = divert_probability(default_share.get(i, 0.5), target_share[i])
+        s0 = default_share.get(i, 0.5)
+        from_dir, p = divert_probability(s0, target_share[i])
+        if choices is not None:
+            if not choices.has_choice(i, j):
+                continue
+            movable = choices.movable.get(i, (0.0, 0.0))[DIRECTIONS.index(from_dir)]
+            p = min(1.0, abs(float(target_share[i]) - s0) / movable) if movable > 0 else 0.0
         if d == from_dir and p > 0.0 and rng.random() < p:
             out.append((vid, f"od_{i}_{j}_{other_direction(d)}"))
     return tuple(out)

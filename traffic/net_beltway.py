@@ -6,17 +6,22 @@ right-hand traffic the right shoulder of the outer carriageway faces away from t
 of the inner carriageway faces the centre, so every ramp leaves and joins on the right (lane 0).
 
 Interchange k sits at angle ``2 pi k / N`` (k = 0 at +x, the ring centre at the origin).  An
-origin/destination node ``o{k}`` lies outside the ring; a two-way arterial ``a{k}_in``/``a{k}_out``
-leads to the outer hub ``ho{k}``, and a two-way bridge ``b{k}_in``/``b{k}_out`` crosses both
-carriageways (grade separated: no shared node) to the inner hub ``hi{k}``.  Per direction d and
-interchange k, in the direction of travel::
+origin node ``o{k}`` lies outside the ring; the arterial ``a{k}_in`` (``arterial_lanes`` lanes) leads
+to the outer entry hub ``ho{k}`` (outer on-ramp) and on over the bridge ``b{k}_in`` (grade separated:
+no shared node with the carriageways) to the inner entry hub ``hi{k}`` (inner on-ramp).  Leaving
+traffic uses separate exit hubs: the inner off-ramp ends at ``hix{k}``, the bridge ``b{k}_out`` runs
+to the outer exit hub ``hox{k}`` where the outer off-ramp joins, and ``a{k}_out`` (one lane more, so
+the two streams keep their own lanes) leads to the destination node ``ox{k}``.  No junction has
+crossing streams, so the arterials never throttle the ramps.  Per direction d and interchange k, in
+the direction of travel::
 
     ... {d}{k-1}_link -> D --{d}{k}_weave--> M --{d}{k}_merge--> E --{d}{k}_link--> D' ...
                          |                   ^   (lanes + acceleration lane 0)
               {d}{k}_off v                   | {d}{k}_meter  (short, after the signal)
-                        hub --{d}{k}_on--> [meter TLS "meter_{d}{k}"]
+                   exit hub   entry hub --{d}{k}_on--> [meter TLS "meter_{d}{k}"]
 
-``{d}{k}_on`` is the ramp storage (``ramp_length_m``; covered by lane-area detector ``e2_ramp_{d}{k}``).
+``{d}{k}_on`` is the ramp storage (``ramp_length_m``, drawn over ``ramp_span_m`` along the ring; covered
+by lane-area detector ``e2_ramp_{d}{k}``).
 The meter is a one-link traffic light whose program ``0`` has phase 0 = green ("G") and
 phase 1 = red ("r"); a controller drives it with ``trafficlight.setRedYellowGreenState`` or phase
 durations, and ``trafficlight.setProgram(tls, "off")`` removes metering (unmetered baseline).
@@ -51,6 +56,7 @@ CONNECTOR_M = 120.0  # [m] along-road length of the meter-to-merge connector
 MIN_LINK_M = 200.0  # [m] shortest ring link between two interchanges
 VEHICLE_SPACING_M = 7.5  # [m] storage per queued vehicle
 ARC_STEP_M = 50.0  # [m] shape point spacing along arcs
+EXIT_HUB_OFFSET_M = 30.0  # [m] exit hub before the entry hub along the ramp circle
 
 
 class BeltwayParams(BaseModel):
@@ -65,8 +71,13 @@ class BeltwayParams(BaseModel):
     ramp_speed_mps: float = Field(16.67, gt=0)  # [m/s]
     arterial_speed_mps: float = Field(13.89, gt=0)  # [m/s]
     ramp_length_m: float = Field(300.0, ge=30)  # [m] on-ramp storage up to the meter
+    # [m] along-ring extent of the on-ramp; None = ramp_length_m.  A shorter span models a winding
+    # (or looped) ramp: SUMO drives the full ramp_length_m (edge length attribute) while the weaving
+    # section between off-ramp and merge stays short.
+    ramp_span_m: float | None = Field(None, ge=30)
     accel_lane_length_m: float = Field(150.0, gt=0)  # [m]
     arterial_length_m: float = Field(300.0, ge=30)  # [m] origin node to outer hub
+    arterial_lanes: int = Field(1, ge=1, le=4)  # lanes of arterials and bridges (one lane: ~1800 veh/h)
     lane_width_m: float = Field(3.5, gt=2.0)  # [m]
     median_m: float = Field(10.0, ge=0)  # [m] between the two carriageway reference lines
     meter_green_s: float = Field(2.0, gt=0)  # [s] default program: one vehicle per green
@@ -101,7 +112,7 @@ def _geometry(p: BeltwayParams, d: str) -> dict[str, float]:
         "side": side,
         "ramp_radius": ramp_radius,
         "off_lead": OFFRAMP_LEAD_M / radius,
-        "ramp": p.ramp_length_m / ramp_radius,
+        "ramp": (p.ramp_span_m or p.ramp_length_m) / ramp_radius,
         "connector": CONNECTOR_M / radius,
         "accel": p.accel_lane_length_m / radius,
     }
@@ -194,8 +205,8 @@ def _carriageway(p: BeltwayParams, d: str, plain: PlainNet) -> None:
             {
                 "id": f"{x}_off",
                 "from": f"D_{x}",
-                "to": f"{hub}{k}",
-                "shape": [_xy(a["D"], accel_r), _xy(a["hub"], rr)],
+                "to": f"{hub}x{k}",
+                "shape": [_xy(a["D"], accel_r), _exit_hub_xy(p, d, k)],
                 **ramp,
             },
             {
@@ -235,27 +246,50 @@ def _prev(k: int, d: str, n: int) -> int:
     return (k - 1) % n if d == "ccw" else (k + 1) % n
 
 
+def _exit_hub_xy(p: BeltwayParams, d: str, k: int) -> tuple[float, float]:
+    """Position [m] of the exit hub of carriageway d at interchange k (off-ramp end).
+
+    It sits ``EXIT_HUB_OFFSET_M`` before the entry hub in the travel direction, so leaving and
+    entering traffic never share a junction (no crossing conflicts that would throttle the ramps).
+    """
+    g = _geometry(p, d)
+    theta = 2 * math.pi * k / p.interchanges - g["sign"] * EXIT_HUB_OFFSET_M / g["ramp_radius"]
+    return _xy(theta, g["ramp_radius"])
+
+
 def _arterials(p: BeltwayParams, plain: PlainNet) -> None:
-    """Origin/destination nodes, outer and inner hubs, two-way arterials and bridges."""
+    """Origin/destination nodes, entry and exit hubs, two-way arterials and bridges.
+
+    Entering traffic: ``a{k}_in`` (origin o{k} -> outer entry hub ho{k}, a pure diverge to the outer
+    on-ramp and the bridge ``b{k}_in`` to the inner entry hub hi{k}).  Leaving traffic: off-ramps end
+    at exit hubs hox{k} / hix{k}; ``b{k}_out`` runs hix{k} -> hox{k}, and ``a{k}_out`` (one lane more
+    than the arterial, so the outer off-ramp merges without conflict) runs hox{k} -> destination ox{k}.
+    """
     r_out = _geometry(p, "ccw")["ramp_radius"]
     r_in = _geometry(p, "cw")["ramp_radius"]
-    road = {
-        "numLanes": 1,
-        "speed": p.arterial_speed_mps,
-        "width": p.lane_width_m,
-        "spreadType": "right",
-        "priority": 3,
-    }
+    n = p.arterial_lanes
+    road = {"speed": p.arterial_speed_mps, "width": p.lane_width_m, "spreadType": "right", "priority": 3}
     for k in range(p.interchanges):
         theta = 2 * math.pi * k / p.interchanges
-        for node, radius in ((f"o{k}", r_out + p.arterial_length_m), (f"ho{k}", r_out), (f"hi{k}", r_in)):
-            x, y = _xy(theta, radius)
-            plain.nodes.append({"id": node, "x": x, "y": y, "type": "priority"})
+        dest = _xy(theta - EXIT_HUB_OFFSET_M / (r_out + p.arterial_length_m), r_out + p.arterial_length_m)
+        nodes = {
+            f"o{k}": _xy(theta, r_out + p.arterial_length_m),
+            f"ox{k}": dest,
+            f"ho{k}": _xy(theta, r_out),
+            f"hi{k}": _xy(theta, r_in),
+            f"hox{k}": _exit_hub_xy(p, "ccw", k),
+            f"hix{k}": _exit_hub_xy(p, "cw", k),
+        }
+        plain.nodes += [{"id": i, "x": xy[0], "y": xy[1], "type": "priority"} for i, xy in nodes.items()]
         plain.edges += [
-            {"id": f"a{k}_in", "from": f"o{k}", "to": f"ho{k}", **road},
-            {"id": f"a{k}_out", "from": f"ho{k}", "to": f"o{k}", **road},
-            {"id": f"b{k}_in", "from": f"ho{k}", "to": f"hi{k}", **road},
-            {"id": f"b{k}_out", "from": f"hi{k}", "to": f"ho{k}", **road},
+            {"id": f"a{k}_in", "from": f"o{k}", "to": f"ho{k}", "numLanes": n, **road},
+            {"id": f"a{k}_out", "from": f"hox{k}", "to": f"ox{k}", "numLanes": n + 1, **road},
+            {"id": f"b{k}_in", "from": f"ho{k}", "to": f"hi{k}", "numLanes": n, **road},
+            {"id": f"b{k}_out", "from": f"hix{k}", "to": f"hox{k}", "numLanes": n, **road},
+        ]
+        plain.connections += [
+            {"from": f"ccw{k}_off", "to": f"a{k}_out", "fromLane": 0, "toLane": 0},
+            *({"from": f"b{k}_out", "to": f"a{k}_out", "fromLane": i, "toLane": i + 1} for i in range(n)),
         ]
 
 

@@ -19,6 +19,7 @@ from corridor.controllers.ramp_control import (
     estimate_state,
     load_calibration,
     od_matrix,
+    setpoint_from_calibration,
 )
 from corridor.scenario import load
 from corridor.traffic.detectors import RampMeasurement
@@ -49,8 +50,20 @@ def test_alinea_controller_follows_the_formula() -> None:
     assert second["cw1"] == pytest.approx(first["cw1"] + 70.0 * (14.0 - 10.0))
 
 
+def test_alinea_setpoint_is_the_calibrated_critical_occupancy(tmp_path: Path) -> None:
+    fit = tmp_path / "fit.json"
+    fit.write_text('{"v_free_kmh": 90.0, "rho_crit": 40.0, "a": 2.0}')
+    p = RampParams(calibration_file=str(fit), vehicle_length_m=5.0)
+    assert setpoint_from_calibration(p) == pytest.approx(20.0)  # 40 veh/km x 5 m / 10
+    assert setpoint_from_calibration(RampParams(calibration_file=str(fit), alinea_setpoint_pct=12.0)) == 12.0
+    ctrl = RampAlinea("ramps", p)
+    ctrl.reset(np.random.default_rng(0))
+    rate = ctrl.decide(RampObservation(t=0.0, ramps=_ramps(1, occ=25.0)))["ccw0"]
+    assert rate == pytest.approx(1800.0 + 70.0 * (20.0 - 25.0))
+
+
 def test_alinea_queue_override_keeps_queue_under_storage() -> None:
-    ctrl = RampAlinea("ramps", RampParams(override_frac=0.7, control_step_s=60.0))
+    ctrl = RampAlinea("ramps", RampParams(override_frac=0.7, control_step_s=60.0, alinea_setpoint_pct=14.0))
     ctrl.reset(np.random.default_rng(0))
     ramps = _ramps(1, occ=40.0, queue=35.0)  # heavy congestion would throttle, but the queue is long
     for m in ramps.values():
@@ -92,7 +105,10 @@ def test_od_matrix_and_forecast_from_the_scenario() -> None:
     sc, _ = load(SCENARIO)
     n = sc.road.network.params["interchanges"]
     od = od_matrix(sc.road.demand.flows, n)
-    assert np.all(np.diag(od) == 0) and np.all(od[~np.eye(n, dtype=bool)] > 0)
+    assert np.all(np.diag(od) == 0) and np.all(od >= 0)
+    mean_rate = {f.route: float(np.mean(np.asarray(f.profile, float)[:, 1])) for f in sc.road.demand.flows.values()}
+    assert od.sum() == pytest.approx(sum(mean_rate.values()))
+    assert od[0, n // 2] == pytest.approx(mean_rate[f"od_0_{n // 2}_ccw"] + mean_rate[f"od_0_{n // 2}_cw"])
     fc = DemandForecast(sc, n)
     peak_t = 900.0
     expected = sum(np.interp(peak_t, *np.asarray(f.profile, float).T) for f in sc.road.demand.flows.values()

@@ -36,7 +36,8 @@ def test_mpc_returns_feasible_rates_within_bounds() -> None:
     p = np.concatenate([x0, mpc.forecast_matrix(demand).ravel(order="F"), net.default_u()])
     mpc._warm.valid = False
     z_hold = mpc._initial_guess(x0, mpc.forecast_matrix(demand), net.default_u())
-    assert res.predicted_tts <= float(mpc._tts_fun(z_hold, p)) + 1e-6
+    hold_tts = float(mpc._tts_fun(z_hold, p))
+    assert res.predicted_tts <= hold_tts * (1.0 + 1e-5)  # up to IPOPT's tolerance (MPCConfig.tol = 1e-5)
     # queues of the plan respect storage up to the soft-constraint slack, which should be ~0 here
     xs, _, _, sig = mpc.lay.split(mpc._warm.z)
     assert np.max(sig) < 1.0
