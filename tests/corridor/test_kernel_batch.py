@@ -105,3 +105,14 @@ def test_ray_executor_gives_the_same_rows(tmp_path):
     b = pd.read_parquet(tmp_path / "r" / "runs.parquet")
     cols = [c for c in a.columns if c not in ("wall_s", "traceback")]
     pd.testing.assert_frame_equal(a[cols], b[cols])
+
+
+def test_local_workers_get_single_threaded_math_unless_the_user_chose(monkeypatch) -> None:
+    from corridor.batch import WORKER_THREAD_ENV, _local
+
+    for var in WORKER_THREAD_ENV:
+        monkeypatch.delenv(var, raising=False)
+    monkeypatch.setenv("MKL_NUM_THREADS", "4")
+    assert list(_local([], workers=1)) == []
+    assert os.environ["OMP_NUM_THREADS"] == "1" and os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    assert os.environ["MKL_NUM_THREADS"] == "4"
