@@ -1,0 +1,48 @@
+"""Delay counts vehicles that had not finished: a jammed road must not look better than a free one."""
+
+from __future__ import annotations
+
+import multiprocessing
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+
+
+def _delays_at_double_demand() -> dict[str, object]:
+    from corridor.run import build
+    from corridor.scenario import load
+
+    sc, _ = load(str(SCENARIO), ["duration=150", "warmup=0", "road.demand.scale=2.0"])
+    sim = build(sc, 0, Path(tempfile.mkdtemp()))
+    ctx = sim.ctx
+    for c in ctx.components.values():
+        c.setup(ctx)
+    try:
+        for _ in range(round(sc.duration / sc.dt)):
+            sim.step()
+        road = ctx.components["sumo"]
+        done = road.delays(0.0)
+        allv = road.delays(0.0, unfinished=True)
+        n_arrived = sum(1 for i in road.info.values() if not np.isnan(i.arrive_s))
+        return {"done": done, "all": allv, "backlog": road.backlog(), "n_active": len(road.active),
+                "n_arrived": n_arrived, "t": ctx.t}
+    finally:
+        for c in ctx.components.values():
+            c.close()
+
+
+def test_unfinished_and_waiting_vehicles_are_counted_with_their_delay_so_far() -> None:
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        r = pool.submit(_delays_at_double_demand).result()  # libsumo: one simulation per process
+    done = np.concatenate(list(r["done"].values()))
+    both = np.concatenate(list(r["all"].values()))
+    assert len(done) == r["n_arrived"]
+    assert r["backlog"] > 0  # twice the demand: the entry is full, vehicles wait to be inserted
+    # every vehicle on the road and every waiting one is added, none twice
+    assert len(both) == r["n_arrived"] + r["n_active"] + r["backlog"]
+    assert both.min() >= -5.0  # a delay so far is never much below zero (speed factor spread)
+    assert both.mean() > done.mean()  # the ones still queueing have waited longer than the finishers
