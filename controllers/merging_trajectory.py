@@ -254,11 +254,16 @@ def min_time_to_go(dist_m: float, v0: float, lim: MotionLimits) -> float:
 
     The physical lower bound of the crossing time, e.g. for ``ZoneVehicle.earliest_arrival_s``.
     """
+    return time_to_go(dist_m, v0, lim.v_max_mps, lim.a_max_mps2)
+
+
+def time_to_go(dist_m: float, v0: float, v_max: float, a_max: float) -> float:
+    """Time [s] to cover ``dist_m`` from v0 accelerating at ``a_max`` up to ``v_max``, then cruising."""
     if dist_m <= 0:
         return 0.0
-    v0 = min(v0, lim.v_max_mps)
-    t_acc = (lim.v_max_mps - v0) / lim.a_max_mps2
-    d_acc = v0 * t_acc + 0.5 * lim.a_max_mps2 * t_acc**2
+    v0 = min(v0, v_max)
+    t_acc = (v_max - v0) / a_max
+    d_acc = v0 * t_acc + 0.5 * a_max * t_acc**2
     if d_acc >= dist_m:
-        return float((-v0 + np.sqrt(v0**2 + 2.0 * lim.a_max_mps2 * dist_m)) / lim.a_max_mps2)
-    return float(t_acc + (dist_m - d_acc) / lim.v_max_mps)
+        return float((-v0 + np.sqrt(v0**2 + 2.0 * a_max * dist_m)) / a_max)
+    return float(t_acc + (dist_m - d_acc) / v_max)

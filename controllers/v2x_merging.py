@@ -31,7 +31,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.merging_coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
-from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, min_time_to_go
+from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.controllers.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.engine import Controller, RunContext
 from corridor.traffic.commands import Release, SetSpeed
@@ -231,9 +231,7 @@ class V2XMerging(Controller):
             # faster).  From standstill it stays finite, unlike d / v, so a stopped vehicle never
             # gets a slot far away; full-throttle arrival times instead would ask every vehicle to
             # accelerate into its leader, and the misses would reshuffle the schedule each cycle
-            comfort = MotionLimits(v_min_mps=0.0, v_max_mps=max(v, target, 1.0), a_min_mps2=self.p.limits.a_min_mps2,
-                                   a_max_mps2=self.p.comfort_accel_mps2)
-            earliest = t + min_time_to_go(max(d, 0.0), v, comfort)
+            earliest = t + time_to_go(max(d, 0.0), v, max(v, target, 1.0), self.p.comfort_accel_mps2)
             if vid not in self.entered:
                 # first come, first served *at the merge point*: rank by the arrival time expected
                 # at zone entry (ranking by entry time would let slow ramp traffic hold the mainline)
