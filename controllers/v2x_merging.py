@@ -9,12 +9,26 @@ Per tick (period 0.1 s), in pipeline order:
    point (part-way along the acceleration lane, ``merge_point_frac``) by ``fifo`` or ``cps``
    (constrained position shifting), anchored on the measured crossings, and unicasts (time,
    predecessor) to connected vehicles.
-3. *decide*: each connected vehicle with a fresh assignment applies the closed-form energy-optimal
-   acceleration (Rios-Torres & Malikopoulos 2017) capped by the safe-gap bound against its
-   predecessor in the crossing order, projected onto the merge point (the "virtual leader" on the
-   other road, as estimated from its own tracks), and by a constant-time-gap rule that opens the
-   gap the lane change needs.  With stale information it hands control back to
-   SUMO's car-following model (the vehicle's onboard sensing of its physical leader), and counts it.
+3. *decide*: a connected **ramp** vehicle with a fresh assignment applies, while still on the ramp
+   (farther than ``virtual_leader_m`` from the merge point), the closed-form energy-optimal
+   acceleration to its assigned crossing time (Rios-Torres & Malikopoulos 2017).  Within
+   ``virtual_leader_m`` every vehicle whose predecessor in the crossing order is on the *other*
+   road follows that predecessor projected onto its own road ("virtual vehicle" mapping: Uno,
+   Sakaguchi & Tsugawa 1999; Lu, Tan & Hedrick 2004): cruise towards the crossing speed, bounded
+   by a constant-time-gap rule that opens the gap the lane change needs and by the safe-gap bound
+   of the safety layer.  Mainline vehicles behind a mainline predecessor are not commanded: that
+   predecessor is their physical leader, and their own driver (SUMO's car-following) follows it.
+   A controlled ramp vehicle's own lane changes are held until it is released at the merge point,
+   so it moves over at the stream's speed into the opened gap.  With stale information a vehicle
+   is handed back to SUMO's car-following model (the vehicle's onboard sensing of its physical
+   leader), and the fallback is counted.
+
+   Why the crossing *times* are not tracked near the merge: tracking them made every delay
+   self-reinforcing (a late vehicle pushes its followers' slots back, the plans slow them to meet
+   the later slots, and they arrive later still); ramp vehicles then crawled to the merge point and
+   SUMO moved them over at a median 2.5 m/s, jamming the right lane (41 s mean delay against
+   13.6 s for SUMO's own merging, seed 1).  Following the predecessor's actual position keeps the
+   order and the gaps without that feedback.
 
 SUMO's safe-speed check (speed mode 31) stays on for commanded vehicles: it is the onboard
 collision avoidance w.r.t. the *physical* leader, which a real vehicle senses without V2X.
@@ -34,12 +48,14 @@ from corridor.controllers.merging_coordinator import Coordinator, CoordinatorCon
 from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.controllers.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.engine import Controller, RunContext
-from corridor.traffic.commands import Release, SetSpeed
+from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.monitors import road_backend
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracking import TrackTable
 
 RSU = "rsu"
+HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, cooperative, speed gain,
+#   keep right all off); TraCI-requested changes respect the others' gaps
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,6 +92,9 @@ class V2XMerging(Controller):
         merge_point_frac: float = Field(0.5, ge=0, le=1)  # the conflict point, as a share of the
         #   acceleration lane past the nose: ramp vehicles reach the stream's speed on the lane first
         target_speed_mps: float | None = None  # crossing speed; None: mainline speed upstream of the zone
+        hold_lane_change: bool = True  # a controlled ramp vehicle changes lanes only once released at
+        #   the merge point (at its slot, at the crossing speed); else SUMO moves it over whenever a gap
+        #   appears, at whatever speed the plan has slowed it to
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
 
@@ -286,9 +305,21 @@ class V2XMerging(Controller):
             if t - a.t_sent_s > self.p.stale_after_s:  # the RSU went quiet: onboard car-following
                 self._fallback(t, vid, cmds)
                 continue
-            acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
+            road_k = "ramp" if s["ramp"][k] else "main"
             near_merge = dist[k] <= self.p.virtual_leader_m
-            if near_merge and a.pred is not None and a.pred_road != ("ramp" if s["ramp"][k] else "main"):
+            cross_pred = a.pred is not None and a.pred_road != road_k
+            if road_k == "main" and not (near_merge and cross_pred):
+                # a mainline vehicle behind a mainline predecessor follows its physical leader, which
+                # is that predecessor: its own driver (SUMO) does that; only gap openers are commanded
+                if vid in self.controlled:
+                    self.controlled.discard(vid)
+                    cmds.append(Release(vid))
+                continue
+            if near_merge:  # virtual-vehicle following: cruise, bounded below by the order predecessor
+                acc = float(np.clip(target - speed[k], lim.a_min_mps2, lim.a_max_mps2))
+            else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
+                acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
+            if near_merge and cross_pred:
                 trk = self.tracks[vid].predict_all(t).get(a.pred) if vid in self.tracks else None
                 if trk is None or trk.age_s > self.p.stale_after_s:
                     self._fallback(t, vid, cmds)
@@ -305,6 +336,8 @@ class V2XMerging(Controller):
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
                     acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)
             v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
+            if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
+                cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next))
             self.controlled.add(vid)
             self.commands_sent += 1

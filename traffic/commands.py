@@ -35,6 +35,15 @@ class ChangeLane:
 
 
 @dataclass(frozen=True)
+class SetLaneChangeMode:
+    """SUMO lane-change mode bitset from now on (e.g. 512: no own lane changes, TraCI changes that
+    respect others' gaps); ``Release`` restores the vehicle's original mode."""
+
+    vid: str
+    mode: int
+
+
+@dataclass(frozen=True)
 class MoveToXY:
     """Place the vehicle at (x, y) [m] with heading ``yaw_rad`` (ENU, CCW from east)."""
 

@@ -81,6 +81,7 @@ class SumoBackend(Backend):
         self.info: dict[str, VehicleInfo] = {}
         self.active: list[str] = []
         self.controlled: set[str] = set()
+        self._lc_mode0: dict[str, int] = {}  # original lane-change modes of vehicles a controller changed
         self.collisions: list[tuple[float, str, str, str]] = []  # (t, collider, victim, type)
         self.new_collisions: list[tuple[float, str, str, str]] = []
         self.teleports: list[tuple[float, str]] = []
@@ -249,7 +250,7 @@ class SumoBackend(Backend):
                 continue
             vid = getattr(c, "vid", None)
             if vid is None or not isinstance(c, cmd.SetSpeed | cmd.SetAccel | cmd.ChangeLane |
-                                                 cmd.MoveToXY | cmd.Release):
+                                                 cmd.MoveToXY | cmd.Release | cmd.SetLaneChangeMode):
                 continue
             if vid not in live:
                 self.commands_ignored += 1
@@ -257,7 +258,13 @@ class SumoBackend(Backend):
             if isinstance(c, cmd.Release):
                 v.setSpeed(vid, -1)
                 v.setSpeedMode(vid, 31)
+                if vid in self._lc_mode0:
+                    v.setLaneChangeMode(vid, self._lc_mode0.pop(vid))
                 self.controlled.discard(vid)
+                continue
+            if isinstance(c, cmd.SetLaneChangeMode):
+                self._lc_mode0.setdefault(vid, v.getLaneChangeMode(vid))
+                v.setLaneChangeMode(vid, c.mode)
                 continue
             self.controlled.add(vid)
             if isinstance(c, cmd.SetSpeed):
