@@ -50,6 +50,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, redirect_stdout
+from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
@@ -142,6 +143,8 @@ class _QpStructure:
         self._in = {name: np.zeros(solver.nnz_in(i)) for i, name in enumerate(solver.name_in())}
         self._in["h"][:] = h.ravel(order="F")
         self._in["lbx"][:], self._in["ubx"][:] = lbx, ubx
+        n_rows, nz = solver.size_in("a")
+        self._a_cols = self._in["a"].reshape(nz, n_rows).T  # view: row-major writes, column-major memory
         self.x = np.zeros(solver.nnz_out("x"))
         self._out = [self.x] + [np.zeros(solver.nnz_out(i)) for i in range(1, solver.n_out())]
         for i, name in enumerate(solver.name_in()):
@@ -152,7 +155,7 @@ class _QpStructure:
     def solve(self, g: np.ndarray, a: np.ndarray, lba: np.ndarray, uba: np.ndarray) -> tuple[np.ndarray, bool]:
         """Solve with gradient ``g`` and rows ``a`` (dense, row-major numpy) in [lba, uba]; (z, success)."""
         self._in["g"][:] = g
-        self._in["a"][:] = a.ravel(order="F")  # CasADi stores dense matrices column by column
+        self._a_cols[...] = a  # CasADi stores dense matrices column by column
         self._in["lba"][:], self._in["uba"][:] = lba, uba
         self._eval()
         return self.x.copy(), bool(self._buf.stats()["success"])
@@ -194,6 +197,11 @@ class ControlTubeAvoidance:
         self._h_u = self._hessian()
         self._fixed = self._fixed_rows()
         self._gam_pos = np.ascontiguousarray(self.pred.gam[:, :3, :])  # (M, 3, n_u)
+        self._t_sq = self.pred.t**2  # [s^2]
+        m = p.model  # tau a_max per axis: the plan's velocity change per command step [m/s]
+        self._accel_bound = np.array([m.max_accel_h_mps2 / np.sqrt(2.0)] * 2 + [m.max_accel_v_mps2]) * m.tau_s
+        # what the tube rows depend on besides the per-UAV data: UAVs sharing it are batched
+        self._batch_key = (p.step_s, p.n_steps, p.substeps, p.model, p.right_tilt)
         self._qps: dict[int, _QpStructure] = {}  # per number of intruders, built on first use
         self.reset(np.random.default_rng(0))
 
@@ -321,13 +329,13 @@ class ControlTubeAvoidance:
         if p.deflect_max_deg <= 0.0 or d_goal < 1e-6 or not intruders:
             return 0.0
         e = to_goal / d_goal
-        w = 0.0
-        for o in intruders:
-            r = (o.pos - obs.own_pos)[:2]
-            ahead, lateral = float(r @ e), abs(float(e[0] * r[1] - e[1] * r[0]))
-            dist = float(np.hypot(*r))
-            if ahead > 0.0 and dist < min(d_goal, p.deflect_range_m) and lateral < self._tube(o)[1] + o.sigma_m:
-                w = max(w, 1.0 - dist / p.deflect_range_m)
+        r = np.array([o.pos[:2] for o in intruders]) - obs.own_pos[:2]  # (K, 2)
+        ahead = r[:, 0] * e[0] + r[:, 1] * e[1]
+        lateral = np.abs(e[0] * r[:, 1] - e[1] * r[:, 0])
+        dist = np.hypot(r[:, 0], r[:, 1])
+        half_width = np.array([self._tube(o)[1] + o.sigma_m for o in intruders])
+        near = (ahead > 0.0) & (dist < min(d_goal, p.deflect_range_m)) & (lateral < half_width)
+        w = max(0.0, float(np.max(1.0 - dist[near] / p.deflect_range_m, initial=0.0)))
         return math.radians(p.deflect_max_deg) * min(1.0, 2.0 * w)
 
     def _saturate(self, u: np.ndarray) -> np.ndarray:
@@ -397,36 +405,13 @@ class ControlTubeAvoidance:
         self, obs: AvoidanceObservation, x0: np.ndarray, intruders: list[TrackedAgent], u_ref: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Half-space rows (K*M, n_u + K) and their lower bounds, all intruders at once."""
-        pr, k = self.pred, len(intruders)
-        m = len(pr.t)
-        ref = pr.states(x0, u_ref.ravel())
-        v_ego = self._ego_speed_bound(x0[3:])
-        to_goal = obs.goal - obs.own_pos
-        fallback = np.array([to_goal[1], -to_goal[0], 0.0]) / max(np.linalg.norm(to_goal[:2]), 1e-9)
-        tubes = np.array([self._tube(o) for o in intruders])  # (K, 2): a_max, radius
-        acc, r = tubes[:, :1], tubes[:, 1:]
-        sigma = np.array([[o.sigma_m] for o in intruders])
-        pos = np.array([o.pos for o in intruders], dtype=float)
-        vel = np.array([o.vel for o in intruders], dtype=float)
-        centre = pos[:, None, :] + pr.t[None, :, None] * vel[:, None, :]  # (K, M, 3)
-        radius = r + sigma + 0.5 * acc * pr.t**2  # (K, M)
-        margin = pr.dt * (v_ego + np.sqrt(np.einsum("kd,kd->k", vel, vel))[:, None] + acc * pr.t)
-        n = self._normals(ref[None, :, :3] - centre, radius + margin, ref[None, :, 3:] - vel[:, None, :], fallback)
-        rows = np.zeros((k, m, self.n_u + k))
-        rows[:, :, : self.n_u] = np.einsum("kmd,mdc->kmc", n, self._gam_pos)
-        rows[np.arange(k), :, self.n_u + np.arange(k)] = 1.0
-        free = pr.phi[:, :3, :] @ x0  # (M, 3) ego positions without commands
-        lower = radius + margin + np.einsum("kmd,kmd->km", n, centre - free)
-        return rows.reshape(-1, self.n_u + k), lower.ravel()
+        return _collision_rows_many([_Pending(self, obs, x0, intruders, u_ref)])[0]
 
     def _accel_bounds(self, x0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """|u_k - v(t_k)| <= tau a_max per axis, widened only if the current velocity is off-limits."""
-        p, n = self.params, self.params.n_steps
-        tau = p.model.tau_s
-        bound = np.array([p.model.max_accel_h_mps2 / np.sqrt(2.0)] * 2 + [p.model.max_accel_v_mps2]) * tau
-        bound = np.maximum(bound, np.abs(x0[3:] - self._saturate(x0[3:] * 0.99)) + 1e-6)
-        offset = (self._v_free @ x0).ravel()
-        return offset - np.tile(bound, n), offset + np.tile(bound, n)
+        bound = np.maximum(self._accel_bound, np.abs(x0[3:] - self._saturate(x0[3:] * 0.99)) + 1e-6)
+        offset = self._v_free @ x0  # (n_steps, 3)
+        return (offset - bound).ravel(), (offset + bound).ravel()
 
     def _gradient(self, nominal: np.ndarray, u_last: np.ndarray, k: int) -> np.ndarray:
         p = self.params
@@ -438,18 +423,23 @@ class ControlTubeAvoidance:
 
     # ---- the step -------------------------------------------------------------------------------
     def step(self, obs: AvoidanceObservation) -> VelocityCommand:
+        return step_many([self], [obs])[0]
+
+    def _prepare(self, obs: AvoidanceObservation) -> _Pending:
+        """Everything of a step before the tube rows: intruders, nominal, linearisation reference."""
         x0 = np.concatenate([obs.own_pos, obs.own_vel]).astype(float)
-        u_last = self._last_cmd if self._last_cmd is not None else self._saturate(obs.own_vel)
         intruders = self._relevant(obs, self._ego_speed_bound(x0[3:]))
         nominal = self._nominal(x0, obs.goal, self._deflection(obs, intruders))
-        k = len(intruders)
+        u_ref = self._reference(obs, nominal) if intruders else nominal
+        return _Pending(self, obs, x0, intruders, u_ref, nominal)
+
+    def _solve(self, s: _Pending, c_rows: np.ndarray, c_lo: np.ndarray) -> VelocityCommand:
+        """The QP of a prepared step with its tube rows, then the plan bookkeeping."""
+        obs, x0, nominal, k = s.obs, s.x0, s.nominal, len(s.intruders)
+        u_last = self._last_cmd if self._last_cmd is not None else self._saturate(obs.own_vel)
         qp = self._qp(k)
         a_lo, a_hi = self._accel_bounds(x0)
-        if k:
-            c_rows, c_lo = self._collision_rows(obs, x0, intruders, self._reference(obs, nominal))
-            amat = np.vstack([c_rows, qp.fixed])
-        else:
-            c_rows, c_lo, amat = np.zeros((0, self.n_u)), np.zeros(0), qp.fixed
+        amat = np.vstack([c_rows, qp.fixed]) if k else qp.fixed
         lba = np.concatenate([c_lo, a_lo, self._speed_lo])
         uba = np.concatenate([np.full(len(c_lo), _INF), a_hi, self._speed_hi])
         t0 = time.perf_counter()
@@ -483,3 +473,76 @@ class ControlTubeAvoidance:
         self._last_cmd = plan[0].copy()
         return VelocityCommand(obs.t, plan[0].copy(), active,
                                {"slack_m": slack, "n_intruders": float(n_intruders)})
+
+
+@dataclass
+class _Pending:
+    """One UAV's step between preparation and solve (see :func:`step_many`)."""
+
+    method: ControlTubeAvoidance
+    obs: AvoidanceObservation
+    x0: np.ndarray  # [m, m/s] ego state
+    intruders: list[TrackedAgent]
+    u_ref: np.ndarray  # (n_steps, 3) [m/s] linearisation reference of the tube normals
+    nominal: np.ndarray | None = None  # (n_steps, 3) [m/s]
+
+
+def step_many(methods: list[ControlTubeAvoidance], observations: list[AvoidanceObservation]) -> list[VelocityCommand]:
+    """``methods[i].step(observations[i])`` for a fleet, each UAV with its own plan and QP; the tube
+    rows of every UAV's intruders are built in one vectorised pass (:func:`_collision_rows_many`),
+    which cost more than the QP solve itself when built UAV by UAV (numpy's per-call overhead)."""
+    pending = [m._prepare(o) for m, o in zip(methods, observations, strict=True)]
+    with_rows = [s for s in pending if s.intruders]
+    rows = dict(zip(map(id, with_rows), _collision_rows_many(with_rows), strict=True))
+    empty = (np.zeros((0, 0)), np.zeros(0))
+    return [s.method._solve(s, *rows.get(id(s), empty)) for s in pending]
+
+
+def _collision_rows_many(items: list[_Pending]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Tube half-space rows and lower bounds of several UAVs' steps (every intruder of every item at
+    once); per item the same element-wise arithmetic as one UAV alone. Items whose prediction or
+    normal parameters differ from the first item's are built in their own pass."""
+    if not items:
+        return []
+    first = items[0].method
+    same = [s for s in items if s.method._batch_key == first._batch_key]
+    if len(same) < len(items):
+        rest = [s for s in items if s.method._batch_key != first._batch_key]
+        done = dict(zip(map(id, same), _collision_rows_many(same), strict=True))
+        done.update(zip(map(id, rest), _collision_rows_many(rest), strict=True))
+        return [done[id(s)] for s in items]
+    pr, n_u = first.pred, first.n_u
+    m = len(pr.t)
+    counts = [len(s.intruders) for s in items]
+    owner = np.repeat(np.arange(len(items)), counts)
+    # per item: reference rollout, ego speed bound, right-hand fallback, free (command-less) positions
+    ref = np.array([pr.states(s.x0, s.u_ref.ravel()) for s in items])[owner]  # (KT, M, 6)
+    v_ego = np.array([s.method._ego_speed_bound(s.x0[3:]) for s in items])[owner][:, None]
+    fallback = np.array([_fallback(s.obs) for s in items])[owner][:, None, :]
+    free = np.array([pr.phi[:, :3, :] @ s.x0 for s in items])[owner]  # (KT, M, 3)
+    # per intruder (KT = all intruders of all items)
+    tube = np.array([(*s.method._tube(o), o.sigma_m) for s in items for o in s.intruders])  # a_max, r, sigma
+    acc, r, sigma = tube[:, 0:1], tube[:, 1:2], tube[:, 2:3]
+    pos = np.array([o.pos for s in items for o in s.intruders], dtype=float)
+    vel = np.array([o.vel for s in items for o in s.intruders], dtype=float)
+    centre = pos[:, None, :] + pr.t[None, :, None] * vel[:, None, :]  # (KT, M, 3)
+    radius = r + sigma + 0.5 * acc * first._t_sq  # (KT, M)
+    margin = pr.dt * (v_ego + np.sqrt(np.einsum("kd,kd->k", vel, vel))[:, None] + acc * pr.t)
+    bound = radius + margin
+    n = first._normals(ref[:, :, :3] - centre, bound, ref[:, :, 3:] - vel[:, None, :], fallback)
+    coef = np.einsum("kmd,mdc->kmc", n, first._gam_pos)  # (KT, M, n_u)
+    lower = bound + np.einsum("kmd,kmd->km", n, centre - free)
+    out, start = [], 0
+    for k in counts:
+        rows = np.zeros((k, m, n_u + k))
+        rows[:, :, :n_u] = coef[start : start + k]
+        rows[np.arange(k), :, n_u + np.arange(k)] = 1.0
+        out.append((rows.reshape(-1, n_u + k), lower[start : start + k].ravel()))
+        start += k
+    return out
+
+
+def _fallback(obs: AvoidanceObservation) -> np.ndarray:
+    """Unit vector to the right of the goal direction (normal tilt when the relative velocity is 0)."""
+    to_goal = obs.goal - obs.own_pos
+    return np.array([to_goal[1], -to_goal[0], 0.0]) / max(np.linalg.norm(to_goal[:2]), 1e-9)

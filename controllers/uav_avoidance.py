@@ -98,10 +98,15 @@ class _UavController(Controller):
     def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
         raise NotImplementedError
 
+    def decide_all(self, obs: dict[str, AvoidanceObservation]) -> dict[str, MethodCommand]:
+        """Every governed UAV's method command (a method may override this to work fleet-wide)."""
+        return {uid: self.decide(uid, o) for uid, o in obs.items()}
+
     def step(self, obs: dict[str, AvoidanceObservation]) -> list[Any]:
         out: list[Any] = []
+        cmds = self.decide_all(obs)
         for uid, o in obs.items():
-            cmd = self.decide(uid, o)
+            cmd = cmds[uid]
             self._track_mode(uid, o.t, cmd.avoiding)
             v = np.asarray(cmd.vel_mps, float)
             if not np.all(np.isfinite(v)):  # a method failure must never reach the autopilot
@@ -182,11 +187,20 @@ class ControlTubeController(_UavController):
         self._first = True
 
     def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
-        if self._first:  # qpOASES prints a licence banner on its first solve in a process
+        return self.decide_all({uid: obs})[uid]
+
+    def decide_all(self, obs: dict[str, AvoidanceObservation]) -> dict[str, MethodCommand]:
+        """One ``step_many`` over the fleet: each UAV keeps its own plan and QP, the tube rows of all
+        of them are built in one vectorised pass."""
+        from corridor.controllers.control_tube import step_many
+
+        uids = list(obs)
+        methods, observations = [self.methods[u] for u in uids], [obs[u] for u in uids]
+        if self._first and uids:  # qpOASES prints a licence banner on its first solve in a process
             self._first = False
             with self._quiet():
-                return self.methods[uid].step(obs)
-        return self.methods[uid].step(obs)
+                return dict(zip(uids, step_many(methods, observations), strict=True))
+        return dict(zip(uids, step_many(methods, observations), strict=True))
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         ms = list(self.methods.values())

@@ -28,7 +28,6 @@ world snapshot and publishes nothing.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
@@ -40,7 +39,7 @@ from corridor.controllers.uav_models import TrackedAgent
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import Kind
 
-from .mavlink_link import LinkRates, MavlinkLink, TrafficReport
+from .mavlink_link import LinkRates, MavlinkLink, ReceivedReport
 from .tracking import TrackTable
 
 
@@ -81,7 +80,7 @@ class AirLink(Component):
         self.tables: dict[str, TrackTable] = {}
         self.piloted: set[str] = set()
         self.log_path = Path(params.log_path) if params.log_path else None
-        self._pending: dict[str, dict[str, TrafficReport]] = {}
+        self._pending: dict[str, dict[str, ReceivedReport]] = {}  # receiver -> source -> newest report
         self.fused = 0
 
     def setup(self, ctx: RunContext) -> None:
@@ -111,15 +110,7 @@ class AirLink(Component):
             pos = s.position[air]
             self.link.channel.set_positions_arrays(ids, pos)
             self.link.publish(ctx.t, ids, pos, s.velocity[air], s.heading[air])
-        inbox = self.link.receive(ctx.t)
-        for dst, reports in inbox.reports.items():
-            pend = self._pending.get(dst)
-            if pend is None:
-                continue
-            for r in reports:
-                old = pend.get(r.src)
-                if old is None or r.t_meas_s >= old.t_meas_s:
-                    pend[r.src] = r
+        self.link.receive_latest(ctx.t, self._pending)  # keeps the newest report per receiver and source
 
     def inject(self, t_s: float, src: str, payload: bytes, dst: str | None = None) -> None:
         """Put raw bytes on the channel (tests: garbage must be counted and dropped)."""
@@ -140,14 +131,17 @@ class AirLink(Component):
                 self.fused += 1
         self._pending[uav_id] = {}
         table.drop_stale(t_s)
-        k, piloted = self.params.sigma_factor, self.piloted
-        return tuple(
-            TrackedAgent(tid, tr.pos, tr.vel, k * math.sqrt(max(tr.cov[0, 0], tr.cov[1, 1], tr.cov[2, 2])),
-                         tid in piloted)
-            for tid, tr in table.predict_all(t_s).items()
-        )
+        ids, x, cov, _ = table.predict_arrays(t_s)
+        if not ids:
+            return ()
+        # uncertainty radius: factor x the largest position standard deviation of each track
+        var = np.maximum(np.maximum(cov[:, 0, 0], cov[:, 1, 1]), cov[:, 2, 2])
+        sigma = (self.params.sigma_factor * np.sqrt(var)).tolist()
+        piloted = self.piloted
+        return tuple(TrackedAgent(tid, x[i, :3].copy(), x[i, 3:6].copy(), sigma[i], tid in piloted)
+                     for i, tid in enumerate(ids))
 
-    def _nearest(self, pend: dict[str, TrafficReport], own_pos: np.ndarray | None) -> dict[str, TrafficReport]:
+    def _nearest(self, pend: dict[str, ReceivedReport], own_pos: np.ndarray | None) -> dict[str, ReceivedReport]:
         """Every piloted report plus the ``max_tracks`` UAV reports nearest to ``own_pos``."""
         n = self.params.max_tracks
         if own_pos is None or len(pend) <= n:

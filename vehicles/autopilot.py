@@ -161,12 +161,16 @@ class QuadCascade:
     def add_row(self) -> None:
         self.integ = np.vstack([self.integ, np.zeros((1, 3))])
 
-    def velocity_demand(self, p_enu: np.ndarray, tgt: QuadTargets) -> np.ndarray:
+    def velocity_demand(self, p_enu: np.ndarray | None, tgt: QuadTargets) -> np.ndarray:
         """Velocity demand [m/s] (N, 3) from the mode: P on position error, or the commanded velocity;
-        saturated horizontally by norm and vertically by the climb/descent limits."""
+        saturated horizontally by norm and vertically by the climb/descent limits. ``p_enu`` may be
+        None when no row is in POSITION mode (the position is then not needed)."""
         g = self.gains
-        v_pos = g.kp_pos * (tgt.p_enu - p_enu)
-        v = np.where((tgt.mode == QuadMode.VELOCITY)[:, None], tgt.v_enu, v_pos)
+        if p_enu is None:
+            v = tgt.v_enu
+        else:
+            v_pos = g.kp_pos * (tgt.p_enu - p_enu)
+            v = np.where((tgt.mode == QuadMode.VELOCITY)[:, None], tgt.v_enu, v_pos)
         out = np.empty_like(v)
         out[:, :2] = _saturate_norm(v[:, :2], np.minimum(tgt.speed_limit_mps, g.max_speed_xy_mps))
         out[:, 2] = _clip(v[:, 2], -g.max_descent_mps, g.max_climb_mps)
@@ -180,32 +184,49 @@ class QuadCascade:
         return self._kp * err + self.integ
 
     def step(
-        self, p_enu: np.ndarray, v_enu: np.ndarray, euler_rad: np.ndarray, tgt: QuadTargets, dt_s: float
+        self, p_enu: np.ndarray | None, v_enu: np.ndarray, euler_rad: np.ndarray, tgt: QuadTargets, dt_s: float
     ) -> QuadSticks:
         """One cascade update. ``euler_rad`` is (N, 3): roll phi, pitch theta (JSBSim body convention)
         and ENU yaw. Returns the sticks to write into each F450's FCS."""
+        s = self.stick_array(p_enu, v_enu, euler_rad, tgt, dt_s)
+        return QuadSticks(aileron=s[:, 0], elevator=s[:, 1], rudder=s[:, 2], throttle=s[:, 3])
+
+    def stick_array(
+        self, p_enu: np.ndarray | None, v_enu: np.ndarray, euler_rad: np.ndarray, tgt: QuadTargets, dt_s: float,
+        v_dem: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """:meth:`step` as one (N, 4) array, columns aileron, elevator, rudder, throttle (row-major:
+        the fleet writes it into the FDMs in one flat pass). Runs 120 times per simulated second, so
+        the attitude and stick stages work on (N, 2) / (N, 4) blocks: the same element-wise
+        operations as column by column, in fewer numpy calls. ``v_dem``: the velocity demand when
+        the caller already has it (it depends only on the targets when no row is in POSITION mode,
+        so the fleet computes it once per tick instead of once per sub-step)."""
         g = self.gains
-        acc = self.acceleration_demand(v_enu, self.velocity_demand(p_enu, tgt), dt_s)
-        phi, theta, yaw = euler_rad[:, 0], euler_rad[:, 1], euler_rad[:, 2]
+        if v_dem is None:
+            v_dem = self.velocity_demand(p_enu, tgt)
+        acc = self.acceleration_demand(v_enu, v_dem, dt_s)
+        yaw = euler_rad[:, 2]
         # horizontal acceleration in the heading frame: forward (body x) and right (body y)
         c, s = np.cos(yaw), np.sin(yaw)
         a_fwd = c * acc[:, 0] + s * acc[:, 1]
         a_right = s * acc[:, 0] - c * acc[:, 1]
-        tilt = np.column_stack([np.arctan2(a_right, G_MPS2), -np.arctan2(a_fwd, G_MPS2)])
+        tilt = np.empty((len(yaw), 2))
+        tilt[:, 0] = np.arctan2(a_right, G_MPS2)
+        tilt[:, 1] = -np.arctan2(a_fwd, G_MPS2)
         tilt = _saturate_norm(tilt, g.max_tilt_rad)
-        rate_roll = g.kp_att * (tilt[:, 0] - phi)
-        rate_pitch = g.kp_att * (tilt[:, 1] - theta)
+        rates = np.empty((len(yaw), 4))
+        rates[:, :2] = g.kp_att * (tilt - euler_rad[:, :2])  # roll, pitch rate demands [rad/s]
         # JSBSim's r is nose-right (heading increasing) = ENU yaw decreasing
-        rate_yaw = -_clip(g.kp_yaw * wrap_pi(tgt.yaw_rad - yaw), -g.max_yaw_rate_rps, g.max_yaw_rate_rps)
-        lift = np.maximum(np.cos(phi) * np.cos(theta), 0.5)
-        throttle = g.hover_throttle * (1.0 + acc[:, 2] / G_MPS2) / lift
-        k = 1.0 / F450_RATE_PER_STICK
-        return QuadSticks(
-            aileron=_clip(k * rate_roll, -1.0, 1.0),
-            elevator=_clip(k * rate_pitch, -1.0, 1.0),
-            rudder=_clip(k * rate_yaw, -1.0, 1.0),
-            throttle=_clip(throttle, 0.0, 1.0),
-        )
+        rates[:, 2] = -_clip(g.kp_yaw * wrap_pi(tgt.yaw_rad - yaw), -g.max_yaw_rate_rps, g.max_yaw_rate_rps)
+        cos_pt = np.cos(euler_rad[:, :2])
+        lift = np.maximum(cos_pt[:, 0] * cos_pt[:, 1], 0.5)
+        rates[:, :3] *= 1.0 / F450_RATE_PER_STICK
+        rates[:, 3] = g.hover_throttle * (1.0 + acc[:, 2] / G_MPS2) / lift
+        return _clip(rates, _STICK_LO, _STICK_HI)
+
+
+_STICK_LO = np.array([-1.0, -1.0, -1.0, 0.0])  # aileron, elevator, rudder [-], throttle [0, 1]
+_STICK_HI = np.array([1.0, 1.0, 1.0, 1.0])
 
 
 # --------------------------------------------------------------------------------- fixed wing (c172)

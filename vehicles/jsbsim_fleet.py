@@ -29,7 +29,7 @@ import ctypes
 import logging
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import jsbsim
@@ -163,9 +163,13 @@ class JSBSimFleet:
         self.roles: list[int] = []
         self._fdms: list[jsbsim.FGFDMExec] = []
         self._nodes: list[list[jsbsim.FGPropertyNode]] = []  # per aircraft: state nodes (_STATE_PROPS order)
+        # hot path (120 Hz x every aircraft): flat lists of bound methods, no per-call attribute lookups
+        self._runs: list[Callable[[], bool]] = []  # FGFDMExec.run of every aircraft
+        self._getters: list[Callable[[], float]] = []  # state nodes' get_double_value, row-major
         self._raw = np.zeros((0, len(_STATE_PROPS)))
         self._quad_rows: list[int] = []  # fleet row of each quad-cascade row
         self._quad_in: list[list[jsbsim.FGPropertyNode]] = []  # per quad: stick nodes
+        self._stick_setters: list[Callable[[float], None]] = []  # quads' stick nodes, row-major
         self._quad_wp: dict[int, tuple[WaypointCommand, int]] = {}  # quad row -> (command, index)
         self.quad_targets = QuadTargets()
         self.quad_ap = QuadCascade(quad_gains)
@@ -232,6 +236,8 @@ class JSBSimFleet:
         self._fdms.append(fdm)
         pm = fdm.get_property_manager()
         self._nodes.append([pm.get_node(p) for p in _STATE_PROPS])
+        self._runs.append(fdm.run)
+        self._getters.extend(n.get_double_value for n in self._nodes[-1])
         self._raw = np.vstack([self._raw, self._read_row(row)[None, :]])
         if model == "F450":
             self._add_quad(row, pm, enu, heading_rad)
@@ -252,6 +258,7 @@ class JSBSimFleet:
     def _add_quad(self, row: int, pm: jsbsim.FGPropertyManager, enu: np.ndarray, yaw_rad: float) -> None:
         self._quad_rows.append(row)
         self._quad_in.append([pm.get_node(p) for p in _QUAD_STICKS])
+        self._stick_setters.extend(n.set_double_value for n in self._quad_in[-1])
         self.quad_targets.append(enu, yaw_rad, np.inf)
         self.quad_ap.add_row()
 
@@ -301,25 +308,34 @@ class JSBSimFleet:
         n = round(dt_s * self.rate_hz)
         h = 1.0 / self.rate_hz
         jsbsim.set_logger(self._log_sink)  # the stepping thread may differ from the building one
+        runs = self._runs
+        # targets only change between steps: with no quad in POSITION mode the cascade's velocity
+        # demand is the same at every sub-step of this step (the position is not needed at all)
+        tgt = self.quad_targets
+        v_dem = None
+        if self._quad_rows and not (tgt.mode == QuadMode.POSITION).any():
+            v_dem = self.quad_ap.velocity_demand(None, tgt)
         for _ in range(n):
-            self._control(h)
-            for fdm in self._fdms:
-                fdm.run()
+            self._control(h, v_dem)
+            for run in runs:
+                run()
             self._read_all()
             self._substep += 1
         self.t_s += n * h
         self._advance_quad_waypoints()
 
-    def _control(self, h_s: float) -> None:
-        """Run the autopilots on the latest state and write their outputs into the FDMs."""
+    def _control(self, h_s: float, v_dem: np.ndarray | None = None) -> None:
+        """Run the autopilots on the latest state and write their outputs into the FDMs.
+
+        ``v_dem``: the quads' velocity demand if it does not depend on their positions (no row in
+        POSITION mode); the geodetic -> ENU conversion is then skipped."""
         if self._quad_rows:
-            raw = self._raw[self._quad_rows]
-            p, v, euler = self._enu_rows(raw), self._vel_rows(raw), self._euler_rows(raw)
-            sticks = self.quad_ap.step(p, v, euler, self.quad_targets, h_s)
-            rows = np.column_stack([sticks.aileron, sticks.elevator, sticks.rudder, sticks.throttle]).tolist()
-            for nodes, values in zip(self._quad_in, rows, strict=True):
-                for node, value in zip(nodes, values, strict=True):
-                    node.set_double_value(value)
+            raw = self._raw if len(self._quad_rows) == len(self.ids) else self._raw[self._quad_rows]
+            p = None if v_dem is not None else self._enu_rows(raw)
+            sticks = self.quad_ap.stick_array(p, self._vel_rows(raw), self._euler_rows(raw), self.quad_targets, h_s,
+                                              v_dem)
+            for set_value, value in zip(self._stick_setters, sticks.ravel().tolist(), strict=True):
+                set_value(value)
         if self._fw_rows and self._substep % self._fw_every == 0:
             self._control_fixed_wing(self._fw_every * h_s)
 
@@ -347,7 +363,7 @@ class JSBSimFleet:
         return np.array([n.get_double_value() for n in self._nodes[row]])
 
     def _read_all(self) -> None:
-        self._raw = np.array([[n.get_double_value() for n in nodes] for nodes in self._nodes])
+        self._raw = np.array([get() for get in self._getters]).reshape(-1, len(_STATE_PROPS))
 
     def _enu_rows(self, raw: np.ndarray) -> np.ndarray:
         return self.origin.to_enu(raw[:, 0], raw[:, 1], raw[:, 2] * M_PER_FT)

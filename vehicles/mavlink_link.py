@@ -20,10 +20,11 @@ scenario origin's height defines the datum), ``relative_alt`` is ENU up.
 
 from __future__ import annotations
 
+import math
 import socket
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
@@ -46,9 +47,15 @@ def _ms(t_s: float) -> int:
     return int(round(t_s * 1000.0)) & 0xFFFFFFFF
 
 
+_TWO_PI = 2.0 * math.pi
+
+
 def _cdeg(yaw_rad: float) -> int:
-    """ENU yaw [rad] -> compass heading in centidegrees [0, 35999]."""
-    return int(round(np.degrees(heading_from_enu_yaw(yaw_rad)) * 100.0)) % 36000
+    """ENU yaw [rad] -> compass heading in centidegrees [0, 35999].
+
+    ``heading_from_enu_yaw`` and ``np.degrees`` on a plain float, written with ``math`` (the same
+    IEEE operations: Python's float ``%`` and numpy's ``mod`` both are fmod plus a sign fix-up)."""
+    return round(math.degrees((0.5 * math.pi - float(yaw_rad)) % _TWO_PI) * 100.0) % 36000
 
 
 # ------------------------------------------------------------------------------------------ encoding
@@ -92,17 +99,17 @@ class MavlinkEndpoint:
         ``geodetic`` = (lat [deg], lon [deg], h [m]) of ``p_enu`` when the caller converted a whole
         fleet at once (the per-message conversion is the costly part of encoding)."""
         lat, lon, h = geodetic if geodetic is not None else self.origin.to_geodetic(np.asarray(p_enu, float))
-        ve, vn, vu = (float(x) for x in v_enu)
+        ve, vn, vu = _floats3(v_enu)
         msg = self.mav.global_position_int_encode(
-            _ms(t_s), int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)), int(round(float(h) * 1e3)),
-            int(round(float(p_enu[2]) * 1e3)), _cm_s(vn), _cm_s(ve), _cm_s(-vu), _cdeg(yaw_rad),
+            _ms(t_s), round(float(lat) * 1e7), round(float(lon) * 1e7), round(float(h) * 1e3),
+            round(float(p_enu[2]) * 1e3), _cm_s(vn), _cm_s(ve), _cm_s(-vu), _cdeg(yaw_rad),
         )
         return self.pack(msg)
 
     def local_position_ned(self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray) -> bytes:
         """LOCAL_POSITION_NED around the scenario origin [m, m/s]."""
-        e, n, u = (float(x) for x in p_enu)
-        ve, vn, vu = (float(x) for x in v_enu)
+        e, n, u = _floats3(p_enu)
+        ve, vn, vu = _floats3(v_enu)
         return self.pack(self.mav.local_position_ned_encode(_ms(t_s), n, e, -u, vn, ve, -vu))
 
     def adsb_vehicle(
@@ -155,6 +162,12 @@ class MavlinkEndpoint:
         return self.pack(msg)
 
 
+def _floats3(v: np.ndarray | Iterable[float]) -> tuple[float, float, float]:
+    """A 3-vector (numpy array, list or tuple) as three Python floats."""
+    x, y, z = v.tolist() if isinstance(v, np.ndarray) else v
+    return float(x), float(y), float(z)
+
+
 def _cm_s(v_mps: float) -> int:
     """[m/s] -> int16 [cm/s], clamped."""
     return max(-32768, min(32767, round(v_mps * 100.0)))
@@ -186,18 +199,34 @@ class MavlinkDecoder:
 
     def __init__(self) -> None:
         self.mav = mavlink2.MAVLink(None)
-        self.counters = DecodeCounters()
+        self._counters = DecodeCounters()
+        # copies whose parse was shared (MavlinkLink decodes a datagram once for all receivers):
+        # counter values of that parse -> number of copies, folded into ``counters`` when read
+        self._shared: dict[tuple[int, int, int, int], int] = {}
         self._buf = b""
+
+    @property
+    def counters(self) -> DecodeCounters:
+        """What this decoder saw, every received copy counted (shared parses included)."""
+        if self._shared:
+            c = self._counters
+            for (messages, bad_crc, bad_data, dropped), n in self._shared.items():
+                c.messages += n * messages
+                c.bad_crc += n * bad_crc
+                c.bad_data += n * bad_data
+                c.bytes_dropped += n * dropped
+            self._shared.clear()
+        return self._counters
 
     def feed(self, data: bytes) -> list[Any]:
         msgs, rest, c = _scan(self.mav, self._buf + bytes(data), final=False)
         self._buf = rest
-        self.counters.add(c)
+        self._counters.add(c)
         return msgs
 
     def decode_datagram(self, data: bytes) -> list[Any]:
         msgs, _, c = _scan(self.mav, bytes(data), final=True)
-        self.counters.add(c)
+        self._counters.add(c)
         return msgs
 
 
@@ -347,6 +376,30 @@ class _ReportFields:
                              self.yaw_rad)
 
 
+class ReceivedReport(NamedTuple):
+    """One receiver's copy of a position report, not yet expanded into a :class:`TrafficReport`
+    (a NamedTuple over the shared decode: the cheap form for consumers that keep only the newest
+    report per source, see :meth:`MavlinkLink.receive_latest`)."""
+
+    t_meas_s: float  # [s] the sender's measurement time
+    fields: _ReportFields  # shared by every receiver of the datagram (arrays read-only)
+    src: str
+    t_sent_s: float
+    t_recv_s: float
+
+    @property
+    def p_enu(self) -> np.ndarray:
+        return self.fields.p_enu
+
+    @property
+    def v_enu(self) -> np.ndarray:
+        return self.fields.v_enu
+
+    def report(self) -> TrafficReport:
+        """The full :class:`TrafficReport` (what ``receive`` returns for this copy)."""
+        return self.fields.received(self.src, self.t_sent_s, self.t_recv_s)
+
+
 @dataclass(frozen=True)
 class _Decoded:
     """One datagram decoded and converted once, shared by every receiver of a copy of its bytes."""
@@ -354,6 +407,7 @@ class _Decoded:
     counters: DecodeCounters
     report: _ReportFields | None
     setpoints: tuple[Any, ...]
+    counter_key: tuple[int, int, int, int]  # the counters' values (a copy's tally key)
 
     @staticmethod
     def of(msgs: list[Any], counters: DecodeCounters, origin: Origin) -> _Decoded:
@@ -366,7 +420,8 @@ class _Decoded:
                 tslc = next((float(m.tslc) for m in msgs if m.get_type() == "ADSB_VEHICLE"), 0.0)
                 report = _ReportFields(r.sysid, r.kind, r.t_meas_s, r.p_enu, r.v_enu, r.yaw_rad, tslc)
         sps = tuple(m for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED")
-        return _Decoded(counters, report, sps)
+        key = (counters.messages, counters.bad_crc, counters.bad_data, counters.bytes_dropped)
+        return _Decoded(counters, report, sps, key)
 
 
 # ---------------------------------------------------------------------------------------------- link
@@ -497,19 +552,21 @@ class MavlinkLink:
         """Send every message due at ``t_s`` for the registered aircraft among ``ids`` (struct of
         arrays in ENU, e.g. a WorldSnapshot's ids/position/velocity/heading); the GCS heartbeat too.
         The geodetic conversion is done once for the whole fleet (vectorised)."""
-        lat, lon, h = self.origin.to_geodetic(np.asarray(position, float).reshape(-1, 3))
-        for k, id in enumerate(ids):
+        pos = np.asarray(position, float).reshape(-1, 3)
+        lat, lon, h = self.origin.to_geodetic(pos)
+        rows = zip(ids, pos, np.asarray(velocity, float).reshape(-1, 3).tolist(), np.asarray(yaw, float).tolist(),
+                   zip(lat.tolist(), lon.tolist(), h.tolist()), strict=True)
+        for id, p, v, yaw_k, geo in rows:
             node = self._nodes.get(str(id))
             if node is not None and node.kind != "gcs":
-                geo = (float(lat[k]), float(lon[k]), float(h[k]))
-                self._publish_one(t_s, str(id), node, position[k], velocity[k], float(yaw[k]), geo)
+                self._publish_one(t_s, str(id), node, p, v, yaw_k, geo)
         gcs = self._nodes[self.gcs_id]
         if t_s + 1e-9 >= gcs.next_hb_s:
             gcs.next_hb_s = _next_due(gcs.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
             self._send(t_s, self.gcs_id, gcs.endpoint.heartbeat(), None)
 
     def _publish_one(
-        self, t_s: float, id: str, node: _Node, p: np.ndarray, v: np.ndarray, yaw: float,
+        self, t_s: float, id: str, node: _Node, p: np.ndarray, v: list[float], yaw: float,
         geo: tuple[float, float, float],
     ) -> None:
         ep, frames = node.endpoint, []
@@ -524,7 +581,7 @@ class MavlinkLink:
             else:
                 frames.append(ep.adsb_vehicle(node.icao, node.callsign, p, v, geodetic=geo))
         if frames:
-            self._send(t_s, id, b"".join(frames), np.asarray(p, float))
+            self._send(t_s, id, b"".join(frames), p)
 
     def command(
         self,
@@ -551,18 +608,54 @@ class MavlinkLink:
         is decoded and converted once per call (:class:`_Decoded`), and its receivers share the result
         (the counters are still added per received copy, as if every receiver had parsed it)."""
         inbox = Inbox()
-        self._cache.clear()
-        decoders, reports = self._decoders, inbox.reports
-        for d in self.channel.deliver(t_s):
-            dec = decoders.get(d.dst)
-            if dec is None or not isinstance(d.payload, bytes | bytearray):
-                continue
-            decoded = self._decode(dec, self._corrupt(bytes(d.payload)))
+        reports = inbox.reports
+        for d, decoded in self._received(t_s):
             if decoded.report is not None:
                 reports.setdefault(d.dst, []).append(decoded.report.received(d.src, d.t_sent_s, d.t_recv_s))
             if decoded.setpoints:
                 self._route_setpoints(inbox, d, decoded)
         return inbox
+
+    def receive_latest(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
+        """:meth:`receive` for consumers that keep only the newest report per (receiver, source):
+        ``latest[dst][src]`` is replaced by every received report that is not older (sender's
+        measurement time) than the one it holds; receivers not in ``latest`` are skipped. The same
+        deliveries, decoding and counters as ``receive``, without building a TrafficReport per
+        copy (a swarm's broadcasts are N^2 copies per tick). Returns the set-points."""
+        inbox = Inbox()
+        for d, decoded in self._received(t_s):
+            rep = decoded.report
+            if rep is not None and (pend := latest.get(d.dst)) is not None:
+                t_meas = d.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
+                old = pend.get(d.src)
+                if old is None or t_meas >= old.t_meas_s:
+                    pend[d.src] = ReceivedReport(t_meas, rep, d.src, d.t_sent_s, d.t_recv_s)
+            if decoded.setpoints:
+                self._route_setpoints(inbox, d, decoded)
+        return inbox.setpoints
+
+    def _received(self, t_s: float) -> list[tuple[Any, _Decoded]]:
+        """Every delivered copy for a listening member with its (shared) decode, in delivery order;
+        each copy's counters are added to its receiver's decoder."""
+        self._cache.clear()
+        cache, decoders, out = self._cache, self._decoders, []
+        corrupt = self.bit_error_rate > 0.0
+        for d in self.channel.deliver(t_s):
+            dec = decoders.get(d.dst)
+            payload = d.payload
+            if dec is None or not isinstance(payload, bytes | bytearray):
+                continue
+            if type(payload) is not bytes:
+                payload = bytes(payload)
+            if corrupt:
+                payload = self._corrupt(payload)
+            hit = cache.get(payload)
+            if hit is None:
+                hit = cache[payload] = self._decode_once(payload)
+            key = hit.counter_key
+            dec._shared[key] = dec._shared.get(key, 0) + 1
+            out.append((d, hit))
+        return out
 
     def _corrupt(self, payload: bytes) -> bytes:
         if self.bit_error_rate <= 0.0:
@@ -577,15 +670,11 @@ class MavlinkLink:
             buf[b // 8] ^= 1 << (b % 8)
         return bytes(buf)
 
-    def _decode(self, dec: MavlinkDecoder, payload: bytes) -> _Decoded:
-        """Datagram decode + conversion, memoised within one receive() for copies of the same bytes."""
-        hit = self._cache.get(payload)
-        if hit is None:
-            scratch = MavlinkDecoder()
-            msgs = scratch.decode_datagram(payload)
-            hit = self._cache[payload] = _Decoded.of(msgs, scratch.counters, self.origin)
-        dec.counters.add(hit.counters)
-        return hit
+    def _decode_once(self, payload: bytes) -> _Decoded:
+        """Datagram decode + conversion (memoised within one receive for copies of the same bytes)."""
+        scratch = MavlinkDecoder()
+        msgs = scratch.decode_datagram(payload)
+        return _Decoded.of(msgs, scratch.counters, self.origin)
 
     def _route_setpoints(self, inbox: Inbox, d: Any, decoded: _Decoded) -> None:
         my_sysid = self._nodes[d.dst].endpoint.sysid
@@ -626,5 +715,5 @@ class MavlinkLink:
 
 def _next_due(prev_due_s: float, t_s: float, period_s: float) -> float:
     """Next send time on the grid prev_due + k * period strictly after ``t_s``."""
-    k = np.floor((t_s - prev_due_s) / period_s + 1e-9) + 1.0
+    k = math.floor((t_s - prev_due_s) / period_s + 1e-9) + 1.0
     return prev_due_s + max(k, 1.0) * period_s

@@ -267,3 +267,33 @@ def test_shared_decode_gives_every_receiver_what_its_own_parse_gives() -> None:
             assert a.yaw_rad == b.yaw_rad or (np.isnan(a.yaw_rad) and np.isnan(b.yaw_rad))
     assert link.counters() == ref_counts.counters  # counters still count every received copy
     assert ref_counts.counters.messages > sum(map(len, own.values()))  # heartbeats are not reports
+
+
+def test_receive_latest_keeps_what_receive_would_keep() -> None:
+    """receive_latest (no TrafficReport per copy) keeps, per receiver and source, the newest report that
+    receive's reports give, and counts every copy in the decoders as receive does."""
+    cfg = ChannelConfig(latency_s=0.05, jitter_s=0.08, loss=BernoulliLoss(p=0.1))  # jitter reorders
+    (_, full), (_, lean) = _link(cfg), _link(cfg)
+    ids = ["u1", "u2", "c172"]
+    pos = np.array([[0.0, 0.0, 30.0], [40.0, 0.0, 30.0], [800.0, 200.0, 300.0]])
+    vel = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
+    newest: dict[str, dict] = {"u1": {}, "u2": {}, "gcs": {}}
+    latest: dict[str, dict] = {"u1": {}, "u2": {}, "gcs": {}}
+    for k in range(60):
+        t = 0.05 * k
+        for link in (full, lean):
+            link.publish(t, ids, pos + vel * t, vel, np.zeros(3))
+        for dst, reports in full.receive(t).reports.items():
+            for r in reports:
+                old = newest[dst].get(r.src)
+                if old is None or r.t_meas_s >= old.t_meas_s:
+                    newest[dst][r.src] = r
+        assert lean.receive_latest(t, latest) == []
+        for dst in newest:
+            assert set(newest[dst]) == set(latest[dst])
+            for src, r in newest[dst].items():
+                got = latest[dst][src].report()
+                assert (got.src, got.sysid, got.kind, got.t_sent_s, got.t_recv_s, got.t_meas_s) == (
+                    r.src, r.sysid, r.kind, r.t_sent_s, r.t_recv_s, r.t_meas_s)
+                assert np.array_equal(got.p_enu, r.p_enu) and np.array_equal(got.v_enu, r.v_enu)
+    assert lean.counters() == full.counters() and full.counters().messages > 100
