@@ -54,8 +54,8 @@ class RampParams(BaseModel):
     open_rate_vph: float = Field(1800.0, gt=0)  # [veh/h] at or above: meter off
     rate_min_vph: float = Field(240.0, ge=0)  # [veh/h]
     alinea_gain_vph_per_pct: float = Field(70.0, gt=0)  # K_R
-    # ALINEA set point [%]; None: the critical occupancy of the calibrated fundamental diagram,
-    # rho_crit [veh/km/lane] x vehicle_length_m / 10 (``setpoint_from_calibration``)
+    # ALINEA set point [%]; None: the calibrated critical occupancy of the downstream loops
+    # (``setpoint_from_calibration``)
     alinea_setpoint_pct: float | None = Field(None, gt=0)
     override_frac: float = Field(0.7, gt=0, le=1)  # queue override at this share of storage
     vehicle_length_m: float = Field(5.0, gt=0)  # occupancy <-> density: rho = occ[%] 10 / length
@@ -205,21 +205,26 @@ def load_calibration(name: str | None) -> dict[str, float]:
     for cand in (Path(name), Path("scenarios") / name, repo / "scenarios" / name):
         if cand.is_file():
             fit = json.loads(cand.read_text())
-            out.update({k: float(fit[k]) for k in DEFAULT_FD if k in fit})
+            out.update({k: float(fit[k]) for k in (*DEFAULT_FD, "alinea_setpoint_pct") if k in fit})
             out["source"] = str(cand)  # type: ignore[assignment]
             break
     return out
 
 
 def setpoint_from_calibration(p: RampParams) -> float:
-    """ALINEA set point [%]: the given one, else the critical occupancy of the calibrated diagram.
+    """ALINEA set point [%]: the given one, else the calibrated critical occupancy.
 
-    SUMO loops report the share of time a vehicle body covers them, so occupancy [%] = density
-    [veh/km/lane] x vehicle length [m] / 10; without a calibration file ``DEFAULT_FD`` is used.
+    The calibration's ``alinea_setpoint_pct`` is the critical occupancy of the loops ALINEA feeds back
+    on (downstream of the merges, fitted alone); older files without it give the ring diagram's
+    rho_crit [veh/km/lane] x vehicle length [m] / 10 (SUMO loops report the share of time a vehicle
+    body covers them); without a calibration file ``DEFAULT_FD`` is used.
     """
     if p.alinea_setpoint_pct is not None:
         return float(p.alinea_setpoint_pct)
-    return float(load_calibration(p.calibration_file)["rho_crit"]) * p.vehicle_length_m / 10.0
+    fd = load_calibration(p.calibration_file)
+    if "alinea_setpoint_pct" in fd:
+        return float(fd["alinea_setpoint_pct"])
+    return float(fd["rho_crit"]) * p.vehicle_length_m / 10.0
 
 
 def od_matrix(flows: dict[str, Any], n: int) -> np.ndarray:
@@ -281,13 +286,34 @@ class DemandForecast:
         return out
 
 
+RHO_SPACE_MEAN_MIN = 5.0  # [veh/km/lane] below: loop speed (q / rho too noisy in light traffic)
+
+
+def loop_speed_kmh(occ_pct: float, flow_vph: float, speed_mps: float, lanes: int | None,
+                   vehicle_length_m: float) -> float:
+    """Space-mean speed [km/h] of a loop group: q / rho, at most the loops' time-mean speed.
+
+    Loops report time-mean speeds, which in stop-and-go traffic lie far above the space-mean speed
+    that METANET's q = rho v needs (at 70 veh/km/lane ~40 against ~20 km/h on the beltway), so with
+    the flow [veh/h, all lanes] and density from occupancy the identity q / rho is used instead
+    (space-mean <= time-mean speed).  nan when nobody passed; the loop speed in light traffic or
+    without ``lanes``.
+    """
+    v_loop = 3.6 * speed_mps
+    rho = occ_pct * 10.0 / vehicle_length_m
+    if lanes is None or not math.isfinite(v_loop) or flow_vph <= 0.0 or rho < RHO_SPACE_MEAN_MIN:
+        return v_loop
+    return min(v_loop, flow_vph / lanes / rho)
+
+
 def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
-                   vehicle_length_m: float) -> np.ndarray:
+                   vehicle_length_m: float, lanes: int | None = None) -> np.ndarray:
     """METANET state from the detectors by a direct mapping (no filter).
 
     Density [veh/km/lane] = occupancy [%] x 10 / vehicle length [m] and speed [km/h] of the loops just
     downstream of merge k and just upstream of the next merge, interpolated linearly over the m
     segments of the link between them (a missing speed takes the equilibrium speed of the density).
+    With ``lanes`` the speed is the space-mean speed q / rho of each loop group (``loop_speed_kmh``).
     Queues are the vehicles on each on-ramp storage (E2).  Densities are floored at ``RHO_FLOOR``: at
     rho = 0 the derivative of (rho/rho_crit)^a is NaN in CasADi and IPOPT stops at once.
     """
@@ -302,8 +328,11 @@ def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
                 f = (s + 0.5) / m
                 i = (dirn * n + k) * m + s
                 rho[i] = ((1 - f) * a.occupancy_down_pct + f * b.occupancy_up_pct) * 10.0 / vehicle_length_m
-                speeds = [x for x in (a.speed_down_mps, b.speed_up_mps) if math.isfinite(x)]
-                v[i] = 3.6 * float(np.mean(speeds)) if speeds else math.nan
+                speeds = [x for x in (
+                    loop_speed_kmh(a.occupancy_down_pct, a.flow_down_vph, a.speed_down_mps, lanes, vehicle_length_m),
+                    loop_speed_kmh(b.occupancy_up_pct, b.flow_up_vph, b.speed_up_mps, lanes, vehicle_length_m),
+                ) if math.isfinite(x)]
+                v[i] = float(np.mean(speeds)) if speeds else math.nan
     rho = np.maximum(rho, RHO_FLOOR)
     v_eq = equilibrium_speed(rho, net.v_free_kmh, net.rho_crit, net.a)
     v = np.where(np.isfinite(v), v, v_eq)
@@ -339,6 +368,7 @@ class RampMpc(RampControl):
         net = beltway(layout, od_matrix(sc.road.demand.flows, n), MetanetParams(step_h=p.model_step_s / 3600.0))
         self.net = with_guidance_bounds(net, self.choices, p.compliance if p.guidance else 0.0)
         self.m_seg = self.net.n_seg // (2 * n)
+        self.lanes = int(lm["lanes"])
         cfg = MPCConfig(horizon_ctrl_steps=p.horizon_ctrl_steps, control_step_s=p.control_step_s,
                         weight_rate_change=p.weight_rate_change, weight_split_change=p.weight_split_change,
                         rate_min=p.rate_min_vph / p.open_rate_vph, rate_max=1.0,
@@ -360,7 +390,7 @@ class RampMpc(RampControl):
 
     def decide(self, obs: RampObservation) -> dict[str, float]:
         net, mpc = self.net, self.mpc
-        x0 = estimate_state(net, obs.ramps, self.n, self.m_seg, self.p.vehicle_length_m)
+        x0 = estimate_state(net, obs.ramps, self.n, self.m_seg, self.p.vehicle_length_m, self.lanes)
         times = obs.t + np.arange(mpc.n) * self.p.model_step_s
         keys = [f"{SUMO_DIR_OF_MODEL[int(j) % 2]}{int(j) // 2}" for j in net.metered_idx]
         occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])

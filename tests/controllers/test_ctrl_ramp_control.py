@@ -18,6 +18,7 @@ from corridor.controllers.ramp_control import (
     RampParams,
     estimate_state,
     load_calibration,
+    loop_speed_kmh,
     od_matrix,
     setpoint_from_calibration,
 )
@@ -60,6 +61,23 @@ def test_alinea_setpoint_is_the_calibrated_critical_occupancy(tmp_path: Path) ->
     ctrl.reset(np.random.default_rng(0))
     rate = ctrl.decide(RampObservation(t=0.0, ramps=_ramps(1, occ=25.0)))["ccw0"]
     assert rate == pytest.approx(1800.0 + 70.0 * (20.0 - 25.0))
+
+
+def test_alinea_setpoint_prefers_the_downstream_loops_fit(tmp_path: Path) -> None:
+    fit = tmp_path / "fit.json"
+    fit.write_text('{"v_free_kmh": 90.0, "rho_crit": 40.0, "a": 2.0, "alinea_setpoint_pct": 18.5}')
+    assert setpoint_from_calibration(RampParams(calibration_file=str(fit))) == pytest.approx(18.5)
+
+
+def test_loop_speed_is_the_space_mean_speed_in_congestion() -> None:
+    # 30 % occupancy with 5 m cars = 60 veh/km/lane; 3000 veh/h over 2 lanes -> q / rho = 25 km/h,
+    # below the loops' time-mean 40 km/h (stop-and-go)
+    assert loop_speed_kmh(30.0, 3000.0, 40.0 / 3.6, 2, 5.0) == pytest.approx(25.0)
+    # light traffic (2 veh/km/lane) or no lane count: the loop speed itself
+    assert loop_speed_kmh(1.0, 180.0, 25.0, 2, 5.0) == pytest.approx(90.0)
+    assert loop_speed_kmh(30.0, 3000.0, 40.0 / 3.6, None, 5.0) == pytest.approx(40.0)
+    # never above the time-mean speed (space-mean <= time-mean)
+    assert loop_speed_kmh(10.0, 4000.0, 20.0, 2, 5.0) == pytest.approx(72.0)
 
 
 def test_alinea_queue_override_keeps_queue_under_storage() -> None:
