@@ -23,6 +23,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -31,6 +32,7 @@ from corridor.controllers.alinea import Alinea, AlineaConfig, occupancy_from_den
 from corridor.controllers.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+_LIMIT_STATUS = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded")
 
 
 @dataclass(frozen=True)
@@ -49,6 +51,10 @@ class MPCConfig:
     tol: float = 1e-5  # IPOPT convergence tolerance (TTS is ~1e2 veh h: 1e-5 is far below what matters)
     acceptable_tol: float = 1e-3  # IPOPT stops after ``acceptable_iter`` iterations at this tolerance
     acceptable_iter: int = 5
+    accept_improving_iterate: bool = True  # at an iteration or time limit, apply the last iterate if
+    #   it satisfies the dynamics and storage rows (within ``feasibility_tol``) and costs less than
+    #   holding the current inputs: suboptimal MPC (Scokaert, Mayne & Rawlings 1999)
+    feasibility_tol: float = 1e-2  # [veh/km/lane, km/h, veh] largest constraint violation accepted
     smooth_vph: float = 20.0  # width of the smooth min in the prediction model's origin flows [veh/h]
     smooth_rho: float = 1.0  # width of the smooth min/max at destinations [veh/km/lane]
     occupancy_eff_length_m: float = 7.0  # vehicle + loop length, converts density to occupancy [m]
@@ -143,6 +149,7 @@ class RampMeteringMPC:
         self.iter_counts: list[int] = []
         self.n_solves = 0
         self.n_fallbacks = 0
+        self.n_suboptimal = 0  # limit hit, improving feasible iterate applied
 
     # ---- construction -------------------------------------------------------------------
     def _build(self) -> tuple[ca.Function, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -223,6 +230,7 @@ class RampMeteringMPC:
         for a in self.alineas:
             a.reset()
         self.solve_times_s, self.iter_counts, self.n_solves, self.n_fallbacks = [], [], 0, 0
+        self.n_suboptimal = 0  # limit hit, improving feasible iterate applied
 
     def forecast_matrix(self, demand_forecast: np.ndarray) -> np.ndarray:
         """Disturbances (nd, N): a (nd,) vector is held constant, shorter (K, nd) forecasts are padded."""
@@ -242,6 +250,10 @@ class RampMeteringMPC:
         """
         if self._warm.valid:
             return self._warm.z
+        return self._hold_plan(x0, dmat, u_prev)
+
+    def _hold_plan(self, x0: np.ndarray, dmat: np.ndarray, u_prev: np.ndarray) -> np.ndarray:
+        """The feasible plan that holds u_prev over the horizon (forward simulation of the model)."""
         f, lay = self._pred_f, self.lay
         xs, x = np.zeros((lay.nx, lay.n)), x0
         for k in range(lay.n):
@@ -286,7 +298,10 @@ class RampMeteringMPC:
         solve_s = time.perf_counter() - t0
         self.n_solves += 1
         self.solve_times_s.append(solve_s)
-        if sol is None or status not in _OK_STATUS:
+        if sol is not None and status in _LIMIT_STATUS and self._usable_iterate(sol, x0, dmat, u_prev, p):
+            status = f"Suboptimal_Feasible ({status})"
+            self.n_suboptimal += 1
+        elif sol is None or status not in _OK_STATUS:
             return self._fallback(x0, dmat[:, 0], occupancy_pct, status, solve_s)
         z = sol["x"].full().ravel()
         self._store_shifted(z)
@@ -297,6 +312,20 @@ class RampMeteringMPC:
             a.rate_vph = float(rv)  # bumpless transfer to the fallback
         return MPCResult(rates=rates, rates_vph=rates_vph, split=s[:, 0].copy(), status=status,
                          solve_s=solve_s, fallback=False, predicted_tts=float(sol["f"]))
+
+    def _usable_iterate(self, sol: dict[str, Any], x0: np.ndarray, dmat: np.ndarray, u_prev: np.ndarray,
+                        p: np.ndarray) -> bool:
+        """The last iterate is feasible (dynamics, storage rows, bounds) and costs less than holding
+        the current inputs over the horizon (a feasible plan the controller could apply anyway)."""
+        if not self.cfg.accept_improving_iterate:
+            return False
+        z, g = sol["x"].full().ravel(), sol["g"].full().ravel()
+        viol = max(float(np.max(np.maximum(self._lbg - g, 0.0), initial=0.0)),
+                   float(np.max(np.maximum(g - self._ubg, 0.0), initial=0.0)),
+                   float(np.max(np.maximum(self._lbz - z, 0.0), initial=0.0)),
+                   float(np.max(np.maximum(z - self._ubz, 0.0), initial=0.0)))
+        f0 = float(self._tts_fun(self._hold_plan(x0, dmat, u_prev), p))
+        return viol <= self.cfg.feasibility_tol and float(sol["f"]) < f0 - 1e-9 * max(1.0, abs(f0))
 
     def _fallback(self, x0: np.ndarray, d_now: np.ndarray, occupancy_pct: np.ndarray | None,
                   status: str, solve_s: float) -> MPCResult:

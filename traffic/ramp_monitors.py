@@ -136,7 +136,8 @@ class RampKpis(Component):
                 t = np.asarray(times) if len(times) else np.array([math.nan])
                 return {"mpc_solve_p50_s": float(np.percentile(t, 50)),
                         "mpc_solve_p95_s": float(np.percentile(t, 95)),
-                        "mpc_solves": len(times), "mpc_fallbacks": int(getattr(c, "n_fallbacks", 0))}
+                        "mpc_solves": len(times), "mpc_fallbacks": int(getattr(c, "n_fallbacks", 0)),
+                        "mpc_suboptimal": int(getattr(c, "n_suboptimal", 0))}
         return {}
 
 

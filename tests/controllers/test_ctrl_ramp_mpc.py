@@ -70,3 +70,26 @@ def test_solver_failure_falls_back_to_alinea(cfg: MPCConfig) -> None:
     expected = np.clip(cap + 70.0 * (o_set - occ), cfg.rate_min * cap, cfg.rate_max * cap)
     np.testing.assert_allclose(res.rates_vph, expected)
     assert np.all(res.rates_vph < cap)  # the law bites: occupancy above its set point closes the meter
+
+
+def test_iteration_limit_applies_a_feasible_improving_iterate_instead_of_falling_back() -> None:
+    """Suboptimal MPC: stopped 3 iterations short, the last iterate is feasible and beats holding the
+    inputs, so it is applied (not ALINEA); its cost lies between the optimum and the hold plan."""
+    net, _, demand = congested_case()
+    x0 = steady_state(net, 45.0)
+    x0[2 * net.n_seg:] = 30.0
+    full = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3))
+    opt = full.solve(x0, demand, net.default_u())
+    n_opt = full.iter_counts[-1]
+    short = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3, max_iter=n_opt - 3))
+    res = short.solve(x0, demand, net.default_u())
+    assert not res.fallback and res.status.startswith("Suboptimal_Feasible")
+    assert short.n_suboptimal == 1 and short.n_fallbacks == 0
+    dmat = short.forecast_matrix(demand)
+    p = np.concatenate([x0, dmat.ravel(order="F"), net.default_u()])
+    hold = float(short._tts_fun(short._hold_plan(x0, dmat, net.default_u()), p))
+    # (an iterate within the feasibility tolerance may undercut the optimum by a hair)
+    assert opt.predicted_tts - 1e-3 <= res.predicted_tts < hold - 1e-3
+    assert np.all((res.rates >= 0.0) & (res.rates <= 1.0))
+    strict = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3, max_iter=n_opt - 3, accept_improving_iterate=False))
+    assert strict.solve(x0, demand, net.default_u()).fallback
