@@ -113,8 +113,9 @@ def _main(args: argparse.Namespace) -> int:
     df = store.compact([s.run_id for s in specs])
     if not args.no_report:
         from corridor.analysis.report import write_report
+        from corridor.analysis.report_series import report_sections
 
-        write_report(df, sc, out / "report.html")
+        write_report(df, sc, out / "report.html", extra_sections=report_sections(out, df, sc, path))
     if not args.quiet:
         print(summary_table(df, sc.metrics))
         print(f"\nresults: {out / 'runs.parquet'}" + ("" if args.no_report else f"\nreport:  {out / 'report.html'}"))
