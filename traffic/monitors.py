@@ -74,8 +74,9 @@ class SurrogateSafety(Component):
 
 class TrafficKpis(Component):
     """Throughput past a line (the merge end), travel-time delay by role (mainline / ramp) with
-    Jain's fairness index between the two mean delays, and an energy proxy (mean over arrived
-    vehicles of ∫ a² dt).
+    Jain's fairness index between the two mean delays, an energy proxy (mean over arrived
+    vehicles of ∫ a² dt), and total time spent (``tts_vh``: vehicles on the road plus vehicles
+    waiting to be inserted, integrated after the warm-up).
 
     Delay is taken over every vehicle that entered the demand after the warm-up: vehicles that had
     not arrived when the run ended count with their delay so far (see ``SumoBackend.delays``), and
@@ -95,6 +96,7 @@ class TrafficKpis(Component):
         self.passed = np.zeros(0, dtype=bool)  # per uid
         self.energy = np.zeros(0)  # per uid: ∫ a² dt [m²/s³] after warm-up
         self.count = 0
+        self.tts_vh = 0.0
 
     def setup(self, ctx: RunContext) -> None:
         self.road = road_backend(ctx)
@@ -103,6 +105,8 @@ class TrafficKpis(Component):
     def tick(self, ctx: RunContext) -> None:
         r = self.road
         n = len(r.active)
+        if ctx.t >= self.warmup:
+            self.tts_vh += (n + r.backlog()) * self.period / 3600.0
         if n == 0:
             return
         if len(self.passed) < r.n_uids:
@@ -121,7 +125,7 @@ class TrafficKpis(Component):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
-        out: dict[str, Any] = {"throughput_vph": self.count / span_h}
+        out: dict[str, Any] = {"throughput_vph": self.count / span_h, "tts_vh": self.tts_vh}
         delays = self.road.delays(self.warmup, unfinished=True)
         out["insertion_backlog"] = self.road.backlog()
         for role, d in delays.items():

@@ -28,7 +28,9 @@ def _delays_at_double_demand() -> dict[str, object]:
         done = road.delays(0.0)
         allv = road.delays(0.0, unfinished=True)
         n_arrived = sum(1 for i in road.info.values() if not np.isnan(i.arrive_s))
-        return {"done": done, "all": allv, "backlog": road.backlog(), "n_active": len(road.active),
+        _, on_road = ctx.signals.get("vehicles")
+        return {"tts_vh": ctx.components["kpis"].tts_vh, "on_road_vh": float(np.sum(on_road)) * sc.dt / 3600.0,
+                "duration_h": sc.duration / 3600.0,"done": done, "all": allv, "backlog": road.backlog(), "n_active": len(road.active),
                 "n_arrived": n_arrived, "t": ctx.t}
     finally:
         for c in ctx.components.values():
@@ -46,3 +48,5 @@ def test_unfinished_and_waiting_vehicles_are_counted_with_their_delay_so_far() -
     assert len(both) == r["n_arrived"] + r["n_active"] + r["backlog"]
     assert both.min() >= -5.0  # a delay so far is never much below zero (speed factor spread)
     assert both.mean() > done.mean()  # the ones still queueing have waited longer than the finishers
+    # total time spent counts the vehicles on the road and, on top, the ones waiting to be inserted
+    assert r["on_road_vh"] + 0.01 < r["tts_vh"] < r["on_road_vh"] + r["duration_h"] * 1000
