@@ -74,7 +74,7 @@ class RampKpis(Component):
 
     def tick(self, ctx: RunContext) -> None:
         n_net = len(self.road.active)
-        n_pending = len(self.road.libsumo.simulation.getPendingVehicles())
+        n_pending = self.road.backlog()
         self.tts_vh += (n_net + n_pending) * self.period / 3600.0
         self.tts_pending_vh += n_pending * self.period / 3600.0
         ctx.signals.record("vehicles_in_network", ctx.t, n_net)

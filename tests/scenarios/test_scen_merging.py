@@ -45,7 +45,7 @@ def _lane_changes(variant: str, duration_s: float, seed: int) -> tuple[np.ndarra
                 vs.append(part.speed[k])
             last_lane[vid] = lane
             if lane == "merge_0":  # a ramp vehicle on the acceleration lane
-                mode = road._ls.vehicle.getLaneChangeMode(vid)
+                mode = road.libsumo.vehicle.getLaneChangeMode(vid)
                 (held_modes if vid in ctl.controlled else released_modes).add(mode)
     metrics: dict = {}
     for c in ctx.components.values():
