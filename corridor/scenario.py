@@ -359,7 +359,18 @@ def load_raw(path: str | Path, sets: list[str] | None = None) -> dict[str, Any]:
         if not eq or not key:
             raise ScenarioError(f"--set {item!r}: expected FIELD.PATH=VALUE")
         set_path(data, key.strip(), parse_value(value))
+        _unrandomize(data, key.strip())
     return data
+
+
+def _unrandomize(data: dict[str, Any], key: str) -> None:
+    """A value the user ``--set`` wins over the scenario's ``randomize`` draw of that field (or of a
+    field beneath it): otherwise every run of the batch would silently replace it with a draw."""
+    rnd = data.get("randomize")
+    if key.startswith("randomize.") or not isinstance(rnd, dict):
+        return
+    for path in [p for p in rnd if p == key or p.startswith(key + ".")]:
+        del rnd[path]
 
 
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:

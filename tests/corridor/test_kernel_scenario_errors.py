@@ -94,3 +94,16 @@ def test_scenario_is_frozen():
     sc, _ = load(MERGING)
     with pytest.raises(ValidationError):
         sc.duration = 5  # type: ignore[misc]
+
+
+def test_set_value_wins_over_the_randomized_draw_of_that_field():
+    from corridor.batch import expand
+
+    sc, raw = load(MERGING, ["road.demand.scale=1.2", "channels.v2x.loss={model: bernoulli, p: 0.3}"])
+    specs = expand(sc, raw, "merging.yaml", runs=3, variants=["sumo_default"])
+    for s in specs:  # neither the scale nor anything beneath the loss is drawn any more
+        assert "road.demand.scale" not in s.overrides and "channels.v2x.loss.p" not in s.overrides
+        assert "road.demand.flows.main_car.connected_share" in s.draws  # the fields not set still are
+    assert sc.road.demand.scale == 1.2 and sc.channels["v2x"].loss.p == 0.3
+    full, _ = load(MERGING)
+    assert "road.demand.scale" in expand(full, _, "merging.yaml", runs=1)[0].draws
