@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Phase, RunContext
+from corridor.snapshot import Role
 from corridor.traffic.sumo_backend import SumoBackend
 
 
@@ -72,6 +73,16 @@ class SurrogateSafety(Component):
                 "ttc_exposed_s": self.tet, "hard_brakes": self.hard_brakes}
 
 
+class MergeArea(BaseModel):
+    """A stretch of road around the merge, by landmark x positions of the network [m]."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    start_landmark: str = "merge_start_x"
+    before_m: float = Field(300.0, ge=0)  # [m] upstream of the start landmark
+    end_landmark: str = "merge_end_x"
+    after_m: float = Field(300.0, ge=0)  # [m] downstream of the end landmark
+
+
 class TrafficKpis(Component):
     """Throughput past a line (the merge end), travel-time delay by role (mainline / ramp) with
     Jain's fairness index between the two mean delays, an energy proxy (mean over arrived
@@ -87,6 +98,7 @@ class TrafficKpis(Component):
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True)
         count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
+        merge_area: MergeArea | None = None  # time loss inside this stretch, reported on its own
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -95,12 +107,18 @@ class TrafficKpis(Component):
         self.warmup = scenario.warmup
         self.passed = np.zeros(0, dtype=bool)  # per uid
         self.energy = np.zeros(0)  # per uid: ∫ a² dt [m²/s³] after warm-up
+        self.area_loss = np.zeros(0)  # per uid: time lost inside the merge area [s]
+        self.in_area = np.zeros(0, dtype=bool)  # per uid: was seen inside it
         self.count = 0
         self.tts_vh = 0.0
 
     def setup(self, ctx: RunContext) -> None:
         self.road = road_backend(ctx)
-        self.line_x = float(self.road.net.landmarks[self.p.count_landmark])
+        lm = self.road.net.landmarks
+        self.line_x = float(lm[self.p.count_landmark])
+        a = self.p.merge_area
+        self.area_x = (float(lm[a.start_landmark]) - a.before_m, float(lm[a.end_landmark]) + a.after_m) if a else None
+        self._lane_vmax: dict[str, float] = {}
 
     def tick(self, ctx: RunContext) -> None:
         r = self.road
@@ -113,15 +131,53 @@ class TrafficKpis(Component):
             grow = r.n_uids + 256
             self.passed = np.concatenate([self.passed, np.zeros(grow, dtype=bool)])
             self.energy = np.concatenate([self.energy, np.zeros(grow)])
+            self.area_loss = np.concatenate([self.area_loss, np.zeros(grow)])
+            self.in_area = np.concatenate([self.in_area, np.zeros(grow, dtype=bool)])
         part = r.snapshot_part()
         if ctx.t >= self.warmup:
             self.energy[r.uid] += r.accel**2 * self.period
+        if self.area_x is not None:
+            self._merge_area_loss(part)
         new = (part.position[:, 0] > self.line_x) & ~self.passed[r.uid]
         self.passed[r.uid[new]] = True
         if ctx.t >= self.warmup:
             self.count += int(np.count_nonzero(new))
         ctx.signals.record("vehicles", ctx.t, n)
         ctx.signals.record("mean_speed", ctx.t, float(part.speed.mean()))
+
+    def _merge_area_loss(self, part: Any) -> None:
+        """SUMO's time loss, dt·(1 − v / v_desired), of every vehicle inside the merge area; v_desired
+        is its own desired speed on its lane, min(top speed, limit · speed factor)."""
+        r = self.road
+        x = part.position[:, 0]
+        inside = np.flatnonzero((x >= self.area_x[0]) & (x <= self.area_x[1]))
+        if not len(inside):
+            return
+        vmax = self._lane_vmax
+        if any(lane not in vmax for lane in r.lane_id[inside]):
+            for lane in set(r.lane_id[inside]) - set(vmax):
+                vmax[lane] = r.libsumo.lane.getMaxSpeed(lane)
+        info = [r.info[r.active[k]] for k in inside]
+        v_des = np.array([min(i.max_speed, vmax[lane] * i.speed_factor)
+                          for i, lane in zip(info, r.lane_id[inside], strict=True)])
+        uid = r.uid[inside]
+        self.area_loss[uid] += self.period * np.clip(1.0 - part.speed[inside] / v_des, 0.0, 1.0)
+        self.in_area[uid] = True
+
+    def _area_metrics(self) -> dict[str, float]:
+        """Mean time lost inside the merge area per measured vehicle (departed after the warm-up,
+        seen in the area), by role: the part of the delay that the merge itself causes."""
+        r = self.road
+        out, both = {}, []
+        for role, code in (("mainline", Role.MAINLINE), ("ramp", Role.RAMP)):
+            uids = r.departed_uids(self.warmup, code)
+            uids = uids[uids < len(self.in_area)]
+            lost = self.area_loss[uids[self.in_area[uids]]]
+            out[f"merge_loss_{role}_s"] = float(lost.mean()) if len(lost) else np.nan
+            both.append(lost)
+        lost = np.concatenate(both)
+        out["merge_loss_mean_s"] = float(lost.mean()) if len(lost) else np.nan
+        return out
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
@@ -139,4 +195,6 @@ class TrafficKpis(Component):
         out["energy_proxy_mean"] = float(self.energy[measured].mean()) if len(measured) else np.nan
         out["delay_mean_s"] = float(both.mean()) if len(both) else np.nan
         out["delay_total_vh"] = float(both.sum() / 3600.0)
+        if self.area_x is not None:
+            out.update(self._area_metrics())
         return out

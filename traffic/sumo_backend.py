@@ -43,6 +43,8 @@ class VehicleInfo:
     depart_s: float
     depart_delay_s: float
     freeflow_s: float  # free-flow travel time of its route at its desired speed
+    speed_factor: float = 1.0  # its multiplier of the speed limit (the driver's desired speed)
+    max_speed: float = math.inf  # [m/s] its vehicle type's top speed
     arrive_s: float = math.nan
 
 
@@ -185,7 +187,8 @@ class SumoBackend(Backend):
             flow=flow, route=route, role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
             connected=connected, length=vt.length if vt else ls.vehicle.getLength(vid),
             width=vt.width if vt else ls.vehicle.getWidth(vid),  # vehicles added by id, not by a flow
-            depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff)
+            depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff,
+            speed_factor=desired, max_speed=vmax)
         self.info[vid] = info
         k = self._uid_of[vid] = len(self._uid_of)
         if k >= len(self._length):  # grow the per-uid static arrays geometrically
@@ -296,6 +299,11 @@ class SumoBackend(Backend):
             "merge_failures": sum(1 for _, vid in self.teleports
                                   if vid in self.info and self.info[vid].role == Role.RAMP),
         }
+
+    def departed_uids(self, warmup_s: float, role: int) -> np.ndarray:
+        """uids of the vehicles of ``role`` that departed after the warm-up (arrived or not)."""
+        return np.array([self._uid_of[v] for v, i in self.info.items()
+                         if i.depart_s >= warmup_s and i.role == role], dtype=np.int64)
 
     def measured_uids(self, warmup_s: float) -> np.ndarray:
         """uids of the vehicles that departed after the warm-up and arrived."""
