@@ -17,7 +17,7 @@ from corridor.analysis.stats import clopper_pearson, mean_ci
 CSS = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#b00}.good{color:#070}
-img{max-width:100%}code{background:#f3f3f3;padding:1px 3px}"""
+img{max-width:100%}code{background:#f3f3f3;padding:1px 3px}.res{font-weight:bold}"""
 
 NON_METRICS = {"run_id", "scenario", "variant", "seed", "status", "error", "traceback"}
 
@@ -89,6 +89,74 @@ def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str) -> str:
     return f"<table><tr><th>metric (mean ± sd; % vs {html.escape(baseline)})</th>{head}</tr>{''.join(rows)}</table>"
 
 
+def paired_differences(ok: pd.DataFrame, column: str, a: str, b: str) -> np.ndarray:
+    """``a − b`` of one metric over the seeds both variants ran (the same draws: common random numbers)."""
+    x = ok[ok["variant"] == a].set_index("seed")[column]
+    y = ok[ok["variant"] == b].set_index("seed")[column]
+    both = x.index.intersection(y.index)
+    d = pd.to_numeric(x.loc[both], errors="coerce") - pd.to_numeric(y.loc[both], errors="coerce")
+    return d.to_numpy(dtype=float)
+
+
+def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
+    """Every pair of variants, per key metric: the mean paired difference with its 95 % Student-t
+    interval.  Each seed gives every variant the same demand and draws, so the per-seed difference
+    cancels most of the run-to-run spread that the per-variant means carry; an interval that
+    excludes 0 is a difference the batch resolves, one that contains 0 is not (yet)."""
+    variants = list(dict.fromkeys(ok["variant"]))
+    pairs = [(a, b) for i, b in enumerate(variants) for a in variants[i + 1:]]
+    if not pairs:
+        return ""
+    head = "".join(f"<th>{html.escape(a)} − {html.escape(b)}</th>" for a, b in pairs)
+    rows = []
+    for c in cols:
+        cells = []
+        for a, b in pairs:
+            d = paired_differences(ok, c, a, b)
+            m, lo, hi = mean_ci(d)
+            n = int(np.isfinite(d).sum())
+            cls = "" if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 <= hi else " class=res"
+            cells.append(f"<td{cls}>{_num(m)} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
+        rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
+    return ("<p>Mean paired difference per seed, [95 % CI]; <b>bold</b>: the interval excludes 0.</p>"
+            f"<table><tr><th>metric</th>{head}</tr>{''.join(rows)}</table>")
+
+
+def draw_sensitivity(ok: pd.DataFrame, column: str) -> str:
+    """The metric against each randomized field, per variant, with a least-squares line: how the
+    result moves with demand, penetration, message loss ... over the batch's draws."""
+    draws = [c for c in ok.columns if c.startswith("draw.") and pd.api.types.is_numeric_dtype(ok[c])]
+    draws = [c for c in draws if ok[c].nunique() > 2]
+    if not draws or column not in ok:
+        return ""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(draws), figsize=(3.4 * len(draws), 3.0), squeeze=False, sharey=True)
+    rows = []
+    for ax, dc in zip(axes[0], draws, strict=True):
+        for i, (v, g) in enumerate(ok.groupby("variant", sort=False)):
+            x = g[dc].to_numpy(dtype=float)
+            y = pd.to_numeric(g[column], errors="coerce").to_numpy(dtype=float)
+            keep = np.isfinite(x) & np.isfinite(y)
+            ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=v)
+            if keep.sum() >= 3 and np.ptp(x[keep]) > 0:
+                slope, icpt = np.polyfit(x[keep], y[keep], 1)
+                xs = np.array([x[keep].min(), x[keep].max()])
+                ax.plot(xs, icpt + slope * xs, "-", color=f"C{i}", lw=1)
+                rows.append(f"<tr><td>{html.escape(v)}</td><td>{html.escape(dc[5:])}</td>"
+                            f"<td>{_num(slope)}</td><td>{_num(slope * np.ptp(x[keep]))}</td></tr>")
+        ax.set_xlabel(dc[5:], fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(column)
+    axes[0][0].legend(fontsize=7)
+    table = ("<table><tr><th>variant</th><th>randomized field</th><th>slope</th>"
+             "<th>change over the drawn range</th></tr>" + "".join(rows) + "</table>")
+    return _png(fig) + table
+
+
 def collision_table(df: pd.DataFrame) -> str:
     rows = []
     for v, g in df.groupby("variant", sort=False):
@@ -139,7 +207,11 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
         f"{scenario.duration:g} s simulated per run, warm-up {scenario.warmup:g} s.</p>",
         "<h2>Safety: collisions</h2>", collision_table(df),
         "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline) if len(ok) else "",
+        *(["<h2>Paired differences between variants</h2>", paired_table(ok, key)]
+          if len(ok) and ok["variant"].nunique() > 1 else []),
         "<h2>Distributions</h2>", plots, spec_plots,
+        *(["<h2>Sensitivity to the randomized fields</h2>", sensitivity] if (sensitivity := (
+            draw_sensitivity(ok, key[0]) if len(ok) and key else "")) else []),
         *(extra_sections or []),
         "<h2>Runs with collisions, errors or violated specifications</h2>", problem_runs(df),
         "<h2>All metrics</h2>", kpi_table(ok, cols, baseline) if len(ok) else "",
