@@ -15,7 +15,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 MERGING = ROOT / "scenarios" / "merging.yaml"
-SHORT = ["--set", "duration=40", "--set", "warmup=5"]
+SHORT = ["--set", "duration=40", "--set", "warmup=5", "--variant", "sumo_default"]  # the V2X variants: tests/scenarios
 METRICS = ["collisions", "vehicles_departed", "vehicles_arrived", "min_ttc_s", "hard_brakes",
            "throughput_vph", "delay_mean_s"]
 
@@ -48,7 +48,8 @@ def test_failing_variant_is_an_error_row_and_others_complete(tmp_path):
     sc = tmp_path / "broken.yaml"
     sc.write_text(f"extends: {MERGING}\nsweep:\n  sumo_default: {{}}\n"
                   "  broken: {road.network.params.accel_lane_length_m: 5000}\n")
-    res = cli(str(sc), "--runs", "1", "--out", str(tmp_path / "o"), "--quiet", *SHORT, check=False)
+    res = cli(str(sc), "--runs", "1", "--out", str(tmp_path / "o"), "--quiet", *SHORT, "--variant", "broken",
+              check=False)
     assert res.returncode == 1
     df = pd.read_parquet(tmp_path / "o" / "runs.parquet").set_index("variant")
     assert df.loc["sumo_default", "status"] == "ok"

@@ -1,4 +1,4 @@
-"""V2X merging inside SUMO (``scenarios/merging_v2x.yaml``), stepped in-process.
+"""V2X merging inside SUMO (``scenarios/merging.yaml``), stepped in-process.
 
 The property that keeps the merge flowing: a controlled ramp vehicle moves over only once released at
 the merge point, at the stream's speed, behind the gap its mainline follower opened.  (Letting SUMO
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging_v2x.yaml"
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
 
 
 def _lane_changes(variant: str, duration_s: float, seed: int) -> tuple[np.ndarray, np.ndarray, dict, list[int]]:
