@@ -5,7 +5,8 @@
 Runs the swarm (JSBSim at 120 Hz, MAVLink link, tracking, avoidance, separation monitor) once per
 variant in this process and prints, per variant, the wall-clock RTF and the CPU-time RTF (sim
 seconds / process CPU seconds: what the run would reach on an idle core of this machine), the set-up
-time (JSBSim loading, excluded from both), and the per-phase share of the CPU time. With
+time (JSBSim loading, excluded from both), the Kalman updates per simulated second (``KF/s``: reports
+fused by the link's trackers) and the per-phase share of the CPU time. With
 ``--repeat N`` each variant runs N times (interleaved with the other variants) and the fastest run
 is reported, as ``timeit`` does: on a shared machine the CPU time of a run also rises with what the
 other processes do to the caches and the sibling hyper-thread. Not run by CI.
@@ -52,6 +53,7 @@ def measure(variant: str, n: int, duration_s: float) -> dict[str, float]:
         c.close()
     return {"rtf_wall": sc.duration / wall, "rtf_cpu": sc.duration / cpu, "setup_cpu_s": setup_cpu,
             "nmac": metrics.get("nmac", float("nan")),
+            "fused_per_s": metrics.get("link_fused_reports", 0.0) / sc.duration,
             **{f"cpu_{p.name.lower()}": per_phase[p] / cpu for p in Phase}}
 
 
@@ -69,12 +71,13 @@ def main() -> None:
     for _ in range(args.repeat):
         for v in variants:
             runs[v].append(measure(v, args.n, args.duration))
-    print(f"{'variant':<16} {'RTF wall':>9} {'RTF cpu':>8} {'setup s':>8} {'nmac':>5}  cpu share by phase")
+    print(f"{'variant':<16} {'RTF wall':>9} {'RTF cpu':>8} {'setup s':>8} {'nmac':>5} {'KF/s':>5}  cpu share by phase")
     for v in variants:
         r = max(runs[v], key=lambda x: x["rtf_cpu"])
         shares = " ".join(f"{p.name.lower()[:5]}={r[f'cpu_{p.name.lower()}']:.0%}" for p in Phase
                           if r[f"cpu_{p.name.lower()}"] >= 0.005)
-        print(f"{v:<16} {r['rtf_wall']:>8.2f}x {r['rtf_cpu']:>7.2f}x {r['setup_cpu_s']:>8.1f} {r['nmac']:>5.0f}  {shares}",
+        print(f"{v:<16} {r['rtf_wall']:>8.2f}x {r['rtf_cpu']:>7.2f}x {r['setup_cpu_s']:>8.1f} {r['nmac']:>5.0f}"
+              f" {r['fused_per_s']:>5.0f}  {shares}",
               flush=True)
 
 

@@ -37,6 +37,14 @@ QP. minimise  w_track sum_k |u_k - u_nom,k|^2 + w_rate |u_0 - u_last|^2 + w_smoo
 rate, and acceleration bounds. Solved each step with CasADi ``conic`` and qpOASES (an active-set
 method: exact vertex solutions, so no constraint is violated by solver tolerance as it could be
 with a first-order method such as OSQP; ``solver="osqp"`` is available).
+
+Unconstrained steps. The objective is strictly convex, so when its unconstrained minimiser
+``U* = -H^-1 g`` (slacks 0) satisfies every constraint exactly (tube rows with zero slack, speed,
+climb and acceleration bounds), it is the QP's unique optimum: the KKT conditions hold with every
+multiplier zero except the slacks' bounds (multiplier M > 0). Such steps (free flight, intruders
+whose tubes are far from the plan) take U* without calling the solver; ``unconstrained_steps``
+counts them. The check has no tolerance, so the tube property above holds for them as for any
+zero-slack step.
 """
 
 from __future__ import annotations
@@ -151,11 +159,22 @@ class _QpStructure:
             self._buf.set_arg(i, memoryview(self._in[name]))
         for i, arr in enumerate(self._out):
             self._buf.set_res(i, memoryview(arr))
+        self._n_var_rows = n_rows - len(fixed)  # the rows that change per step come first
+        self._a_cols[self._n_var_rows :] = fixed  # constant: written once
 
     def solve(self, g: np.ndarray, a: np.ndarray, lba: np.ndarray, uba: np.ndarray) -> tuple[np.ndarray, bool]:
         """Solve with gradient ``g`` and rows ``a`` (dense, row-major numpy) in [lba, uba]; (z, success)."""
-        self._in["g"][:] = g
         self._a_cols[...] = a  # CasADi stores dense matrices column by column
+        return self.solve_rows(g, None, lba, uba)
+
+    def solve_rows(
+        self, g: np.ndarray, rows: np.ndarray | None, lba: np.ndarray, uba: np.ndarray
+    ) -> tuple[np.ndarray, bool]:
+        """:meth:`solve` when only the leading rows change: ``rows`` replaces them, the constant
+        ``fixed`` rows stay where the constructor wrote them (None: no row is replaced)."""
+        self._in["g"][:] = g
+        if rows is not None and len(rows):
+            self._a_cols[: self._n_var_rows] = rows
         self._in["lba"][:], self._in["uba"][:] = lba, uba
         self._eval()
         return self.x.copy(), bool(self._buf.stats()["success"])
@@ -195,6 +214,8 @@ class ControlTubeAvoidance:
         self._ab_axis = (float(a[0, 3]), float(a[3, 3]), float(b[0, 0]), float(b[3, 0]))
         self.n_u, self.n_s = 3 * p.n_steps, p.max_intruders
         self._h_u = self._hessian()
+        self._h_u_inv = np.linalg.inv(self._h_u)  # unconstrained minimiser U* = -H^-1 g (see the docstring)
+        self._ub_u = np.tile([p.max_speed_h_mps * _OCT, p.max_speed_h_mps * _OCT, p.max_climb_mps], p.n_steps)
         self._fixed = self._fixed_rows()
         self._gam_pos = np.ascontiguousarray(self.pred.gam[:, :3, :])  # (M, 3, n_u)
         self._t_sq = self.pred.t**2  # [s^2]
@@ -219,6 +240,7 @@ class ControlTubeAvoidance:
         self.steps = 0
         self.infeasible_steps = 0
         self.solver_failures = 0
+        self.unconstrained_steps = 0
         self.solve_times_s: list[float] = []
 
     def planned_positions(self) -> tuple[np.ndarray, np.ndarray]:
@@ -316,7 +338,9 @@ class ControlTubeAvoidance:
             vx, vy, vz = a22 * vx + b2 * ux, a22 * vy + b2 * uy, a22 * vz + b2 * uz
         return np.array(out)
 
-    def _deflection(self, obs: AvoidanceObservation, intruders: list[TrackedAgent]) -> float:
+    def _deflection(
+        self, obs: AvoidanceObservation, intruders: list[TrackedAgent], agents: _Agents | None = None
+    ) -> float:
         """Right-hand rule on the nominal [rad]: the closer an intruder sits in the corridor to the goal
         (ahead, nearer than the goal, laterally within its tube radius), the more the nominal turns
         right, up to ``deflect_max_deg``. Without it the nominal of every UAV of a swap points at the
@@ -329,11 +353,12 @@ class ControlTubeAvoidance:
         if p.deflect_max_deg <= 0.0 or d_goal < 1e-6 or not intruders:
             return 0.0
         e = to_goal / d_goal
-        r = np.array([o.pos[:2] for o in intruders]) - obs.own_pos[:2]  # (K, 2)
+        agents = agents if agents is not None else self._agents(intruders)
+        r = agents.pos[:, :2] - obs.own_pos[:2]  # (K, 2)
         ahead = r[:, 0] * e[0] + r[:, 1] * e[1]
         lateral = np.abs(e[0] * r[:, 1] - e[1] * r[:, 0])
         dist = np.hypot(r[:, 0], r[:, 1])
-        half_width = np.array([self._tube(o)[1] + o.sigma_m for o in intruders])
+        half_width = agents.radius + agents.sigma
         near = (ahead > 0.0) & (dist < min(d_goal, p.deflect_range_m)) & (lateral < half_width)
         w = max(0.0, float(np.max(1.0 - dist[near] / p.deflect_range_m, initial=0.0)))
         return math.radians(p.deflect_max_deg) * min(1.0, 2.0 * w)
@@ -370,22 +395,33 @@ class ControlTubeAvoidance:
         vh = max(math.sqrt(vx * vx + vy * vy), p.max_speed_h_mps)
         return float(np.hypot(vh, max(abs(vz), p.max_climb_mps)))
 
+    def _agents(self, others: tuple[TrackedAgent, ...] | list[TrackedAgent]) -> _Agents:
+        """Struct of arrays of tracked agents with their tube class (a_max and radius, see ``_tube``)."""
+        p = self.params
+        piloted = np.array([o.is_piloted for o in others], dtype=bool)
+        return _Agents(
+            pos=np.array([o.pos for o in others], dtype=float).reshape(-1, 3),
+            vel=np.array([o.vel for o in others], dtype=float).reshape(-1, 3),
+            sigma=np.array([o.sigma_m for o in others], dtype=float),
+            acc=np.where(piloted, p.piloted_accel_mps2, p.uav_accel_mps2),
+            radius=np.where(piloted, p.piloted_size_m + p.piloted_safety_radius_m, p.uav_size_m + p.uav_safety_radius_m),
+        )
+
     def _relevant(self, obs: AvoidanceObservation, v_ego: float) -> list[TrackedAgent]:
         """Nearest intruders whose tube can reach the ego within the horizon (exact reachability)."""
         if not obs.others:
             return []
+        return [obs.others[i] for i in self._relevant_index(obs, self._agents(obs.others), v_ego)]
+
+    def _relevant_index(self, obs: AvoidanceObservation, agents: _Agents, v_ego: float) -> np.ndarray:
+        """Indices (nearest first) of :meth:`_relevant` into ``obs.others``."""
         horizon = self.params.n_steps * self.params.step_s
-        tubes = np.array([self._tube(o) for o in obs.others])  # (K, 2): a_max, radius
-        sigma = np.array([o.sigma_m for o in obs.others])
-        vel = np.array([o.vel for o in obs.others], dtype=float)
-        pos = np.array([o.pos for o in obs.others], dtype=float)
-        speed = np.sqrt(np.einsum("kd,kd->k", vel, vel))
-        rel = pos - obs.own_pos
+        speed = np.sqrt(np.einsum("kd,kd->k", agents.vel, agents.vel))
+        rel = agents.pos - obs.own_pos
         dist = np.sqrt(np.einsum("kd,kd->k", rel, rel))
-        reach = tubes[:, 1] + sigma + 0.5 * tubes[:, 0] * horizon**2 + (v_ego + speed) * horizon
+        reach = agents.radius + agents.sigma + 0.5 * agents.acc * horizon**2 + (v_ego + speed) * horizon
         keep = np.flatnonzero(dist < reach + 10.0)
-        keep = keep[np.argsort(dist[keep], kind="stable")][: self.params.max_intruders]
-        return [obs.others[i] for i in keep]
+        return keep[np.argsort(dist[keep], kind="stable")][: self.params.max_intruders]
 
     def _normals(
         self, d: np.ndarray, radius: np.ndarray, v_rel: np.ndarray, fallback: np.ndarray
@@ -428,25 +464,54 @@ class ControlTubeAvoidance:
     def _prepare(self, obs: AvoidanceObservation) -> _Pending:
         """Everything of a step before the tube rows: intruders, nominal, linearisation reference."""
         x0 = np.concatenate([obs.own_pos, obs.own_vel]).astype(float)
-        intruders = self._relevant(obs, self._ego_speed_bound(x0[3:]))
-        nominal = self._nominal(x0, obs.goal, self._deflection(obs, intruders))
+        intruders: list[TrackedAgent] = []
+        agents = None
+        if obs.others:
+            everyone = self._agents(obs.others)
+            keep = self._relevant_index(obs, everyone, self._ego_speed_bound(x0[3:]))
+            intruders = [obs.others[i] for i in keep]
+            agents = everyone.take(keep)
+        nominal = self._nominal(x0, obs.goal, self._deflection(obs, intruders, agents))
         u_ref = self._reference(obs, nominal) if intruders else nominal
-        return _Pending(self, obs, x0, intruders, u_ref, nominal)
+        return _Pending(self, obs, x0, intruders, u_ref, nominal, agents)
 
     def _solve(self, s: _Pending, c_rows: np.ndarray, c_lo: np.ndarray) -> VelocityCommand:
         """The QP of a prepared step with its tube rows, then the plan bookkeeping."""
         obs, x0, nominal, k = s.obs, s.x0, s.nominal, len(s.intruders)
         u_last = self._last_cmd if self._last_cmd is not None else self._saturate(obs.own_vel)
-        qp = self._qp(k)
         a_lo, a_hi = self._accel_bounds(x0)
-        amat = np.vstack([c_rows, qp.fixed]) if k else qp.fixed
-        lba = np.concatenate([c_lo, a_lo, self._speed_lo])
-        uba = np.concatenate([np.full(len(c_lo), _INF), a_hi, self._speed_hi])
-        t0 = time.perf_counter()
-        z, ok = qp.solve(self._gradient(nominal, u_last, k), amat, lba, uba)
-        self.solve_times_s.append(time.perf_counter() - t0)
+        g = self._gradient(nominal, u_last, k)
+        z = self._unconstrained(g, c_rows, c_lo, a_lo, a_hi)
+        if z is not None:
+            self.unconstrained_steps += 1
+            ok = True
+        else:
+            qp = self._qp(k)
+            lba = np.concatenate([c_lo, a_lo, self._speed_lo])
+            uba = np.concatenate([np.full(len(c_lo), _INF), a_hi, self._speed_hi])
+            t0 = time.perf_counter()
+            z, ok = qp.solve_rows(g, c_rows if k else None, lba, uba)
+            self.solve_times_s.append(time.perf_counter() - t0)
         active = k > 0 and float(np.min(c_rows @ z - c_lo)) < 1e-3
         return self._finish(obs, z, ok, nominal, k, active)
+
+    def _unconstrained(
+        self, g: np.ndarray, c_rows: np.ndarray, c_lo: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray
+    ) -> np.ndarray | None:
+        """The QP's optimum when its unconstrained minimiser (slacks 0) satisfies every constraint
+        exactly, else None (see the module docstring)."""
+        u = -(self._h_u_inv @ g[: self.n_u])
+        k = len(g) - self.n_u
+        if k and np.any(c_rows[:, : self.n_u] @ u < c_lo):  # first: near intruders mostly bind
+            return None
+        if np.any(np.abs(u) > self._ub_u):
+            return None
+        n_acc = len(a_lo)
+        r = self._fixed @ u
+        if (np.any(r[:n_acc] < a_lo) or np.any(r[:n_acc] > a_hi)
+                or np.any(r[n_acc:] < self._speed_lo) or np.any(r[n_acc:] > self._speed_hi)):
+            return None
+        return np.concatenate([u, np.zeros(k)])
 
     def _finish(
         self,
@@ -475,6 +540,20 @@ class ControlTubeAvoidance:
                                {"slack_m": slack, "n_intruders": float(n_intruders)})
 
 
+@dataclass(frozen=True)
+class _Agents:
+    """Tracked agents as arrays: positions, velocities, uncertainty radii and tube class."""
+
+    pos: np.ndarray  # (K, 3) [m]
+    vel: np.ndarray  # (K, 3) [m/s]
+    sigma: np.ndarray  # (K,) [m]
+    acc: np.ndarray  # (K,) [m/s^2] a_max of the agent's class
+    radius: np.ndarray  # (K,) [m] size + safety radius of the agent's class
+
+    def take(self, idx: np.ndarray) -> _Agents:
+        return _Agents(self.pos[idx], self.vel[idx], self.sigma[idx], self.acc[idx], self.radius[idx])
+
+
 @dataclass
 class _Pending:
     """One UAV's step between preparation and solve (see :func:`step_many`)."""
@@ -485,6 +564,12 @@ class _Pending:
     intruders: list[TrackedAgent]
     u_ref: np.ndarray  # (n_steps, 3) [m/s] linearisation reference of the tube normals
     nominal: np.ndarray | None = None  # (n_steps, 3) [m/s]
+    agents: _Agents | None = None  # the intruders as arrays (built on demand)
+
+    def intruder_arrays(self) -> _Agents:
+        if self.agents is None:
+            self.agents = self.method._agents(self.intruders)
+        return self.agents
 
 
 def step_many(methods: list[ControlTubeAvoidance], observations: list[AvoidanceObservation]) -> list[VelocityCommand]:
@@ -521,10 +606,12 @@ def _collision_rows_many(items: list[_Pending]) -> list[tuple[np.ndarray, np.nda
     fallback = np.array([_fallback(s.obs) for s in items])[owner][:, None, :]
     free = np.array([pr.phi[:, :3, :] @ s.x0 for s in items])[owner]  # (KT, M, 3)
     # per intruder (KT = all intruders of all items)
-    tube = np.array([(*s.method._tube(o), o.sigma_m) for s in items for o in s.intruders])  # a_max, r, sigma
-    acc, r, sigma = tube[:, 0:1], tube[:, 1:2], tube[:, 2:3]
-    pos = np.array([o.pos for s in items for o in s.intruders], dtype=float)
-    vel = np.array([o.vel for s in items for o in s.intruders], dtype=float)
+    agents = [s.intruder_arrays() for s in items]
+    acc = np.concatenate([a.acc for a in agents])[:, None]
+    r = np.concatenate([a.radius for a in agents])[:, None]
+    sigma = np.concatenate([a.sigma for a in agents])[:, None]
+    pos = np.concatenate([a.pos for a in agents])
+    vel = np.concatenate([a.vel for a in agents])
     centre = pos[:, None, :] + pr.t[None, :, None] * vel[:, None, :]  # (KT, M, 3)
     radius = r + sigma + 0.5 * acc * first._t_sq  # (KT, M)
     margin = pr.dt * (v_ego + np.sqrt(np.einsum("kd,kd->k", vel, vel))[:, None] + acc * pr.t)

@@ -123,6 +123,39 @@ def _relevant(obs: AvoidanceObservation, p: PotentialFieldParams) -> list[Tracke
     return [o for o in obs.others if np.linalg.norm(o.pos - obs.own_pos) < p.influence_m]
 
 
+def _agent_gradients(obs: AvoidanceObservation, p: PotentialFieldParams) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (K, 3) of every agent's repulsive term at the ego position, all agents at once, and
+    each agent's position relative to the ego (K, 3); the same arithmetic as :func:`_agent_terms`
+    (agents beyond ``influence_m`` get zero rows)."""
+    others = obs.others
+    x, v = obs.own_pos, obs.own_vel
+    pos = np.array([o.pos for o in others], dtype=float).reshape(-1, 3)
+    vel = np.array([o.vel for o in others], dtype=float).reshape(-1, 3)
+    sig = np.array([o.sigma_m for o in others], dtype=float)
+    piloted = np.array([o.is_piloted for o in others], dtype=bool)
+    rel = x - pos
+    d_raw = np.sqrt(np.einsum("kd,kd->k", rel, rel))
+    d = np.maximum(d_raw, 1e-9)
+    unit = rel / d[:, None]
+    v_rel = v - vel
+    u_dot_v = np.einsum("kd,kd->k", unit, v_rel)
+    closing = -u_dot_v  # [m/s] > 0 when approaching
+    weight = np.where(piloted, p.piloted_weight, p.uav_weight)
+    radius = np.where(piloted, p.piloted_safety_radius_m, p.uav_safety_radius_m)
+    tau = np.where(piloted, p.piloted_lookahead_s, p.uav_lookahead_s)
+    approaching = closing > 0.0
+    f = d - radius - sig - np.where(approaching, tau * closing, 0.0)
+    grad_f = unit + np.where(approaching, tau / d, 0.0)[:, None] * (v_rel - unit * u_dot_v[:, None])
+    soft = f < p.eps_m  # C1 positive floor (see _soft_floor)
+    e = np.exp(np.minimum(f, p.eps_m) / p.eps_m - 1.0)
+    fc, dfc = np.where(soft, p.eps_m * e, f), np.where(soft, e, 1.0)
+    f0 = np.array([np.inf if c is None else c for c in (p.uav_cutoff_m, p.piloted_cutoff_m)])[piloted.astype(int)]
+    # bounded support: -(w/fc^2 - w/f0^2) inside f0, zero beyond; 1/f tail when f0 is None (w/inf = 0)
+    scale = np.where(fc < f0, -(weight / fc**2 - weight / f0**2) * dfc, 0.0)
+    scale = np.where(d_raw < p.influence_m, scale, 0.0)
+    return scale[:, None] * grad_f, -rel
+
+
 def _rotate_ccw(g: np.ndarray) -> np.ndarray:
     """Horizontal part of g rotated +90 degrees about Up; the vertical part dropped."""
     return np.array([-g[1], g[0], 0.0])
@@ -156,13 +189,14 @@ class PotentialFieldAvoidance:
         """(-grad J, vortex term) at the ego position, both unsaturated [m/s]."""
         p, x = self.params, obs.own_pos
         flow = -_goal_terms(x, obs.goal, p)[1]
-        vortex = np.zeros(3)
-        to_goal = obs.goal - x
-        for other in _relevant(obs, p):
-            rep = -_agent_terms(x, obs.own_vel, other, p)[1]
-            flow += rep
-            if float((other.pos - x) @ to_goal) > 0.0:
-                vortex += p.vortex_gain * _rotate_ccw(rep)
+        if not obs.others:
+            return flow, np.zeros(3)
+        grad, ahead_vec = _agent_gradients(obs, p)
+        rep = -grad  # (K, 3)
+        flow = flow + rep.sum(axis=0)
+        ahead = ahead_vec @ (obs.goal - x) > 0.0
+        r = rep[ahead].sum(axis=0)
+        vortex = p.vortex_gain * _rotate_ccw(r)
         return flow, vortex
 
     def step(self, obs: AvoidanceObservation) -> VelocityCommand:

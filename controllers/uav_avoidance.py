@@ -12,6 +12,14 @@ backend's quad cascade flies it. ``uav_none`` flies straight to the goal at crui
 looks at the others (the baseline that shows the encounters are real conflicts). Each UAV's speed
 limit is its cruise speed, so an avoiding UAV never outruns its nominal plan.
 
+Relevance range: each controller passes the link a range beyond which a reporting UAV cannot
+matter to it within its horizon (``Relevance``, derived from the method's speed bound, horizon,
+separation radius and ``relevance_margin_m``); the link neither fuses nor tracks UAVs outside it, as
+a real ADS-B / Remote-ID consumer filters by range. The potential field's UAV term has bounded
+support (zero beyond ``f >= uav_cutoff_m``) and the control tube keeps only intruders whose tube
+can reach the ego within its horizon, so the aircraft left out are exactly ones the method would
+have ignored (the margin covers the track's uncertainty radius and the report's age).
+
 Modes: every UAV is ``cruise`` or ``avoid`` (the method's ``avoiding`` flag); each transition is a
 ``mode`` event, so the Rerun timeline shows when and why a UAV deviated. Two guards sit between a
 method and the autopilot: a non-finite command becomes "hold position" (a ``fallback`` event), and a
@@ -29,6 +37,7 @@ from corridor.controllers.uav_models import AvoidanceObservation
 from corridor.controllers.uav_models import VelocityCommand as MethodCommand
 from corridor.engine import Controller, RunContext
 from corridor.vehicles.air_backend import AircraftCommand
+from corridor.vehicles.air_link import Relevance
 from corridor.vehicles.autopilot import VelocityCommand
 
 
@@ -44,6 +53,9 @@ class UavAvoidanceParams(BaseModel):
     min_alt_m: float = 15.0  # [m] vertical geofence: no descent command below it (ENU up)
     max_alt_m: float = 150.0  # [m] no climb command above it
     fence_gain_per_s: float = Field(0.5, gt=0.0)  # [1/s] vertical speed allowed = k x distance to fence
+    # [m] slack of the relevance range (track sigma, report age, time to the next decision) on top of
+    # the method's own reach; None: every reporting UAV may be tracked (nearest link max_tracks)
+    relevance_margin_m: float | None = Field(15.0, ge=0.0)
     potential_field: dict[str, Any] = Field(default_factory=dict)  # PotentialFieldParams overrides
     control_tube: dict[str, Any] = Field(default_factory=dict)  # ControlTubeParams overrides
 
@@ -90,10 +102,15 @@ class _UavController(Controller):
             k = index.get(uid)
             if k is None:
                 continue
-            others = self.link.picture(uid, ctx.t, s.position[k]) if self.uses_link else ()
+            others = (self.link.picture(uid, ctx.t, s.position[k], self.relevance(uid, s.velocity[k]))
+                      if self.uses_link else ())
             obs[uid] = AvoidanceObservation(ctx.t, s.position[k].copy(), s.velocity[k].copy(),
                                             self.goal[uid], others)
         return obs
+
+    def relevance(self, uid: str, own_vel: np.ndarray) -> Relevance | None:
+        """Range beyond which a reporting UAV cannot matter to ``uid``'s method (None: no range)."""
+        return None
 
     def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
         raise NotImplementedError
@@ -169,6 +186,19 @@ class PotentialFieldController(_UavController):
         self.methods = {uid: PotentialFieldAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
                         for uid in self.uav_ids}
 
+    def relevance(self, uid: str, own_vel: np.ndarray) -> Relevance | None:
+        """The UAV term is zero once f = d - r_safe - sigma - tau * closing >= f0, and the closing
+        speed is at most |v_own| + |v_other|: beyond r_safe + f0 + tau |v_own| + margin + tau |v_other|
+        a UAV exerts no force (the margin covers sigma and the report's age)."""
+        p, margin = self.methods[uid].params, self.params.relevance_margin_m
+        if margin is None:
+            return None
+        if p.uav_cutoff_m is None:  # 1/f tail: everything within the influence radius counts
+            return Relevance(p.influence_m + margin, 0.0)
+        v_own = max(float(np.linalg.norm(own_vel)), float(np.hypot(p.max_speed_h_mps, p.max_climb_mps)))
+        base = p.uav_safety_radius_m + p.uav_cutoff_m + p.uav_lookahead_s * v_own + margin
+        return Relevance(min(base, p.influence_m + margin), p.uav_lookahead_s)
+
     def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
         return self.methods[uid].step(obs)
 
@@ -185,6 +215,19 @@ class ControlTubeController(_UavController):
         self.methods = {uid: ControlTubeAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
                         for uid in self.uav_ids}
         self._first = True
+
+    def relevance(self, uid: str, own_vel: np.ndarray) -> Relevance | None:
+        """The tube's own reachability test (``ControlTubeAvoidance._relevant``): an intruder
+        matters when its tube can reach the ego within the horizon T, i.e. closer than
+        r0 + r_safe + a_max T^2 / 2 + (v_ego + |v|) T + 10 m; the margin covers sigma and the age."""
+        m, margin = self.methods[uid], self.params.relevance_margin_m
+        if margin is None:
+            return None
+        p = m.params
+        horizon = p.n_steps * p.step_s  # [s]
+        base = (p.uav_size_m + p.uav_safety_radius_m + 0.5 * p.uav_accel_mps2 * horizon**2
+                + m._ego_speed_bound(np.asarray(own_vel, float)) * horizon + 10.0 + margin)
+        return Relevance(base, horizon)
 
     def decide(self, uid: str, obs: AvoidanceObservation) -> MethodCommand:
         return self.decide_all({uid: obs})[uid]
@@ -208,4 +251,6 @@ class ControlTubeController(_UavController):
         return {**super().finish(ctx),
                 "tube_infeasible_steps": sum(m.infeasible_steps for m in ms),
                 "tube_solver_failures": sum(m.solver_failures for m in ms),
+                # steps whose unconstrained optimum was feasible (no solver call, see control_tube)
+                "tube_unconstrained_share": sum(m.unconstrained_steps for m in ms) / max(sum(m.steps for m in ms), 1),
                 "tube_solve_ms_mean": 1e3 * float(np.mean(times)) if times else float("nan")}

@@ -21,7 +21,10 @@ Model choices (written down because metrics depend on them):
 - **Delivery** (``deliver(t_s)``) pops every copy with ``t_recv <= t_s`` (1e-9 s tolerance against
   float round-off of ``t + latency``), sorted by ``(t_recv, src, dst, send order)`` (names compared
   as strings).  Copies for a
-  receiver detached meanwhile are discarded (not counted as delivered).
+  receiver detached meanwhile are discarded (not counted as delivered).  ``deliver_batches(t_s)``
+  pops the same copies grouped by sent message (send order; one payload, its receivers and their
+  arrival times), for consumers that handle a broadcast once rather than copy by copy; sorting its
+  copies by the key above gives ``deliver``'s list.  Statistics and inboxes are the same either way.
 - **Age of information** (AoI): for every ordered pair (receiver, source) with at least one received
   message, and at every ``deliver(t_s)`` call *after* that call's deliveries, the sample is
   ``t_s - (send time of the newest message the receiver has from that source)``.  ``aoi_mean_s`` is
@@ -97,6 +100,17 @@ class ChannelConfig(_Frozen):
         return self.latency_s + 0.5 * self.jitter_s
 
 
+class DeliveredBatch(NamedTuple):
+    """The copies of one sent message that reached their receivers in one ``deliver_batches`` call."""
+
+    src: str
+    t_sent_s: float  # [s]
+    payload: Any
+    dst: list[str]  # receivers (one copy each)
+    t_recv_s: list[float]  # [s] per receiver
+    seq: int  # send order (ties in deliver's ordering)
+
+
 class Delivery(NamedTuple):
     """One message copy that reached receiver ``dst`` (a NamedTuple: cheap to create in bulk)."""
 
@@ -163,7 +177,8 @@ class Channel:
         self._recv_dirty = True
         self._pending: list[_Batch] = []
         self._seq = 0
-        self._inboxes: dict[str, list[Delivery]] = {}
+        self._inboxes: dict[str, list[Delivery]] | None = {}  # None: built from _last on demand
+        self._last: tuple[list[_Batch], list[tuple[np.ndarray, np.ndarray]]] = ([], [])
         self._rank = np.zeros(0, dtype=np.int64)  # lexicographic rank of node names
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = 0
         self._aoi_sum_s = 0.0
@@ -236,6 +251,56 @@ class Channel:
         self._seq += 1
         return int(keep.sum())
 
+    def send_many(
+        self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | None]]
+    ) -> list[int]:
+        """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order,
+        with the same random draws, statistics and result; broadcasts under Bernoulli loss (a fleet's
+        periodic reports) are handled in one vectorised pass instead of message by message."""
+        messages = list(messages)
+        if not isinstance(self.cfg.loss, BernoulliLoss) or any(m[3] is not None for m in messages):
+            return [self.send(t_s, src, payload, src_pos=pos, dst=dst) for src, payload, pos, dst in messages]
+        if not messages:
+            return []
+        self._refresh_receivers()
+        src_idx = np.array([self._node(m[0]) for m in messages])
+        nan3 = np.full(3, np.nan)  # unknown sender position: no range check (as in send)
+        p_src = np.array([_as3(pos) if pos is not None else self._positions.get(src, nan3)
+                          for src, _, pos, _ in messages])
+        mask = self._recv_idx[None, :] != src_idx[:, None]  # (M, R): every receiver but the sender
+        counts = mask.sum(axis=1)
+        d2 = np.sum((self._recv_pos[None, :, :] - p_src[:, None, :]) ** 2, axis=2)
+        in_range = (np.isnan(d2) | (d2 <= self.cfg.range_m**2))[mask]
+        dst_idx = np.broadcast_to(self._recv_idx, mask.shape)[mask]
+        n = int(counts.sum())
+        # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
+        u = self._rng.random(2 * n)
+        start = np.cumsum(counts) - counts
+        msg = np.repeat(np.arange(len(messages)), counts)
+        pos_in_msg = np.arange(n) - start[msg]
+        u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
+        lost = in_range & (u_loss < self.cfg.loss.p)
+        keep = in_range & ~lost
+        t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay
+        self._n_sent += n
+        self._n_oor += int(n - in_range.sum())
+        self._n_lost += int(lost.sum())
+        kept = np.bincount(msg[keep], minlength=len(messages))
+        out = []
+        for i, (src, payload, _, _) in enumerate(messages):
+            c = int(counts[i])
+            if c == 0:
+                out.append(0)
+                continue
+            a, k = int(start[i]), int(kept[i])
+            if k:
+                sel = keep[a : a + c]
+                self._pending.append(_Batch(self._seq, src, int(src_idx[i]), float(t_s), payload,
+                                            dst_idx[a : a + c][sel], t_recv[a : a + c][sel]))
+            self._seq += 1
+            out.append(k)
+        return out
+
     def _targets(self, src_idx: int, dst: str | None) -> tuple[np.ndarray, np.ndarray]:
         """Receiver node indices and positions of one send (sender excluded)."""
         if dst is None:
@@ -273,6 +338,28 @@ class Channel:
     # -- delivery -------------------------------------------------------------------------------
     def deliver(self, t_s: float) -> list[Delivery]:
         """Pop every copy with ``t_recv <= t_s``, deterministically ordered; refresh the inboxes."""
+        due_batches, due_parts = self._pop_due(t_s)
+        out = self._materialise(due_batches, due_parts)
+        self._n_delivered += len(out)
+        self._record_received(due_batches, due_parts)
+        self._inboxes = self.group_by_dst(out)
+        self._sample_aoi(t_s)
+        return out
+
+    def deliver_batches(self, t_s: float) -> list[DeliveredBatch]:
+        """The copies ``deliver(t_s)`` would return, grouped by sent message in send order (see the
+        module docstring); the same statistics, age of information and inboxes."""
+        due_batches, due_parts = self._pop_due(t_s)
+        self._n_delivered += sum(d.size for d, _ in due_parts)
+        self._record_received(due_batches, due_parts)
+        self._inboxes, self._last = None, (due_batches, due_parts)
+        self._sample_aoi(t_s)
+        names = self._names
+        return [DeliveredBatch(b.src, b.t_sent_s, b.payload, [names[i] for i in d.tolist()], t.tolist(), b.seq)
+                for b, (d, t) in zip(due_batches, due_parts, strict=True)]
+
+    def _pop_due(self, t_s: float) -> tuple[list[_Batch], list[tuple[np.ndarray, np.ndarray]]]:
+        """Remove and return the due copies (batches in send order, with their due receivers/times)."""
         due_batches: list[_Batch] = []
         due_parts: list[tuple[np.ndarray, np.ndarray]] = []
         keep: list[_Batch] = []
@@ -288,16 +375,22 @@ class Channel:
                     _Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[rest], b.t_recv_s[rest])
                 )
         self._pending = keep
-        out = self._materialise(due_batches, due_parts)
-        self._n_delivered += len(out)
-        self._inboxes = self.group_by_dst(out)
-        self._sample_aoi(t_s)
-        return out
+        return due_batches, due_parts
+
+    def _record_received(self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
+        """Newest received send time per (receiver, source): the age-of-information state."""
+        if not batches:
+            return
+        counts = [d.size for d, _ in parts]
+        dst = np.concatenate([d for d, _ in parts])
+        src = np.repeat([b.src_idx for b in batches], counts)
+        t_sent = np.repeat([b.t_sent_s for b in batches], counts)
+        np.fmax.at(self._last_sent, (dst, src), t_sent)
 
     def _materialise(
         self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]
     ) -> list[Delivery]:
-        """Delivery objects sorted by (t_recv, src name, dst name, send order); updates AoI state."""
+        """Delivery objects sorted by (t_recv, src name, dst name, send order)."""
         if not batches:
             return []
         counts = [d.size for d, _ in parts]
@@ -305,8 +398,6 @@ class Channel:
         dst = np.concatenate([d for d, _ in parts])
         t_recv = np.concatenate([t for _, t in parts])
         src = np.array([b.src_idx for b in batches])[batch_of]
-        t_sent = np.array([b.t_sent_s for b in batches])[batch_of]
-        np.fmax.at(self._last_sent, (dst, src), t_sent)
         rank = self._name_rank()
         order = np.lexsort((batch_of, rank[dst], rank[src], t_recv))
         names = self._names
@@ -322,7 +413,10 @@ class Channel:
         return self._rank
 
     def inbox(self, dst: str) -> list[Delivery]:
-        """Deliveries to ``dst`` from the latest ``deliver`` call (replaced at every call)."""
+        """Deliveries to ``dst`` from the latest ``deliver`` (or ``deliver_batches``) call."""
+        if self._inboxes is None:
+            self._inboxes = self.group_by_dst(self._materialise(*self._last))
+            self._last = ([], [])
         return self._inboxes.get(dst, [])
 
     @staticmethod

@@ -18,7 +18,12 @@ intermediate sample 0.1 s older adds almost nothing, and lazy fusion keeps the c
 the controllers' rate (the ``none`` variant tracks nothing). Each receiver tracks only its
 ``max_tracks`` nearest reporting UAVs (default 8, the control tube's intruder limit) plus every
 piloted aircraft: a swarm's far side cannot matter within an avoidance horizon, and the Kalman
-updates are the link's main cost. Tracks without a report for ``stale_after_s`` are dropped, so a
+updates are the link's main cost. A controller may also pass a :class:`Relevance` range (as real
+ADS-B / Remote-ID consumers filter by range): a UAV whose report lies farther than
+``base_m + per_speed_s * |v_report|`` from the receiver cannot reach it within the controller's
+horizon, so its report is not fused and its track is dropped (the message is still received and
+counted by the link; the track restarts from the first report inside the range, position and
+velocity both measured). Tracks without a report for ``stale_after_s`` are dropped, so a
 silent aircraft disappears from the picture (never ground truth).
 
 The avoidance runs on board each UAV, so its commands go straight to the UAV's own autopilot (the
@@ -29,7 +34,7 @@ world snapshot and publishes nothing.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -41,6 +46,16 @@ from corridor.snapshot import Kind
 
 from .mavlink_link import LinkRates, MavlinkLink, ReceivedReport
 from .tracking import TrackTable
+
+
+class Relevance(NamedTuple):
+    """Range beyond which a reporting UAV cannot matter to a receiver within its avoidance horizon:
+    ``range_m = base_m + per_speed_s * |v|`` [m] for a report with speed |v| [m/s]. A controller
+    derives it from its own speed bound, horizon, separation radius and a margin (track sigma,
+    report age, the time to its next decision)."""
+
+    base_m: float  # [m]
+    per_speed_s: float  # [s] (the horizon over which the other's speed counts)
 
 
 class AirLink(Component):
@@ -116,14 +131,17 @@ class AirLink(Component):
         """Put raw bytes on the channel (tests: garbage must be counted and dropped)."""
         self.link.inject(t_s, src, payload, dst)
 
-    def picture(self, uav_id: str, t_s: float, own_pos: np.ndarray | None = None) -> tuple[TrackedAgent, ...]:
+    def picture(
+        self, uav_id: str, t_s: float, own_pos: np.ndarray | None = None, relevance: Relevance | None = None
+    ) -> tuple[TrackedAgent, ...]:
         """The other aircraft as ``uav_id`` knows them at ``t_s``: fused, tracked, predicted.
 
         With ``own_pos`` [m], only the ``max_tracks`` nearest reporting UAVs (plus every piloted
-        aircraft) are fused; tracks of UAVs that drop out of that set are removed.
+        aircraft) are fused; tracks of UAVs that drop out of that set are removed. With a
+        ``relevance`` range as well, UAV reports outside it are not fused either (same removal).
         """
         table = self.tables[uav_id]
-        chosen = self._nearest(self._pending[uav_id], own_pos)
+        chosen = self._nearest(self._pending[uav_id], own_pos, relevance)
         for src in [tid for tid in table.ids if tid not in chosen and tid in self._pending[uav_id]]:
             table.remove(src)
         for src, r in chosen.items():
@@ -141,15 +159,25 @@ class AirLink(Component):
         return tuple(TrackedAgent(tid, x[i, :3].copy(), x[i, 3:6].copy(), sigma[i], tid in piloted)
                      for i, tid in enumerate(ids))
 
-    def _nearest(self, pend: dict[str, ReceivedReport], own_pos: np.ndarray | None) -> dict[str, ReceivedReport]:
-        """Every piloted report plus the ``max_tracks`` UAV reports nearest to ``own_pos``."""
+    def _nearest(
+        self, pend: dict[str, ReceivedReport], own_pos: np.ndarray | None, relevance: Relevance | None = None
+    ) -> dict[str, ReceivedReport]:
+        """Every piloted report plus the ``max_tracks`` UAV reports nearest to ``own_pos`` (and,
+        with ``relevance``, inside its range)."""
         n = self.params.max_tracks
-        if own_pos is None or len(pend) <= n:
+        if own_pos is None or (len(pend) <= n and relevance is None) or not pend:
             return pend
         uav = [src for src in pend if src not in self.piloted]
+        if not uav:
+            return pend
         rel = np.array([pend[src].p_enu for src in uav]) - own_pos
         dist = np.sqrt(np.einsum("kd,kd->k", rel, rel))
-        keep = {uav[i] for i in np.argsort(dist, kind="stable")[:n]}
+        order = np.argsort(dist, kind="stable")
+        if relevance is not None:
+            vel = np.array([pend[src].v_enu for src in uav])
+            reach = relevance.base_m + relevance.per_speed_s * np.sqrt(np.einsum("kd,kd->k", vel, vel))
+            order = order[dist[order] < reach[order]]
+        keep = {uav[i] for i in order[:n]}
         return {src: r for src, r in pend.items() if src in keep or src in self.piloted}
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:

@@ -400,6 +400,15 @@ class ReceivedReport(NamedTuple):
         return self.fields.received(self.src, self.t_sent_s, self.t_recv_s)
 
 
+class _Copy(NamedTuple):
+    """Where one received copy came from and when (the fields of a channel delivery used here)."""
+
+    src: str
+    dst: str
+    t_sent_s: float
+    t_recv_s: float
+
+
 @dataclass(frozen=True)
 class _Decoded:
     """One datagram decoded and converted once, shared by every receiver of a copy of its bytes."""
@@ -539,6 +548,10 @@ class MavlinkLink:
         self, t_s: float, src: str, payload: bytes, src_pos: np.ndarray | None, dst: str | None = None
     ) -> None:
         self.channel.send(t_s, src, payload, src_pos=src_pos, dst=dst)
+        self._sent(payload)
+
+    def _sent(self, payload: bytes) -> None:
+        """Counters, UDP mirror and byte log of one datagram handed to the channel."""
         self.sent_datagrams += 1
         self.sent_bytes += len(payload)
         if self._udp is not None:
@@ -551,24 +564,36 @@ class MavlinkLink:
     ) -> None:
         """Send every message due at ``t_s`` for the registered aircraft among ``ids`` (struct of
         arrays in ENU, e.g. a WorldSnapshot's ids/position/velocity/heading); the GCS heartbeat too.
-        The geodetic conversion is done once for the whole fleet (vectorised)."""
+        The geodetic conversion is done once for the whole fleet (vectorised), and the datagrams of
+        this instant go to the channel in one ``send_many`` when it has one (same draws and order)."""
         pos = np.asarray(position, float).reshape(-1, 3)
         lat, lon, h = self.origin.to_geodetic(pos)
         rows = zip(ids, pos, np.asarray(velocity, float).reshape(-1, 3).tolist(), np.asarray(yaw, float).tolist(),
                    zip(lat.tolist(), lon.tolist(), h.tolist()), strict=True)
+        out: list[tuple[str, bytes, np.ndarray | None, str | None]] = []
         for id, p, v, yaw_k, geo in rows:
             node = self._nodes.get(str(id))
             if node is not None and node.kind != "gcs":
-                self._publish_one(t_s, str(id), node, p, v, yaw_k, geo)
+                payload = self._publish_one(t_s, node, p, v, yaw_k, geo)
+                if payload:
+                    out.append((str(id), payload, p, None))
         gcs = self._nodes[self.gcs_id]
         if t_s + 1e-9 >= gcs.next_hb_s:
             gcs.next_hb_s = _next_due(gcs.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
-            self._send(t_s, self.gcs_id, gcs.endpoint.heartbeat(), None)
+            out.append((self.gcs_id, gcs.endpoint.heartbeat(), None, None))
+        send_many = getattr(self.channel, "send_many", None)
+        if send_many is None:
+            for src, payload, p, _ in out:
+                self._send(t_s, src, payload, p)
+            return
+        send_many(t_s, out)
+        for _, payload, _, _ in out:
+            self._sent(payload)
 
     def _publish_one(
-        self, t_s: float, id: str, node: _Node, p: np.ndarray, v: list[float], yaw: float,
-        geo: tuple[float, float, float],
-    ) -> None:
+        self, t_s: float, node: _Node, p: np.ndarray, v: list[float], yaw: float, geo: tuple[float, float, float]
+    ) -> bytes:
+        """The datagram one aircraft owes at ``t_s`` (b"" if nothing is due)."""
         ep, frames = node.endpoint, []
         if node.kind == "uav" and t_s + 1e-9 >= node.next_hb_s:
             node.next_hb_s = _next_due(node.next_hb_s, t_s, 1.0 / self.rates.heartbeat_hz)
@@ -580,8 +605,7 @@ class MavlinkLink:
                 frames += [ep.global_position_int(t_s, p, v, yaw, geo), ep.local_position_ned(t_s, p, v)]
             else:
                 frames.append(ep.adsb_vehicle(node.icao, node.callsign, p, v, geodetic=geo))
-        if frames:
-            self._send(t_s, id, b"".join(frames), p)
+        return b"".join(frames)
 
     def command(
         self,
@@ -621,7 +645,46 @@ class MavlinkLink:
         ``latest[dst][src]`` is replaced by every received report that is not older (sender's
         measurement time) than the one it holds; receivers not in ``latest`` are skipped. The same
         deliveries, decoding and counters as ``receive``, without building a TrafficReport per
-        copy (a swarm's broadcasts are N^2 copies per tick). Returns the set-points."""
+        copy (a swarm's broadcasts are N^2 copies per tick). Returns the set-points.
+
+        Without bit errors every copy of a datagram carries the same bytes, so the channel's copies
+        are taken message by message (``deliver_batches``): one decode and one measurement time per
+        datagram, then per receiver only the counters and the newest-report check. Of several
+        reports with the same measurement time the later-delivered one is kept, as in delivery order.
+        """
+        if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_batches"):
+            return self._receive_latest_copies(t_s, latest)
+        self._cache.clear()
+        cache, decoders, routed = self._cache, self._decoders, []
+        for b in self.channel.deliver_batches(t_s):
+            payload = b.payload
+            if not isinstance(payload, bytes | bytearray):
+                continue
+            if type(payload) is not bytes:
+                payload = bytes(payload)
+            hit = cache.get(payload)
+            if hit is None:
+                hit = cache[payload] = self._decode_once(payload)
+            key, rep, src, t_sent = hit.counter_key, hit.report, b.src, b.t_sent_s
+            t_meas = (t_sent - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s) if rep is not None else 0.0
+            for dst, t_recv in zip(b.dst, b.t_recv_s, strict=True):
+                dec = decoders.get(dst)
+                if dec is None:
+                    continue
+                dec._shared[key] = dec._shared.get(key, 0) + 1
+                if rep is not None and (pend := latest.get(dst)) is not None:
+                    old = pend.get(src)
+                    if old is None or t_meas > old.t_meas_s or (t_meas == old.t_meas_s and t_recv >= old.t_recv_s):
+                        pend[src] = ReceivedReport(t_meas, rep, src, t_sent, t_recv)
+                if hit.setpoints:
+                    routed.append((t_recv, src, dst, b.seq, t_sent, hit))
+        inbox = Inbox()
+        for t_recv, src, dst, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
+            self._route_setpoints(inbox, _Copy(src, dst, t_sent, t_recv), hit)
+        return inbox.setpoints
+
+    def _receive_latest_copies(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
+        """:meth:`receive_latest` copy by copy (each copy's bytes may differ: bit errors)."""
         inbox = Inbox()
         for d, decoded in self._received(t_s):
             rep = decoded.report

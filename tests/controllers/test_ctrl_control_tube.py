@@ -216,3 +216,43 @@ def test_ct_fleet_step_equals_uav_by_uav_steps() -> None:
         cmd = np.array([c.vel_mps for c in a])
         pos, vel = pos + 0.2 * cmd, cmd
     assert len(counts) > 1  # different intruder counts were batched together
+
+
+def _qpoases_optimum(ctrl: ControlTubeAvoidance, obs: AvoidanceObservation) -> np.ndarray:
+    """The step's QP solved by qpOASES (the full problem, no shortcut), as the controller builds it."""
+    s = ctrl._prepare(obs)
+    k = len(s.intruders)
+    c_rows, c_lo = ctrl._collision_rows(obs, s.x0, s.intruders, s.u_ref) if k else (np.zeros((0, ctrl.n_u)), np.zeros(0))
+    a_lo, a_hi = ctrl._accel_bounds(s.x0)
+    qp = ctrl._qp(k)
+    amat = np.vstack([c_rows, qp.fixed])
+    lba = np.concatenate([c_lo, a_lo, ctrl._speed_lo])
+    uba = np.concatenate([np.full(len(c_lo), 1e20), a_hi, ctrl._speed_hi])
+    last = ctrl._last_cmd if ctrl._last_cmd is not None else ctrl._saturate(obs.own_vel)
+    z, ok = qp.solve(ctrl._gradient(s.nominal, last, k), amat, lba, uba)
+    assert ok
+    return z[:3]
+
+
+@pytest.mark.parametrize("case", ["free", "far_intruder", "binding_intruder"])
+def test_ct_unconstrained_steps_equal_the_qp_optimum(case: str) -> None:
+    """When the unconstrained minimiser satisfies every constraint it is the QP's optimum: the step
+    takes it without calling qpOASES and returns what qpOASES returns; a binding tube still goes to
+    the solver."""
+    # cruising at the speed limit towards a far goal, 22.5 deg off the axes (inside the speed octagon)
+    e = np.array([np.cos(np.pi / 8), np.sin(np.pi / 8), 0.0])
+    own_p, goal = np.array([0.0, 0.0, 50.0]), np.array([0.0, 0.0, 50.0]) + 400.0 * e
+    own_v = PARAMS.max_speed_h_mps * np.cos(np.pi / 8) * e
+    left = np.array([-e[1], e[0], 0.0])
+    others = {"free": (),  # a UAV abeam 150 m to the left, slightly behind, flying away: its tube is far
+              "far_intruder": (TrackedAgent("i", own_p + 150.0 * left - 5.0 * e, 5.0 * left, 2.0),),
+              "binding_intruder": (TrackedAgent("i", own_p + 60.0 * e + 2.0 * left, -6.0 * e, 2.0),)}
+    obs = AvoidanceObservation(0.0, own_p, own_v, goal, others[case])
+    ref = _qpoases_optimum(ControlTubeAvoidance(PARAMS), obs)
+    ctrl = ControlTubeAvoidance(PARAMS)
+    cmd = ctrl.step(obs)
+    assert ctrl.unconstrained_steps == (0 if case == "binding_intruder" else 1)
+    assert len(ctrl.solve_times_s) == (1 if case == "binding_intruder" else 0)
+    np.testing.assert_allclose(cmd.vel_mps, ref, atol=1e-9)
+    if case == "far_intruder":
+        assert cmd.info["n_intruders"] == 1.0 and not cmd.avoiding

@@ -163,3 +163,29 @@ def test_pf_vortex_remedy_measured_on_the_20_uav_swap() -> None:
     assert np.all(np.isfinite(with_vortex)) and np.nanmax(with_vortex) < 120.0
     assert np.mean(np.isfinite(without)) <= 0.25
     assert nmac_with == 0 and nmac_without == 0
+
+
+@pytest.mark.parametrize("uav_cutoff_m", [15.0, None])
+def test_pf_vectorised_field_equals_the_per_agent_terms(uav_cutoff_m: float | None) -> None:
+    """field() computes every agent's term in one numpy pass; it must equal the sum of the per-agent
+    gradients of J (``_agent_terms``, the terms ``potential`` adds up) and the vortex rule, including
+    piloted aircraft, the soft floor and agents beyond the influence radius."""
+    from corridor.controllers.potential_field import _agent_terms, _goal_terms, _rotate_ccw
+
+    rng = np.random.default_rng(4)
+    p = PotentialFieldParams(uav_cutoff_m=uav_cutoff_m, piloted_cutoff_m=60.0)
+    for _ in range(300):
+        others = tuple(TrackedAgent(str(i), rng.normal(0.0, 120.0, 3), rng.normal(0.0, 8.0, 3), abs(rng.normal(0.0, 3.0)),
+                                    bool(rng.random() < 0.2)) for i in range(rng.integers(0, 9)))
+        obs = AvoidanceObservation(0.0, rng.normal(0.0, 5.0, 3), rng.normal(0.0, 5.0, 3), rng.normal(0.0, 300.0, 3),
+                                   others)
+        x, flow, vortex = obs.own_pos, -_goal_terms(obs.own_pos, obs.goal, p)[1], np.zeros(3)
+        for o in others:
+            if np.linalg.norm(o.pos - x) < p.influence_m:
+                rep = -_agent_terms(x, obs.own_vel, o, p)[1]
+                flow = flow + rep
+                if (o.pos - x) @ (obs.goal - x) > 0.0:
+                    vortex = vortex + p.vortex_gain * _rotate_ccw(rep)
+        got = PotentialFieldAvoidance(p).field(obs)
+        np.testing.assert_allclose(got[0], flow, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[1], vortex, rtol=1e-12, atol=1e-12)

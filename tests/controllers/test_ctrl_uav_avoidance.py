@@ -92,3 +92,65 @@ def test_vertical_geofence_clamps_descent_near_the_floor() -> None:
     assert ctrl.fence(np.array([0.0, 0.0, 10.0]), v)[2] == pytest.approx(2.5)  # below: forced climb
     assert ctrl.fence(np.array([0.0, 0.0, 80.0]), v)[2] == pytest.approx(-3.0)  # free in between
     assert ctrl.fence(np.array([0.0, 0.0, 149.0]), -v)[2] == pytest.approx(0.5)
+
+
+def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_piloted(tmp_path: Path) -> None:
+    """A UAV beyond the receiver's relevance range is neither fused nor tracked (its messages still
+    arrive and are counted); a near one and the piloted aircraft are tracked."""
+    from corridor.vehicles.air_link import Relevance
+
+    sc = scenario("uav_none", 0.0, duration=3.0).model_dump()
+    sc["backends"]["air"]["params"]["aircraft"].append(
+        {"id": "far", "start_enu": (-35, 600, 50), "goal_enu": (200, 600, 50), "cruise_speed_mps": 6})
+    sim = build(validate(sc, "test"), 0, tmp_path)
+    sim.run()
+    link, s = sim.ctx.get("link"), sim.ctx.snapshot
+    own = s.position[s.index()["a"]]
+    pending = dict(link._pending["a"])
+    assert {"b", "far", "c172"} <= set(pending)  # every aircraft's reports reached a
+    near = {o.id for o in link.picture("a", sim.ctx.t, own, Relevance(200.0, 2.5))}
+    assert near == {"b", "c172"} and "far" not in link.tables["a"]
+    link._pending["a"] = pending  # the same reports, no range: the far UAV is tracked as well
+    assert {o.id for o in link.picture("a", sim.ctx.t, own)} == {"b", "c172", "far"}
+    # a track that leaves the range is dropped at the next picture
+    link._pending["a"] = pending
+    assert {o.id for o in link.picture("a", sim.ctx.t, own, Relevance(10.0, 0.0))} == {"c172"}
+    assert set(link.tables["a"].ids) == {"c172"}
+    assert link.finish(sim.ctx)["link_delivered"] > 0
+
+
+def _at_relevance_edge(ctrl: Any, speed_mps: float, extra_m: float) -> Any:
+    """An observation with one UAV head-on (closing at the worst case) just outside / inside the
+    controller's relevance range, its track uncertainty within the margin."""
+    from corridor.controllers.uav_models import AvoidanceObservation, TrackedAgent
+
+    own_v = np.array([ctrl.cruise["a"], 0.0, 0.0])
+    rel = ctrl.relevance("a", own_v)
+    d = rel.base_m + rel.per_speed_s * speed_mps + extra_m
+    other = TrackedAgent("x", np.array([d, 0.0, 50.0]), np.array([-speed_mps, 0.0, 0.0]), sigma_m=3.0)
+    return AvoidanceObservation(0.0, np.array([0.0, 0.0, 50.0]), own_v, np.array([500.0, 0.0, 50.0]), (other,))
+
+
+@pytest.mark.parametrize("controller", ["potential_field", "control_tube"])
+def test_relevance_range_covers_everything_the_method_reacts_to(controller: str, tmp_path: Path) -> None:
+    """Outside its relevance range an aircraft has no effect on the method (zero potential-field
+    force / no tube); inside it (and nearer) it does: the range never hides an aircraft that matters."""
+    sim = build(scenario(controller, 0.0), 0, tmp_path)
+    for c in sim.ctx.components.values():
+        c.setup(sim.ctx)
+    ctrl = sim.ctx.get("avoid")
+    method = ctrl.methods["a"]
+    for speed in (0.0, 6.0, 10.0):
+        outside = _at_relevance_edge(ctrl, speed, 1.0)
+        alone = type(outside)(outside.t, outside.own_pos, outside.own_vel, outside.goal, ())
+        if controller == "potential_field":
+            assert np.array_equal(method.field(outside)[0], method.field(alone)[0])
+            near = _at_relevance_edge(ctrl, speed, -ctrl.params.relevance_margin_m - 15.0)
+            assert np.linalg.norm(method.field(near)[0] - method.field(alone)[0]) > 0.0
+        else:
+            v_ego = method._ego_speed_bound(outside.own_vel)
+            assert method._relevant(outside, v_ego) == []
+            near = _at_relevance_edge(ctrl, speed, -ctrl.params.relevance_margin_m - 5.0)
+            assert len(method._relevant(near, v_ego)) == 1
+    for c in sim.ctx.components.values():
+        c.close()

@@ -193,3 +193,51 @@ def test_determinism_same_seed_same_deliveries() -> None:
     assert a == b
     assert a != c
     assert len(a) > 1000
+
+
+def _fleet_channel(seed: int) -> tuple[Channel, list[str]]:
+    ch = Channel(ChannelConfig(range_m=150.0, latency_s=0.05, jitter_s=0.03, loss=BernoulliLoss(p=0.2)),
+                 np.random.default_rng(seed))
+    ids = [f"v{i}" for i in range(12)]
+    for i in ids:
+        ch.attach(i)
+    ch.attach("listener")  # attached, position unknown: never range checked
+    return ch, ids
+
+
+def test_send_many_and_deliver_batches_equal_send_and_deliver() -> None:
+    """A fleet's broadcasts in one send_many draw the same numbers as send after send, and
+    deliver_batches hands over the same copies as deliver (grouped by message), with the same
+    statistics and age of information."""
+    ref, ids = _fleet_channel(5)
+    new, _ = _fleet_channel(5)
+    got_ref, got_new = [], []
+    for k in range(30):
+        t = 0.1 * k
+        pos = np.c_[np.linspace(0.0, 400.0, 12) + 3.0 * t, np.zeros(12)]
+        ref.set_positions_arrays(ids, pos)
+        new.set_positions_arrays(ids, pos)
+        msgs = [(i, (i, k), pos[j], None) for j, i in enumerate(ids)] + [("gcs", ("hb", k), None, None)]
+        counts = [ref.send(t, src, payload, src_pos=p) for src, payload, p, _ in msgs]
+        assert new.send_many(t, msgs) == counts
+        got_ref += ref.deliver(t + 0.1)
+        batches = new.deliver_batches(t + 0.1)
+        got_new += [(b.src, d, b.t_sent_s, tr, b.payload, b.seq)
+                    for b in batches for d, tr in zip(b.dst, b.t_recv_s, strict=True)]
+        assert [(d.src, d.payload) for d in new.inbox("listener")] == [
+            (d.src, d.payload) for d in ref.inbox("listener")]
+    assert len(got_ref) > 1000 and ref.stats().out_of_range > 0 and ref.stats().lost_random > 0
+    # deliver's order is (t_recv, src, dst, send order)
+    ordered = sorted(got_new, key=lambda c: (c[3], c[0], c[1], c[5]))
+    assert [(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.payload) for d in got_ref] == [c[:5] for c in ordered]
+    assert ref.stats() == new.stats()
+
+
+def test_send_many_falls_back_to_send_for_unicasts_and_bursty_loss() -> None:
+    loss = GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3)
+    a, b = (_pair_channel(ChannelConfig(loss=loss), seed=2) for _ in range(2))
+    for k in range(200):
+        assert b.send_many(float(k), [("a", k, None, None), ("b", -k, None, "a")]) == [
+            a.send(float(k), "a", k), a.send(float(k), "b", -k, dst="a")]
+    assert [d.payload for d in a.deliver(1e3)] == [d.payload for d in b.deliver(1e3)]
+    assert a.stats() == b.stats()

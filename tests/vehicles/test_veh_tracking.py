@@ -103,3 +103,20 @@ def test_batched_prediction_equals_per_track_prediction() -> None:
         assert np.array_equal(batch[tid].pos, one.pos) and np.array_equal(batch[tid].cov, one.cov)
         assert np.array_equal(table._tracks[tid].kf.x, before[tid])
     assert TrackTable(dim=1, process_noise=1.0, meas_noise=1.0, stale_after_s=1.0).predict_arrays(0.0)[0] == []
+
+
+def test_filters_invert_the_innovation_covariance_like_numpy() -> None:
+    """The filters' ``inv`` (LAPACK gesv, filterpy's hook) is numpy.linalg.inv's computation: same
+    inverse, and a singular matrix raises as numpy does."""
+    from corridor.vehicles.tracking import _inverse
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        a = rng.normal(size=(6, 6))
+        s = a @ a.T + 0.1 * np.eye(6)
+        np.testing.assert_allclose(_inverse(s), np.linalg.inv(s), rtol=1e-12, atol=1e-12)
+    with pytest.raises(np.linalg.LinAlgError):
+        _inverse(np.zeros((6, 6)))
+    table = TrackTable(dim=3, process_noise=1.0, meas_noise=0.5, stale_after_s=5.0, vel_noise=0.3)
+    table.update("x", 0.0, np.zeros(3), np.ones(3))
+    assert table._tracks["x"].kf.inv is _inverse
