@@ -69,14 +69,17 @@ def test_ramp_vehicles_merge_at_the_merge_point_at_speed_without_collisions(vari
     assert np.median(vs) > 15.0, vs  # at the stream's speed, not crawling
 
 
-def _right_share(variant: str, duration_s: float, seed: int) -> tuple[float, float, dict]:
+def _right_share(variant: str, duration_s: float, seed: int, advice: bool) -> tuple[float, float, dict]:
     """Share of the mainline vehicles in the right lane, 300-1400 m and 0-300 m upstream of the
     merge point, averaged over the run after 60 s; and the run's metrics."""
     from corridor.run import build
     from corridor.scenario import apply_overrides, load, validate
 
     sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
-    sim = build(validate(apply_overrides(raw, sc.sweep[variant]), variant), seed, Path(tempfile.mkdtemp()))
+    data = apply_overrides(raw, sc.sweep[variant])
+    if advice:
+        data = apply_overrides(data, {"controllers.merge.params.lane_advice": {}})
+    sim = build(validate(data, variant), seed, Path(tempfile.mkdtemp()))
     ctx = sim.ctx
     for c in ctx.components.values():
         c.setup(ctx)
@@ -101,9 +104,9 @@ def _right_share(variant: str, duration_s: float, seed: int) -> tuple[float, flo
 
 def test_lane_advice_moves_connected_cars_left_before_the_merge_without_collisions() -> None:
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        plain = pool.submit(_right_share, "v2x_fifo", 200.0, 2).result()  # libsumo: one per process
+        plain = pool.submit(_right_share, "v2x_fifo", 200.0, 2, False).result()  # libsumo: one per process
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        advised = pool.submit(_right_share, "v2x_lanes", 200.0, 2).result()
+        advised = pool.submit(_right_share, "v2x_fifo", 200.0, 2, True).result()
     (w0, n0, _), (w1, n1, m) = plain, advised
     assert m["collisions"] == 0
     assert m["lane_advice_sent"] > 10 and m["lane_advice_followed"] > 0.8 * m["lane_advice_sent"]
