@@ -118,7 +118,8 @@ class TrafficKpis(Component):
         self.line_x = float(lm[self.p.count_landmark])
         a = self.p.merge_area
         self.area_x = (float(lm[a.start_landmark]) - a.before_m, float(lm[a.end_landmark]) + a.after_m) if a else None
-        self._lane_vmax: dict[str, float] = {}
+        self._lane_vmax = np.zeros(0)  # per lane code [m/s]
+        self._v_top, self._factor = np.zeros(0), np.zeros(0)  # per uid
 
     def tick(self, ctx: RunContext) -> None:
         r = self.road
@@ -153,14 +154,20 @@ class TrafficKpis(Component):
         inside = np.flatnonzero((x >= self.area_x[0]) & (x <= self.area_x[1]))
         if not len(inside):
             return
-        vmax = self._lane_vmax
-        if any(lane not in vmax for lane in r.lane_id[inside]):
-            for lane in set(r.lane_id[inside]) - set(vmax):
-                vmax[lane] = r.libsumo.lane.getMaxSpeed(lane)
-        info = [r.info[r.active[k]] for k in inside]
-        v_des = np.array([min(i.max_speed, vmax[lane] * i.speed_factor)
-                          for i, lane in zip(info, r.lane_id[inside], strict=True)])
-        uid = r.uid[inside]
+        uid, code = r.uid[inside], r.lane_code[inside]
+        if len(self._v_top) < len(self.in_area):  # per-uid driver facts, filled on first sight
+            grow = len(self.in_area) - len(self._v_top)
+            self._v_top = np.concatenate([self._v_top, np.full(grow, np.nan)])
+            self._factor = np.concatenate([self._factor, np.full(grow, np.nan)])
+        for k in inside[np.isnan(self._v_top[uid])]:
+            i = r.info[r.active[k]]
+            self._v_top[r.uid[k]], self._factor[r.uid[k]] = i.max_speed, i.speed_factor
+        if code.max() >= len(self._lane_vmax):  # speed limit per lane code, read once per lane
+            grow = code.max() + 1 - len(self._lane_vmax)
+            self._lane_vmax = np.concatenate([self._lane_vmax, np.full(grow, np.nan)])
+        for k in inside[np.isnan(self._lane_vmax[code])]:
+            self._lane_vmax[r.lane_code[k]] = r.libsumo.lane.getMaxSpeed(r.lane_id[k])
+        v_des = np.minimum(self._v_top[uid], self._lane_vmax[code] * self._factor[uid])
         self.area_loss[uid] += self.period * np.clip(1.0 - part.speed[inside] / v_des, 0.0, 1.0)
         self.in_area[uid] = True
 
