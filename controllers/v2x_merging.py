@@ -30,14 +30,6 @@ Per tick (period 0.1 s), in pipeline order:
    13.6 s for SUMO's own merging, seed 1).  Following the predecessor's actual position keeps the
    order and the gaps without that feedback.
 
-4. *advise* (optional ``lane_advice``, off by default): upstream of the zone, the roadside unit
-   keeps the right lane's share of the approaching mainline vehicles at most one half by advising
-   connected right-lane cars to move left until the merge (lane assignment at a bottleneck after
-   Roncoli, Bekiaris-Liberis & Papageorgiou 2017), over a wide-area V2X link.  Measured on the
-   merging batch's first 8 seeds (randomised demand, penetration, loss): +0.25 s mean delay and
-   +14 hard brakes against fifo alone (the upstream lane changes cost more than the merge gains),
-   although on seeds 1-2 at full penetration it cut the time lost around the merge by a quarter.
-
 SUMO's safe-speed check (speed mode 31) stays on for commanded vehicles: it is the onboard
 collision avoidance w.r.t. the *physical* leader, which a real vehicle senses without V2X.
 """
@@ -56,7 +48,7 @@ from corridor.controllers.merging_coordinator import Coordinator, CoordinatorCon
 from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.controllers.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.engine import Controller, RunContext
-from corridor.traffic.commands import ChangeLane, Release, SetLaneChangeMode, SetSpeed
+from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.monitors import road_backend
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracking import TrackTable
@@ -74,30 +66,6 @@ class Assignment:
     t_cross_s: float
     pred: str | None
     pred_road: str | None
-
-
-class LaneAdvice(BaseModel):
-    """Upstream lane assignment (after Roncoli, Bekiaris-Liberis & Papageorgiou 2017, lane-changing
-    feedback control at motorway bottlenecks): a roadside unit counts the mainline vehicles per lane
-    in a window upstream of the merge and, while the right lane holds more than ``right_share`` of
-    them, advises connected right-lane cars (farthest first) to move left and stay there until the
-    merge.  The merge then has room for the ramp flow without the lane changes and braking that a
-    full right lane forces at the merge itself.  Advice goes out over ``channel`` (a wide-area V2X
-    link such as cellular V2X: the window is longer than the merge RSU's short range)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
-    from_m: float = Field(300.0, ge=0)  # [m] window, as distances upstream of the merge point
-    to_m: float = Field(1400.0, gt=0)
-    right_share: float = Field(0.5, gt=0, le=1)  # target share of the window's vehicles in the right lane
-    channel: str = "v2x_advice"  # a key of the scenario's `channels` (defaults if absent)
-    stay_until_m: float = Field(60.0, ge=0)  # [m] the advised car keeps left until this far from the merge point
-
-
-@dataclass(frozen=True, slots=True)
-class MoveLeft:
-    """RSU -> vehicle: change to the left lane and keep it until close to the merge."""
-
-    t_sent_s: float
 
 
 class V2XMerging(Controller):
@@ -130,7 +98,6 @@ class V2XMerging(Controller):
         hold_lane_change: bool = True  # a controlled ramp vehicle changes lanes only once released at
         #   the merge point (at its slot, at the crossing speed); else SUMO moves it over whenever a gap
         #   appears, at whatever speed the plan has slowed it to
-        lane_advice: LaneAdvice | None = None  # upstream lane assignment (off: None)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
 
@@ -139,7 +106,6 @@ class V2XMerging(Controller):
         self.p = params
         self.period = 0.1
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
-        self._channels = dict(scenario.channels)
         self.coord = Coordinator(params.policy, params.coordinator)
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
@@ -150,8 +116,6 @@ class V2XMerging(Controller):
         self._senders: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
         self.stale_releases = 0
-        self.advised: dict[str, float] = {}  # vid -> time the lane advice was sent
-        self.advice_followed = 0
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
 
@@ -172,12 +136,6 @@ class V2XMerging(Controller):
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self.tracks[RSU] = self._new_table()
-        self.advice = self.p.lane_advice
-        if self.advice is not None:
-            cfg = self._channels.get(self.advice.channel, ChannelConfig())
-            self.adv_channel = Channel(cfg, ctx.rng(f"{self.name}.advice"))
-            self.adv_channel.attach(RSU)
-            self.adv_rsu_pos = np.array([self.x_merge - 0.5 * (self.advice.from_m + self.advice.to_m), self.y_rsu, 0.0])
 
     def _new_table(self) -> TrackTable:
         return TrackTable(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5,
@@ -192,8 +150,6 @@ class V2XMerging(Controller):
         target = self.p.target_speed_mps or self._stream_speed(state)
         zone = self._coordinate(ctx.t, state, target)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
-        if self.advice is not None:
-            ctx.commands.extend(self._lane_advice(ctx.t, state))
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
         """Own-vehicle facts each vehicle knows exactly (GNSS/odometry): distance to the merge, road."""
@@ -390,38 +346,6 @@ class V2XMerging(Controller):
             self.commands_sent += 1
         return cmds
 
-    def _lane_advice(self, t: float, s: dict[str, Any]) -> list[Any]:
-        """RSU: per-lane counts in the window (its detectors see every vehicle) -> advice to move
-        left, sent to as many connected right-lane cars as the right lane holds above its share;
-        a car acts on the advice when (if) it arrives."""
-        adv, ch = self.advice, self.adv_channel
-        ids, dist = s["ids"], s["dist"]
-        win = ~s["ramp"] & (dist > adv.from_m) & (dist < adv.to_m)
-        listen = np.flatnonzero(win & s["connected"])
-        now = {ids[k] for k in listen}
-        for vid in set(ch.receivers) - now - {RSU}:
-            ch.detach(vid)
-        for vid in now - set(ch.receivers):
-            ch.attach(vid)
-        ch.set_positions({RSU: self.adv_rsu_pos, **{ids[k]: s["pos"][k] for k in listen}})
-        right = win & s["right"]
-        excess = int(right.sum()) - int(adv.right_share * int(win.sum()))
-        cand = [k for k in np.flatnonzero(right & s["connected"]) if ids[k] not in self.advised]
-        cand.sort(key=lambda k: -dist[k])  # farthest first: the most road left to find a gap
-        for k in cand[:max(excess, 0)]:
-            self.advised[ids[k]] = t
-            ch.send(t, RSU, MoveLeft(t), src_pos=self.adv_rsu_pos, dst=ids[k])
-        cmds: list[Any] = []
-        live = {v: k for k, v in enumerate(ids)}
-        for d in ch.deliver(t):
-            k = live.get(d.dst)
-            if k is None or not isinstance(d.payload, MoveLeft) or not s["right"][k]:
-                continue
-            stay_s = max(1.0, (float(dist[k]) - adv.stay_until_m) / max(float(s["speed"][k]), 5.0))
-            cmds.append(ChangeLane(d.dst, 1, stay_s))  # SUMO changes when the left lane has a safe gap
-            self.advice_followed += 1
-        return cmds
-
     def _merge_gap_accel(self, gap_m: float, v: float, v_lead: float) -> float:
         """Constant-time-gap rule towards the virtual leader: open the gap that the lane change needs.
 
@@ -456,6 +380,5 @@ class V2XMerging(Controller):
         aoi_mean = self._aoi_sum / self._aoi_n if self._aoi_n else np.nan
         return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_aoi_mean_s": aoi_mean,
                 "v2x_aoi_max_s": self._aoi_max if self._aoi_n else np.nan, "v2x_sent": st.sent, "v2x_fallbacks": self.stale_releases,
-                "v2x_commands": self.commands_sent, "lane_advice_sent": len(self.advised),
-                "lane_advice_followed": self.advice_followed,
+                "v2x_commands": self.commands_sent,
                 "min_virtual_gap_m": self.min_virtual_gap if math.isfinite(self.min_virtual_gap) else np.nan}
