@@ -98,6 +98,10 @@ def paired_differences(ok: pd.DataFrame, column: str, a: str, b: str) -> np.ndar
     return d.to_numpy(dtype=float)
 
 
+def _paired_seeds(ok: pd.DataFrame, a: str, b: str) -> pd.Index:
+    return pd.Index(ok[ok["variant"] == a]["seed"]).intersection(pd.Index(ok[ok["variant"] == b]["seed"]))
+
+
 def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
     """Every pair of variants, per key metric: the mean paired difference with its 95 % Student-t
     interval.  Each seed gives every variant the same demand and draws, so the per-seed difference
@@ -116,9 +120,13 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
             m, lo, hi = mean_ci(d)
             n = int(np.isfinite(d).sum())
             cls = "" if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 <= hi else " class=res"
-            cells.append(f"<td{cls}>{_num(m)} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
+            ref = np.nanmean(pd.to_numeric(ok[(ok["variant"] == b) & ok["seed"].isin(_paired_seeds(ok, a, b))][c],
+                                           errors="coerce").to_numpy(dtype=float)) if n else math.nan
+            rel = f" ({m / abs(ref) * 100:+.1f} %)" if math.isfinite(m) and math.isfinite(ref) and ref != 0 else ""
+            cells.append(f"<td{cls}>{_num(m)}{rel} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
         rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
-    return ("<p>Mean paired difference per seed, [95 % CI]; <b>bold</b>: the interval excludes 0.</p>"
+    return ("<p>Mean paired difference per seed (in % of the second variant's mean over the same seeds),"
+            " [95 % CI]; <b>bold</b>: the interval excludes 0.</p>"
             f"<table><tr><th>metric</th>{head}</tr>{''.join(rows)}</table>")
 
 

@@ -34,6 +34,9 @@ def test_paired_difference_resolves_a_shift_that_the_seed_spread_hides() -> None
     assert b_minus_a.startswith(" class=res>-0.4")  # resolved: bold
     assert not c_minus_a.startswith(" class=res")  # c equals a up to noise: not resolved
     assert c_minus_b.startswith(" class=res>0.4")
+    # the relative difference is taken against the second variant's mean over the same seeds
+    pct = float(b_minus_a.split("(")[1].split(" %")[0])
+    assert abs(pct - d.mean() / df[df.variant == "a"]["delay"].mean() * 100) < 0.06
 
 
 def test_paired_difference_uses_only_seeds_both_variants_ran() -> None:
