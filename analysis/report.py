@@ -89,17 +89,19 @@ def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str) -> str:
     return f"<table><tr><th>metric (mean ± sd; % vs {html.escape(baseline)})</th>{head}</tr>{''.join(rows)}</table>"
 
 
-def paired_differences(ok: pd.DataFrame, column: str, a: str, b: str) -> np.ndarray:
-    """``a − b`` of one metric over the seeds both variants ran (the same draws: common random numbers)."""
+def _paired(ok: pd.DataFrame, column: str, a: str, b: str) -> tuple[np.ndarray, np.ndarray]:
+    """One metric of ``a`` and of ``b`` over the seeds both variants ran, aligned by seed."""
     x = ok[ok["variant"] == a].set_index("seed")[column]
     y = ok[ok["variant"] == b].set_index("seed")[column]
     both = x.index.intersection(y.index)
-    d = pd.to_numeric(x.loc[both], errors="coerce") - pd.to_numeric(y.loc[both], errors="coerce")
-    return d.to_numpy(dtype=float)
+    return (pd.to_numeric(x.loc[both], errors="coerce").to_numpy(dtype=float),
+            pd.to_numeric(y.loc[both], errors="coerce").to_numpy(dtype=float))
 
 
-def _paired_seeds(ok: pd.DataFrame, a: str, b: str) -> pd.Index:
-    return pd.Index(ok[ok["variant"] == a]["seed"]).intersection(pd.Index(ok[ok["variant"] == b]["seed"]))
+def paired_differences(ok: pd.DataFrame, column: str, a: str, b: str) -> np.ndarray:
+    """``a − b`` of one metric over the seeds both variants ran (the same draws: common random numbers)."""
+    x, y = _paired(ok, column, a, b)
+    return x - y
 
 
 def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
@@ -116,12 +118,12 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
     for c in cols:
         cells = []
         for a, b in pairs:
-            d = paired_differences(ok, c, a, b)
+            x, y = _paired(ok, c, a, b)
+            d = x - y
             m, lo, hi = mean_ci(d)
             n = int(np.isfinite(d).sum())
             cls = "" if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 <= hi else " class=res"
-            ref = np.nanmean(pd.to_numeric(ok[(ok["variant"] == b) & ok["seed"].isin(_paired_seeds(ok, a, b))][c],
-                                           errors="coerce").to_numpy(dtype=float)) if n else math.nan
+            ref = float(np.mean(y[np.isfinite(d)])) if n else math.nan
             rel = f" ({m / abs(ref) * 100:+.1f} %)" if math.isfinite(m) and math.isfinite(ref) and ref != 0 else ""
             cells.append(f"<td{cls}>{_num(m)}{rel} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
         rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
