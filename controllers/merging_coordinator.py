@@ -29,7 +29,8 @@ Policies
           Measured caveat: the saving exists where a cross-road transition really takes longer.  In
           ``scenarios/merging.yaml`` (SUMO drivers, virtual-vehicle gap opening) it does not: crossing
           headways at the conflict point were 1.7 s mainline->mainline, 1.5 s ramp->ramp and 1.1-1.2 s
-          across (seed 1), and cps is no faster than fifo there (60 seeds: -0.03 s, CI [-0.07, +0.01]),
+          across (seed 1), and cps is no faster than fifo there (60 seeds with ramp lane changes held
+          to the conflict point: -0.03 s, CI [-0.07, +0.01]; 20 seeds without: +0.01 s [-0.09, +0.10]),
           also with headways set to those figures.
 
 Frozen vehicles: a vehicle whose assigned crossing is within ``freeze_s`` of now keeps its position
