@@ -64,14 +64,28 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def resolve_scenario(name: str) -> Path:
     path = Path(name)
-    if path.exists() or path.suffix in (".yaml", ".yml"):
+    try:
+        exists = path.exists()
+    except OSError:  # e.g. a name too long for the file system
+        exists = False
+    if exists or path.suffix in (".yaml", ".yml"):
         return path
-    packaged = Path(__file__).resolve().parent.parent / "scenarios" / f"{name}.yaml"
-    if not packaged.exists():
+    dirs = [Path(__file__).resolve().parent.parent / "scenarios"]
+    try:
         import corridor.scenarios as pkg  # installed wheel: scenarios ship as package data
 
-        packaged = Path(next(iter(pkg.__path__))) / f"{name}.yaml"
-    return packaged if packaged.exists() else path
+        dirs += [Path(p) for p in pkg.__path__]
+    except ImportError:
+        pass
+    if len(name) <= 64 and name.replace("_", "").replace("-", "").isalnum():  # a bare name, not a path
+        for d in dirs:
+            if (d / f"{name}.yaml").is_file():
+                return d / f"{name}.yaml"
+    from corridor.errors import ScenarioError, clip
+
+    names = sorted({p.stem for d in dirs if d.is_dir() for p in d.glob("*.yaml")})
+    raise ScenarioError(f"{clip(name)}: no such file, and no packaged scenario of that name "
+                        f"(packaged: {', '.join(names)})")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -9,3 +9,9 @@ class CorridorError(Exception):
 
 class ScenarioError(CorridorError):
     """A scenario file, override or command-line value is wrong."""
+
+
+def clip(value: object, limit: int = 60) -> str:
+    """``repr`` of a user value for an error message, cut to ``limit`` characters (one line, bounded)."""
+    text = repr(value) if isinstance(value, str) else repr(str(value))
+    return text if len(text) <= limit else text[: limit - 1] + "…"
