@@ -1,4 +1,23 @@
-"""The HTML report of a batch: self-contained (plots embedded as PNG), read from the results table."""
+"""The HTML report of a batch: self-contained (plots embedded as PNG), read from the results table.
+
+The report shows only what applies to the scenario and to each variant:
+
+- **Collisions.** The collision section (and collisions among the "problem runs") appears only when
+  some variant has entities a collision monitor can see: a road (SUMO vehicles) or a backend that
+  contributes rows to the world snapshot (its class overrides ``Backend.snapshot_part``: aircraft,
+  the ego).  A macroscopic model (METANET) has no vehicles, so its runs' ``collisions = 0`` is no
+  evidence of safety and no collision probability is shown.  A run that did report a collision
+  always keeps the section.
+- **Sensitivities.** Each variant is validated on its own (the base scenario with that variant's
+  sweep overrides, as a run does), and a randomized field is fitted for a variant only if that
+  variant uses it (``draw_not_applicable``): ``channels.<c>`` only if one of its components
+  references channel ``<c>`` (a ``channel`` parameter, defaults included); ``controllers|backends|
+  monitors.<n>...`` only if component ``<n>`` exists and runs (a controller of type ``none`` does
+  not), and ``...params.<field>`` only if the component's ``Params`` has ``<field>`` and ``<field>``
+  does not configure another component type (the ``control_tube`` section of an avoidance
+  controller that runs ``potential_field``); ``road.*`` only if the variant has a road.  The rule is
+  structural: a field a component reads counts, even where reading it changes nothing.
+"""
 
 from __future__ import annotations
 
@@ -20,6 +39,147 @@ th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#
 img{max-width:100%}code{background:#f3f3f3;padding:1px 3px}.res{font-weight:bold}"""
 
 NON_METRICS = {"run_id", "scenario", "variant", "seed", "status", "error", "traceback"}
+
+
+ENTITY_FREE_REASON = "no vehicles: none of its backends puts entities in the world snapshot"
+
+
+def _registries() -> dict[str, Any]:
+    from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
+
+    return {"backends": BACKENDS, "controllers": CONTROLLERS, "monitors": MONITORS}
+
+
+def variant_scenarios(scenario: Any) -> dict[str, Any]:
+    """Each sweep variant's validated scenario (base + that variant's overrides, as a run builds it;
+    draws not applied); None for a variant that does not validate, or when ``scenario`` is not a
+    corridor ``Scenario`` (then nothing is left out of the report)."""
+    sweep = getattr(scenario, "sweep", None)
+    if not isinstance(sweep, dict) or not hasattr(scenario, "model_dump"):
+        return {}
+    from corridor.errors import CorridorError
+    from corridor.scenario import apply_overrides, validate
+
+    base = scenario.model_dump(exclude_unset=True)
+    out: dict[str, Any] = {}
+    for v, over in sweep.items():
+        try:
+            out[str(v)] = validate(apply_overrides(base, over), f"variant {v}")
+        except (CorridorError, ValueError, TypeError):
+            out[str(v)] = None
+    return out
+
+
+def _component_class(table: str, spec: Any) -> Any:
+    try:
+        return _registries()[table].get(spec.type)
+    except Exception:  # noqa: BLE001 - an unknown or unimportable class: treat as using everything
+        return None
+
+
+def has_entities(vsc: Any) -> bool:
+    """Whether a variant's scenario has anything a collision monitor can see: a road, or a backend
+    whose class contributes entities to the world snapshot (unknown classes count as having some)."""
+    if vsc is None or getattr(vsc, "road", None) is not None:
+        return True
+    from corridor.engine import Backend
+
+    for spec in vsc.backends.values():
+        cls = _component_class("backends", spec)
+        if cls is None or getattr(cls, "snapshot_part", None) is not Backend.snapshot_part:
+            return True
+    return False
+
+
+def collisions_apply(df: pd.DataFrame, scenario: Any) -> bool:
+    """Show collision probabilities?  Not when the rows have no ``collisions`` column, nor when no
+    variant that ran has entities (a macroscopic model); always when some run reported one."""
+    if "collisions" not in df:
+        return False
+    if (pd.to_numeric(df["collisions"], errors="coerce").fillna(0) > 0).any():
+        return True
+    scen = variant_scenarios(scenario)
+    ran = [v for v in dict.fromkeys(df["variant"].astype(str)) if v in scen] if "variant" in df else []
+    return not ran or any(has_entities(scen[v]) for v in ran)
+
+
+def _channel_refs(value: Any, key: str = "") -> set[str]:
+    """Channel names referenced in (dumped) component parameters: values of keys named ``channel``,
+    ``channels`` or ``*_channel``, at any depth."""
+    out: set[str] = set()
+    if isinstance(value, dict):
+        for k, x in value.items():
+            out |= _channel_refs(x, str(k))
+    elif isinstance(value, list | tuple | set):
+        for x in value:
+            out |= _channel_refs(x, key)
+    elif isinstance(value, str) and (key in ("channel", "channels") or key.endswith("_channel")):
+        out.add(value)
+    return out
+
+
+def _params_dump(table: str, spec: Any) -> dict[str, Any]:
+    cls = _component_class(table, spec)
+    model = getattr(cls, "Params", None)
+    try:
+        return model.model_validate(spec.params).model_dump() if model is not None else dict(spec.params)
+    except Exception:  # noqa: BLE001 - a variant that would fail its run: use the raw params
+        return dict(spec.params)
+
+
+def _running(vsc: Any) -> list[tuple[str, str, Any]]:
+    """(table, name, spec) of every component a run of this variant builds (a ``none`` controller
+    is not built)."""
+    return [(t, n, spec) for t in ("backends", "controllers", "monitors")
+            for n, spec in getattr(vsc, t).items() if not (t == "controllers" and spec.type == "none")]
+
+
+def channels_used(vsc: Any) -> set[str]:
+    """The channels some running component of a variant's scenario references."""
+    return set().union(*(_channel_refs(_params_dump(t, spec)) for t, _, spec in _running(vsc)))
+
+
+def draw_not_applicable(vsc: Any, path: str) -> str | None:
+    """Why the randomized field ``path`` cannot affect a variant (its validated scenario ``vsc``), or
+    None if it may.  The rule is the module docstring's."""
+    if vsc is None:
+        return None
+    parts = path.split(".")
+    head = parts[0]
+    if head == "channels" and len(parts) > 1:
+        return None if parts[1] in channels_used(vsc) else f"no component uses channel {parts[1]}"
+    if head == "road":
+        return None if vsc.road is not None else "no road"
+    if head in ("controllers", "backends", "monitors") and len(parts) > 1:
+        spec = getattr(vsc, head).get(parts[1])
+        if spec is None:
+            return f"no {head[:-1]} {parts[1]}"
+        if head == "controllers" and spec.type == "none":
+            return f"controller {parts[1]} is of type none"
+        if len(parts) > 3 and parts[2] == "params":
+            cls = _component_class(head, spec)
+            model = getattr(cls, "Params", None)
+            if cls is not None and model is None:
+                return f"{spec.type} takes no parameters"
+            fields = getattr(model, "model_fields", None)
+            extra = (getattr(model, "model_config", {}) or {}).get("extra") == "allow"
+            if fields is not None and parts[3] not in fields and not extra:
+                return f"{spec.type} has no parameter {parts[3]}"
+            if parts[3] != spec.type and parts[3] in _registries()[head]:
+                return f"the {parts[3]} section configures another {head[:-1]} type ({parts[1]} runs {spec.type})"
+    return None
+
+
+def not_applicable_draws(ok: pd.DataFrame, scenario: Any) -> dict[str, dict[str, str]]:
+    """variant -> {draw column -> why it does not apply} for the randomized columns of ``ok``."""
+    scen = variant_scenarios(scenario)
+    draws = [c for c in ok.columns if c.startswith("draw.")]
+    out: dict[str, dict[str, str]] = {}
+    for v in dict.fromkeys(ok["variant"].astype(str)) if "variant" in ok else []:
+        why = {c: r for c in draws if (r := draw_not_applicable(scen.get(v), c[5:])) is not None}
+        if why:
+            out[v] = why
+    return out
 
 
 def _num(x: float, digits: int = 3) -> str:
@@ -132,11 +292,15 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
             f"<table><tr><th>metric</th>{head}</tr>{''.join(rows)}</table>")
 
 
-def draw_sensitivity(ok: pd.DataFrame, column: str) -> str:
+def draw_sensitivity(ok: pd.DataFrame, column: str, not_applicable: dict[str, dict[str, str]] | None = None) -> str:
     """The metric against each randomized field, per variant, with a least-squares line: how the
-    result moves with demand, penetration, message loss ... over the batch's draws."""
+    result moves with demand, penetration, message loss ... over the batch's draws.  A (variant,
+    field) pair in ``not_applicable`` (variant -> {draw column -> reason}) is neither drawn nor
+    fitted; it is listed under the table with its reason."""
+    skip = not_applicable or {}
+    variants = list(dict.fromkeys(ok["variant"].astype(str))) if "variant" in ok else []
     draws = [c for c in ok.columns if c.startswith("draw.") and pd.api.types.is_numeric_dtype(ok[c])]
-    draws = [c for c in draws if ok[c].nunique() > 2]
+    draws = [c for c in draws if ok[c].nunique() > 2 and any(c not in skip.get(v, {}) for v in variants)]
     if not draws or column not in ok:
         return ""
     import matplotlib
@@ -145,13 +309,15 @@ def draw_sensitivity(ok: pd.DataFrame, column: str) -> str:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, len(draws), figsize=(3.4 * len(draws), 3.0), squeeze=False, sharey=True)
-    rows = []
+    rows, handles = [], {}
     for ax, dc in zip(axes[0], draws, strict=True):
         for i, (v, g) in enumerate(ok.groupby("variant", sort=False)):
+            if dc in skip.get(str(v), {}):
+                continue
             x = g[dc].to_numpy(dtype=float)
             y = pd.to_numeric(g[column], errors="coerce").to_numpy(dtype=float)
             keep = np.isfinite(x) & np.isfinite(y)
-            ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=v)
+            handles.setdefault(str(v), ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=v)[0])
             if keep.sum() >= 3 and np.ptp(x[keep]) > 0:
                 slope, icpt = np.polyfit(x[keep], y[keep], 1)
                 xs = np.array([x[keep].min(), x[keep].max()])
@@ -161,10 +327,14 @@ def draw_sensitivity(ok: pd.DataFrame, column: str) -> str:
         ax.set_xlabel(dc[5:], fontsize=8)
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel(column)
-    axes[0][0].legend(fontsize=7)
+    axes[0][0].legend(list(handles.values()), list(handles), fontsize=7)
     table = ("<table><tr><th>variant</th><th>randomized field</th><th>slope</th>"
              "<th>change over the drawn range</th></tr>" + "".join(rows) + "</table>")
-    return _png(fig) + table
+    left_out = [f"<li>{html.escape(v)} &times; <code>{html.escape(dc[5:])}</code>: {html.escape(why)}</li>"
+                for v in variants for dc, why in skip.get(v, {}).items() if dc in ok.columns]
+    note = ("<p>Not fitted (the field cannot affect that variant):</p><ul>" + "".join(left_out) + "</ul>"
+            if left_out else "")
+    return _png(fig) + table + note
 
 
 def collision_table(df: pd.DataFrame) -> str:
@@ -182,23 +352,34 @@ def collision_table(df: pd.DataFrame) -> str:
             "<th>runs with a collision</th><th>P(collision) 95 % exact CI</th></tr>" + "".join(rows) + "</table>")
 
 
-def problem_runs(df: pd.DataFrame) -> str:
+def problem_runs(df: pd.DataFrame, with_collisions: bool = True) -> str:
     spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
-    coll = df["collisions"].fillna(0) if "collisions" in df else pd.Series(0, index=df.index)
+    coll = (df["collisions"].fillna(0) if "collisions" in df and with_collisions
+            else pd.Series(0, index=df.index))
     bad = df[(df["status"] != "ok") | (coll > 0)]
     for c in spec_cols:
         bad = pd.concat([bad, df[df[c] == False]])  # noqa: E712 (pandas comparison)
     bad = bad.drop_duplicates("run_id")
     if bad.empty:
-        return "<p class=good>No run collided, failed, or violated a specification.</p>"
+        return ("<p class=good>No run " + ("collided, failed, " if with_collisions else "failed ")
+                + "or violated a specification.</p>")
     rows = []
     for _, r in bad.iterrows():
         violated = [c.split(".")[1] for c in spec_cols if r.get(c) is False or r.get(c) == 0]
         why = (r["error"] if r["status"] != "ok" else
-               f"{int(r.get('collisions', 0) or 0)} collision(s)" + (f"; violates {', '.join(violated)}" if violated else ""))
+               "; ".join(([f"{int(r.get('collisions', 0) or 0)} collision(s)"] if with_collisions else [])
+                         + ([f"violates {', '.join(violated)}"] if violated else [])))
         rows.append(f"<tr><td>{html.escape(r['run_id'])}</td><td>{html.escape(str(r['status']))}</td>"
                     f"<td style='text-align:left'>{html.escape(str(why))}</td></tr>")
     return "<table><tr><th>run</th><th>status</th><th>why</th></tr>" + "".join(rows) + "</table>"
+
+
+SENSITIVITY_NOTE = (
+    "<p>A field is fitted for a variant only if that variant uses it: a <code>channels.&lt;c&gt;</code> "
+    "field if one of the variant's components uses channel &lt;c&gt;; a component's field if the "
+    "variant runs that component and its type has that parameter (and the parameter does not "
+    "configure another component type); a <code>road</code> field if the variant has a road. Each "
+    "variant's scenario is the base with its sweep overrides, validated as its runs are.</p>")
 
 
 def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: list[str] | None = None) -> Path:
@@ -211,19 +392,24 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     plots = "".join(distribution_plot(ok, c, c) for c in key if len(ok))
     spec_cols = [c for c in cols if c.startswith("spec.") and c.endswith(".space")]
     spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}") for c in spec_cols)
+    with_coll = collisions_apply(df, scenario)
+    skip = not_applicable_draws(ok, scenario) if len(ok) else {}
     body = [
         f"<h1>{html.escape(scenario.name)}</h1><p>{html.escape(scenario.description)}</p>",
         f"<p>{len(df)} runs ({len(ok)} ok), variants: {', '.join(map(html.escape, variants))}; "
         f"{scenario.duration:g} s simulated per run, warm-up {scenario.warmup:g} s.</p>",
-        "<h2>Safety: collisions</h2>", collision_table(df),
+        *(["<h2>Safety: collisions</h2>", collision_table(df)] if with_coll else
+          [f"<p>No collision probability: {ENTITY_FREE_REASON} (a macroscopic model), so a count of 0 "
+           "collisions would say nothing about safety.</p>"]),
         "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline) if len(ok) else "",
         *(["<h2>Paired differences between variants</h2>", paired_table(ok, key)]
           if len(ok) and ok["variant"].nunique() > 1 else []),
         "<h2>Distributions</h2>", plots, spec_plots,
-        *(["<h2>Sensitivity to the randomized fields</h2>", sensitivity] if (sensitivity := (
-            draw_sensitivity(ok, key[0]) if len(ok) and key else "")) else []),
+        *(["<h2>Sensitivity to the randomized fields</h2>", SENSITIVITY_NOTE, sensitivity] if (sensitivity := (
+            draw_sensitivity(ok, key[0], skip) if len(ok) and key else "")) else []),
         *(extra_sections or []),
-        "<h2>Runs with collisions, errors or violated specifications</h2>", problem_runs(df),
+        f"<h2>Runs with {'collisions, ' if with_coll else ''}errors or violated specifications</h2>",
+        problem_runs(df, with_coll),
         "<h2>All metrics</h2>", kpi_table(ok, cols, baseline) if len(ok) else "",
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
