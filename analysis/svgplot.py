@@ -1,7 +1,9 @@
-"""Small hand-written inline SVG charts for the HTML report: line charts, a heatmap, a scatter plot.
+"""Small hand-written inline SVG charts for the HTML report: line charts, a heatmap, a scatter plot,
+a top-down x/y track chart (equal scale on both axes) and a grouped bar chart.
 
 No plotting library: the report stays a few hundred kB of text, and tests can count the drawn
-elements (``<polyline>`` per series, ``<rect class=cell>`` per heatmap cell, ``<circle>`` per point).
+elements (``<polyline>`` per series or track, ``<rect class=cell>`` per heatmap cell, ``<circle>``
+per point, ``<rect class=bar>`` per bar).
 """
 
 from __future__ import annotations
@@ -168,3 +170,61 @@ def scatter_chart(x: np.ndarray, y: np.ndarray, curves: Sequence[tuple[str, np.n
         parts.append(_polyline(f, np.asarray(cx, float), np.asarray(cy, float), colour, dash=i > 0))
         legend.append((label, colour, i > 0))
     return _svg(parts + _legend(legend), cls)
+
+
+def track_chart(tracks: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str, x_label: str, y_label: str,
+                cls: str = "tracks") -> str:
+    """Top-down paths, one ``<polyline>`` per (label, x, y) track, at one scale on both axes (a
+    circle marks where a track starts, a square where it ends)."""
+    x0, x1 = _range([t[1] for t in tracks])
+    y0, y1 = _range([t[2] for t in tracks])
+    pw, ph = W - ML - MR, H - MT - MB
+    scale = max((x1 - x0) / pw, (y1 - y0) / ph)  # [m/px]: the larger extent fills its axis
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    f = Frame(cx - scale * pw / 2, cx + scale * pw / 2, cy - scale * ph / 2, cy + scale * ph / 2)
+    parts = _axes(f, title, x_label, y_label)
+    legend = []
+    for i, (label, x, y) in enumerate(tracks):
+        colour, dash = PALETTE[i % len(PALETTE)], i >= len(PALETTE)
+        x, y = np.asarray(x, float), np.asarray(y, float)
+        parts.append(_polyline(f, x, y, colour, dash))
+        ok = np.flatnonzero(np.isfinite(x) & np.isfinite(y))
+        if len(ok):
+            (a, b), (c, d) = (f.px(x[ok[[0, -1]]]), f.py(y[ok[[0, -1]]]))
+            parts.append(f'<circle cx="{a:.1f}" cy="{c:.1f}" r="3" fill="{colour}"/>'
+                         f'<rect x="{b - 3:.1f}" y="{d - 3:.1f}" width="6" height="6" fill="{colour}"/>')
+        legend.append((label, colour, dash))
+    return _svg(parts + _legend(legend), cls)
+
+
+def bar_chart(groups: Sequence[str], series: Sequence[str], values: np.ndarray, title: str, y_label: str,
+              lo: np.ndarray | None = None, hi: np.ndarray | None = None, cls: str = "bars") -> str:
+    """Grouped bars: ``values[g, s]`` for group ``g`` (x axis) and series ``s`` (colour, legend), with
+    optional interval whiskers ``lo``/``hi`` of the same shape."""
+    values = np.asarray(values, float)
+    ends = [values] + [np.asarray(a, float) for a in (lo, hi) if a is not None]
+    y0, y1 = _range(ends, 0.0)
+    f = Frame(0.0, float(len(groups)), y0, y1 * 1.08)
+    parts = _axes(f, title, "", y_label)[:4]  # frame, title, labels: no numeric x ticks
+    parts += [f'<line x1="{ML}" x2="{W - MR}" y1="{float(f.py(y)):.1f}" y2="{float(f.py(y)):.1f}" stroke="#eee"/>'
+              f'<text x="{ML - 4}" y="{float(f.py(y)) + 3:.1f}" font-size="10" text-anchor="end">{_fmt(y)}</text>'
+              for y in nice_ticks(f.y0, f.y1)]
+    n = max(len(series), 1)
+    width = 0.8 / n
+    for g, name in enumerate(groups):
+        parts.append(f'<text x="{float(f.px(g + 0.5)):.1f}" y="{H - MB + 15}" font-size="10" '
+                     f'text-anchor="middle">{html.escape(name)}</text>')
+        for k in range(len(series)):
+            v = values[g, k]
+            if not math.isfinite(v):
+                continue
+            xa, xb = float(f.px(g + 0.1 + k * width)), float(f.px(g + 0.1 + (k + 1) * width))
+            ya, yb = sorted((float(f.py(v)), float(f.py(0.0))))
+            parts.append(f'<rect class="bar" x="{xa:.1f}" y="{ya:.1f}" width="{xb - xa:.1f}" height="{yb - ya:.1f}" '
+                         f'fill="{PALETTE[k % len(PALETTE)]}"><title>{html.escape(name)}, '
+                         f"{html.escape(series[k])}: {_fmt(round(float(v), 3))}</title></rect>")
+            if lo is not None and hi is not None and math.isfinite(lo[g, k]) and math.isfinite(hi[g, k]):
+                xm = (xa + xb) / 2
+                parts.append(f'<line x1="{xm:.1f}" x2="{xm:.1f}" y1="{float(f.py(lo[g, k])):.1f}" '
+                             f'y2="{float(f.py(hi[g, k])):.1f}" stroke="#333"/>')
+    return _svg(parts + _legend([(s_, PALETTE[k % len(PALETTE)], False) for k, s_ in enumerate(series)]), cls)

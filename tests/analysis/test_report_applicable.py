@@ -115,3 +115,114 @@ def test_a_none_controller_uses_nothing() -> None:
     assert draw_not_applicable(scen["plain"], "controllers.merge.params.policy") == "controller merge is of type none"
     assert draw_not_applicable(scen["plain"], "channels.v2x.loss.p") is not None
     assert draw_not_applicable(scen["coord"], "controllers.merge.params.policy") is None
+
+
+# ---------------------------------------------------------------- merging and UAV time series
+def _save(out: Path, run_id: str, signals: dict[str, tuple[np.ndarray, np.ndarray]]) -> None:
+    (out / "signals").mkdir(parents=True, exist_ok=True)
+    arrays = {k: v for name, (t, x) in signals.items() for k, v in ((name, x), (f"{name}.t", t))}
+    np.savez_compressed(out / "signals" / f"{run_id}.npz", **arrays)
+
+
+def _svgs(text: str, cls: str) -> list[str]:
+    return re.findall(rf'<svg class="{cls}".*?</svg>', text, re.S)
+
+
+def _merging_signals(out: Path, variants: list[str], seeds: range) -> None:
+    t = np.arange(0.1, 600.05, 0.1)  # a 600 s run at 10 Hz: 6000 samples, drawn as <= 300 bins
+    for s in seeds:
+        for k, v in enumerate(variants):
+            _save(out, f"{v}-s{s}", {"min_ttc": (t, np.where(t % 50 < 5, 1.0 + k, 99.0)),
+                                     "mean_speed": (t, np.full_like(t, 25.0 + k)),
+                                     "vehicles": (t, np.minimum(t, 100.0))})
+
+
+def test_merging_sections_from_signals(tmp_path: Path) -> None:
+    from corridor.analysis.report_series import report_sections
+
+    sc = _scenario("merging")
+    variants = ["sumo_default", "v2x_fifo", "v2x_cps"]
+    df = _merging_batch(3)
+    df["merge_loss_ramp_s"], df["merge_loss_mainline_s"], df["merge_loss_mean_s"] = 6.0, 2.0, 3.0
+    df.loc[df.run_id == "v2x_cps-s0", "status"] = "error"  # seed 1 is the first that every variant finished
+    _merging_signals(tmp_path, variants, range(1, 3))
+    _save(tmp_path, "sumo_default-s0", {"min_ttc": (np.array([0.0, 1.0]), np.array([5.0, 5.0]))})
+    secs = report_sections(tmp_path, df, sc, REPO / "scenarios" / "merging.yaml")
+    titles = [re.search(r"<h2>(.*?)</h2>", s).group(1) for s in secs]
+    assert titles == ["Minimum time-to-collision", "Mean speed", "Vehicles in the network", "Time lost around the merge"]
+    ttc = secs[0]
+    assert "Seed 1 of every variant" in ttc and "sumo_default-s1" in ttc and "sumo_default-s0" not in ttc
+    (chart,) = _svgs(ttc, "lines")
+    assert chart.count("<polyline") == 3 and all(f">{v}</text>" in chart for v in variants)  # legend
+    assert "TTC threshold 1.5 s" in chart and "min TTC [s]" in chart and "t [s]" in chart
+    points = re.findall(r'<polyline points="([^"]*)"', chart)
+    assert all(len(p.split()) <= 300 for p in points)  # binned
+    assert "km/h" in secs[1]
+    (bars,) = _svgs(secs[3], "bars")
+    assert bars.count('class="bar"') == 9 and "ramp vehicles" in bars  # 3 variants x (ramp, mainline, all)
+    text = write_report(df, sc, tmp_path / "report.html", secs).read_text()
+    assert text.count("<svg") == 4
+
+
+def test_binned_keeps_the_minimum() -> None:
+    from corridor.analysis.report_series import binned
+
+    t = np.arange(0.0, 1000.0, 0.1)
+    v = np.full_like(t, 9.0)
+    v[4321] = 0.5
+    tb, vb = binned(t, v, "min", max_bins=100)
+    assert len(tb) == 100 and vb.min() == 0.5 and np.all(np.diff(tb) > 0)
+    assert np.allclose(binned(t, t, "mean", max_bins=10)[1], binned(t, t, "mean", max_bins=10)[0], atol=0.06)
+
+
+def test_uav_sections_separation_and_tracks(tmp_path: Path) -> None:
+    from corridor.analysis.report_series import report_sections
+
+    sc = _scenario("uav_encounter")
+    variants = ["none", "potential_field", "control_tube"]
+    t = np.arange(0.1, 75.05, 0.1)
+    for k, v in enumerate(variants):
+        sep = np.abs(t - 25.0) * 6.0 + 20.0 * k
+        sig = {"min_sep_h": (t, sep), "min_sep_3d": (t, sep + 1.0)}
+        if v != "control_tube":  # positions recorded by these runs only
+            for i, course in enumerate((0.0, np.pi)):
+                sig[f"track_e_uav{i}"] = (t, 6.0 * (t - 25.0) * np.sin(course) + 5.0 * k * i)
+                sig[f"track_n_uav{i}"] = (t, 6.0 * (t - 25.0) * np.cos(course))
+            sig["track_e_c172x"] = (t, 50.0 * (t - 25.0))
+            sig["track_n_c172x"] = (t, np.zeros_like(t))
+        _save(tmp_path, f"{v}-s0", sig)
+    df = _rows(variants, 1, nmac=lambda s, v: int(v == "none"))
+    secs = report_sections(tmp_path, df, sc, None)
+    titles = [re.search(r"<h2>(.*?)</h2>", s).group(1) for s in secs]
+    assert titles == ["Minimum horizontal separation", "Minimum 3-D separation", "Trajectories"]
+    (hchart,) = _svgs(secs[0], "lines")
+    assert hchart.count("<polyline") == 3 and "NMAC 30.5 m" in hchart and "LoS (UAV-UAV) 61.0 m" in hchart
+    assert "min horizontal separation [m]" in hchart
+    tracks = _svgs(secs[2], "tracks")
+    assert len(tracks) == 2  # control_tube recorded no positions
+    assert all(c.count("<polyline") == 3 and ">c172x</text>" in c and "east [m]" in c and "north [m]" in c
+               for c in tracks)
+
+
+def test_track_chart_is_to_scale() -> None:
+    from corridor.analysis.svgplot import track_chart
+
+    svg = track_chart([("a", np.array([0.0, 1000.0]), np.array([0.0, 10.0]))], "t", "east [m]", "north [m]")
+    (pts,) = re.findall(r'<polyline points="([^"]*)"', svg)
+    (x0, y0), (x1, y1) = (tuple(map(float, p.split(","))) for p in pts.split())
+    assert abs((x1 - x0) / (y0 - y1) - 100.0) < 1.0  # 1000 m east vs 10 m north: same m per pixel
+
+
+def test_real_short_merging_run_has_time_series(tmp_path: Path) -> None:
+    from corridor import batch
+    from corridor.analysis.report_series import report_sections
+    from corridor.run import execute
+
+    path = REPO / "scenarios" / "merging.yaml"
+    sc, raw = load(path, ["duration=20", "warmup=0"])
+    specs = batch.expand(sc, raw, str(path), 1, out_dir=str(tmp_path), variants=["sumo_default"])
+    df = pd.DataFrame([execute(s) for s in specs])
+    assert df["status"].tolist() == ["ok"], df.get("error")
+    secs = report_sections(tmp_path, df, sc, path)
+    assert any("<h2>Minimum time-to-collision</h2>" in s and "<svg" in s for s in secs)
+    assert any("<h2>Mean speed</h2>" in s for s in secs)
