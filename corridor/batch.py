@@ -1,53 +1,102 @@
 """Batches: expand seeds × sweep variants × randomize draws into runs, execute them on an executor,
 write each finished run at once, compact into ``runs.parquet``.
 
-Executors: ``local`` (a process pool; libsumo allows one simulation per process) and ``ray``
-(``pip install corridor[ray]``).  Both call ``corridor.run.execute`` and give identical rows.
+Executors: ``local`` (one fresh process per run, at most ``workers`` at once; libsumo allows one
+simulation per process) and ``ray`` (``pip install -e '.[ray]'``).  Both call ``corridor.run.execute``
+and give identical rows.
 """
 
 from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 import sys
-from collections.abc import Callable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from multiprocessing.connection import Connection
+from multiprocessing.connection import wait as mp_wait
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 import numpy as np
 
 from corridor.engine import stable_key
-from corridor.errors import CorridorError
+from corridor.errors import CorridorError, clip
 from corridor.results import ResultStore
 from corridor.run import RunSpec, execute
 from corridor.scenario import Scenario
 
 
+def draw_seed(seed: int, path: str) -> np.random.SeedSequence:
+    """The random stream of one randomized field: keyed by the run seed and the field's path only."""
+    return np.random.SeedSequence(seed, spawn_key=(stable_key("randomize"), stable_key(path)))
+
+
 def draws_for(sc: Scenario, seed: int) -> dict[str, Any]:
     """Randomize draws depend on the seed only, so every variant sees the same draws (common random
-    numbers make variant comparisons sharper)."""
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(stable_key("randomize"),)))
-    return {path: dist.draw(rng) for path, dist in sorted(sc.randomize.items())}
+    numbers make variant comparisons sharper).  Each field draws from its own stream keyed by its
+    path, so adding, removing or ``--set``-fixing one field never changes another's values."""
+    return {path: dist.draw(np.random.default_rng(draw_seed(seed, path)))
+            for path, dist in sorted(sc.randomize.items())}
+
+
+class RunPlan(Sequence[RunSpec]):
+    """The runs of a batch, seeds × variants, built lazily (``--runs 1000000000`` costs nothing up
+    front).  Run ids are ``<variant>-s<seed>``; ``rank(run_id)`` gives a run's place in the batch."""
+
+    def __init__(self, sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
+                 out_dir: str | None = None, variants: list[str] | None = None) -> None:
+        self.sc, self.raw, self.source, self.runs, self.out_dir = sc, raw, source, runs, out_dir
+        self.base_seed = sc.seed if seed is None else seed
+        names = list(sc.sweep)
+        if variants:
+            unknown = [v for v in variants if v not in sc.sweep]
+            if unknown:
+                raise CorridorError(f"{source}: --variant {clip(unknown[0])}: not in sweep ({', '.join(names)})")
+            names = [v for v in names if v in variants]
+        self.variants = names
+        self._rerun: dict[str, str] = {}
+
+    def __len__(self) -> int:
+        return self.runs * len(self.variants)
+
+    def __getitem__(self, i: int) -> RunSpec:  # type: ignore[override]
+        if not -len(self) <= i < len(self):
+            raise IndexError(i)
+        i %= len(self)
+        s, v = self.base_seed + i // len(self.variants), self.variants[i % len(self.variants)]
+        draws = draws_for(self.sc, s)
+        run_id = f"{v}-s{s}"
+        return RunSpec(run_id=run_id, scenario=self.sc.name, source=self.source, variant=v, seed=s,
+                       base=self.raw, overrides={**self.sc.sweep[v], **draws}, draws=draws,
+                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id))
+
+    def __iter__(self) -> Iterator[RunSpec]:
+        return (self[i] for i in range(len(self)))
+
+    def rank(self, run_id: str) -> int:
+        """The index of ``run_id`` in this plan (``len(self)`` for a run that is not in it)."""
+        variant, _, seed = run_id.rpartition("-s")
+        if variant in self.variants and seed.isdigit():
+            k = int(seed) - self.base_seed
+            if 0 <= k < self.runs:
+                return k * len(self.variants) + self.variants.index(variant)
+        return len(self)
+
+    def run_ids(self) -> Iterator[str]:
+        return (f"{v}-s{self.base_seed + k}" for k in range(self.runs) for v in self.variants)
+
+    def record(self, run_id: str, rerun_path: str) -> None:
+        """Record run ``run_id`` for the Rerun viewer."""
+        if self.rank(run_id) == len(self):
+            first = ", ".join(r for r, _ in zip(self.run_ids(), range(6)))
+            raise CorridorError(f"--rerun-run {clip(run_id)}: no such run; runs are {first}, ...")
+        self._rerun[run_id] = rerun_path
 
 
 def expand(sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
-           out_dir: str | None = None, variants: list[str] | None = None) -> list[RunSpec]:
-    base_seed = sc.seed if seed is None else seed
-    names = list(sc.sweep)
-    if variants:
-        unknown = [v for v in variants if v not in sc.sweep]
-        if unknown:
-            raise CorridorError(f"{source}: --variant {unknown[0]!r}: not in sweep ({', '.join(names)})")
-        names = [v for v in names if v in variants]
-    specs = []
-    for i in range(runs):
-        s = base_seed + i
-        draws = draws_for(sc, s)
-        for v in names:
-            specs.append(RunSpec(run_id=f"{v}-s{s}", scenario=sc.name, source=source, variant=v, seed=s,
-                                 base=raw, overrides={**sc.sweep[v], **draws}, draws=draws,
-                                 out_dir=out_dir))
-    return specs
+           out_dir: str | None = None, variants: list[str] | None = None) -> RunPlan:
+    return RunPlan(sc, raw, source, runs, seed, out_dir, variants)
 
 
 # Math-library thread pools in every worker process: one thread.  A run is single-threaded work
@@ -57,55 +106,143 @@ def expand(sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int 
 WORKER_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _local(specs: list[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
+def _child(spec: RunSpec, conn: Connection) -> None:
+    """A worker process: one run, its row sent back through ``conn``."""
+    conn.send(execute(spec))
+    conn.close()
+
+
+def _died_row(spec: RunSpec, exitcode: int | None) -> dict[str, Any]:
+    how = f"signal {signal.Signals(-exitcode).name}" if exitcode and exitcode < 0 else f"exit code {exitcode}"
+    return {"run_id": spec.run_id, "scenario": spec.scenario, "variant": spec.variant, "seed": spec.seed,
+            "status": "error", "error": f"worker process died ({how}) before returning a row"}
+
+
+def _local(specs: Iterable[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
+    """At most ``workers`` runs at once, each in its own fresh ``spawn`` process (libsumo allows one
+    simulation per process).  A worker that dies (segfault, kill -9) costs its own row only.  Workers
+    start with SIGINT ignored: Ctrl-C reaches the parent, which stops them (see ``run_batch``)."""
     for var in WORKER_THREAD_ENV:  # spawned workers inherit the environment and read it at import
         os.environ.setdefault(var, "1")
     ctx = mp.get_context("spawn")  # no inherited libsumo/CasADi state; same behaviour on every OS
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, max_tasks_per_child=1) as pool:
-        pending = {pool.submit(execute, s): s for s in specs}
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in done:
-                spec = pending.pop(fut)
+    queue = iter(specs)
+    running: dict[Connection, tuple[BaseProcess, RunSpec]] = {}
+    try:
+        while True:
+            while len(running) < workers and (spec := next(queue, None)) is not None:
+                recv, send = ctx.Pipe(duplex=False)
+                proc = ctx.Process(target=_child, args=(spec, send), name=f"corridor-{spec.run_id}")
+                old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the new interpreter
                 try:
-                    yield fut.result()
-                except Exception as exc:  # the worker process died (e.g. a segfault in a library)
-                    yield {"run_id": spec.run_id, "scenario": spec.scenario, "variant": spec.variant,
-                           "seed": spec.seed, "status": "error", "error": f"worker died: {exc}"}
+                    proc.start()
+                finally:
+                    signal.signal(signal.SIGINT, old)
+                send.close()
+                running[recv] = (proc, spec)
+            if not running:
+                return
+            sentinels = {proc.sentinel: conn for conn, (proc, _) in running.items()}
+            for ready in mp_wait([*running, *sentinels]):
+                conn = sentinels.get(ready, ready)
+                if conn not in running:
+                    continue
+                proc, spec = running.pop(conn)
+                row = None
+                try:
+                    if conn.poll():
+                        row = conn.recv()
+                except (EOFError, OSError):
+                    row = None
+                conn.close()
+                proc.join()
+                yield row if row is not None else _died_row(spec, proc.exitcode)
+    finally:
+        _stop(running)
 
 
-def _ray(specs: list[RunSpec], address: str | None) -> Iterator[dict[str, Any]]:
+def _stop(running: dict[Connection, tuple[BaseProcess, RunSpec]]) -> None:
+    """Terminate runs still in progress (interrupt, write failure): SIGTERM, then SIGKILL."""
+    for proc, _ in running.values():
+        proc.terminate()
+    for conn, (proc, _) in running.items():
+        proc.join(3.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        conn.close()
+    running.clear()
+
+
+def _ray(specs: Iterable[RunSpec], address: str | None) -> Iterator[dict[str, Any]]:
     try:
         import ray
     except ImportError:
-        raise CorridorError("--executor ray needs the extra: pip install 'corridor[ray]'") from None
+        raise CorridorError("--executor ray needs Ray: pip install -e '.[ray]' in the corridor clone") from None
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
     remote = ray.remote(max_calls=1)(execute)  # one simulation per worker process, like the pool
     pending = [remote.remote(s) for s in specs]
-    while pending:
-        done, pending = ray.wait(pending, num_returns=1)
-        yield ray.get(done[0])
+    try:
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(done[0])
+    finally:
+        for ref in pending:
+            ray.cancel(ref, force=True)
 
 
-def run_batch(specs: list[RunSpec], store: ResultStore, executor: str = "local", workers: int = 2,
+class BatchInterrupted(KeyboardInterrupt):
+    """Ctrl-C during a batch: finished rows are kept and compacted; runs in progress were stopped."""
+
+    def __init__(self, finished: int, stopped: int) -> None:
+        super().__init__(f"{finished} finished runs kept, {stopped} stopped")
+        self.finished, self.stopped = finished, stopped
+
+
+def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True,
               on_row: Callable[[dict[str, Any]], None] | None = None) -> None:
-    """Execute runs not yet in the store; each finished row is written at once."""
-    todo = [s for s in specs if s.run_id not in store.finished()]
-    bar = _progress(len(specs), len(specs) - len(todo), progress)
+    """Execute runs not yet in the store; each finished row is written at once.
+
+    Ctrl-C stops launching at once, terminates the runs in progress, compacts the finished rows and
+    raises ``BatchInterrupted``.  A row that cannot be written (disk full) stops the batch the same
+    way with a one-line ``CorridorError``; the rows already written stay (``--resume`` continues)."""
+    finished = store.finished()
+    total = len(specs)
+    todo = (s for s in specs if s.run_id not in finished)
+    if isinstance(specs, RunPlan):
+        order: Callable[[str], int] | list[str] = specs.rank
+        n_todo = total - sum(1 for r in finished if specs.rank(r) < total)
+    else:
+        order = [s.run_id for s in specs]
+        n_todo = sum(1 for s in specs if s.run_id not in finished)
+    bar = _progress(total, total - n_todo, progress)
+    rows = _ray(todo, address) if executor == "ray" else _local(todo, max(1, workers))
+    written = 0
     try:
-        if todo:
-            rows = _ray(todo, address) if executor == "ray" else _local(todo, max(1, workers))
-            for row in rows:
+        for row in rows:
+            try:
                 store.write(row)
-                bar.update(1)
-                bar.set_postfix_str(f"{row['run_id']} {row['status']}")
-                if on_row:
-                    on_row(row)
+            except OSError as exc:
+                raise CorridorError(f"cannot write the row of {row['run_id']} to {store.parts} "
+                                    f"({exc.strerror or exc}); the batch stopped, {written} rows of this "
+                                    "session are kept: free space and continue with --resume") from None
+            written += 1
+            bar.update(1)
+            bar.set_postfix_str(f"{row['run_id']} {row['status']}")
+            if on_row:
+                on_row(row)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"\nrun_scenario: interrupted: stopping the runs in progress; {written} runs finished in "
+              "this session are kept", file=sys.stderr, flush=True)
+        rows.close()  # terminates the workers
+        store.compact(order)
+        raise BatchInterrupted(written, n_todo - written) from None
     finally:
         bar.close()
-    store.compact([s.run_id for s in specs])
+        rows.close()
+    store.compact(order)
 
 
 def _progress(total: int, initial: int, enabled: bool) -> Any:

@@ -11,18 +11,30 @@ from corridor.errors import CorridorError
 
 EXAMPLES = """\
 examples:
-  run_scenario scenarios/merging.yaml                      one run per variant, default seed
-  run_scenario scenarios/merging.yaml --runs 20 --out results/merging
-                                                           20 seeds x every variant, report in results/merging
-  run_scenario merging --set road.demand.scale=1.2         a packaged scenario by name, 20 % more demand
-  run_scenario scenarios/merging.yaml --variant sumo_default --runs 4 --seed 7
-  run_scenario scenarios/merging.yaml --runs 8 --resume    finish a batch that was interrupted
-  run_scenario scenarios/merging.yaml --rerun out.rrd      also record the first run for the Rerun viewer
-  run_scenario scenarios/merging.yaml --executor ray --address auto
+  run_scenario scenarios/merging.yaml                      one run per variant, default seed -> results/merging
+  run_scenario scenarios/merging.yaml --runs 20 --out results/merging20
+                                                           20 seeds x every variant, report in results/merging20
+  run_scenario merging --set road.demand.scale=1.2 --out results/m12
+                                                           a packaged scenario by name, 20 % more demand
+  run_scenario scenarios/merging.yaml --variant sumo_default --runs 4 --seed 7 --out results/sumo7
+  run_scenario scenarios/merging.yaml --runs 8 --resume    finish (or extend) the batch in results/merging
+  run_scenario scenarios/merging.yaml --overwrite          replace the batch in results/merging
+  run_scenario scenarios/merging.yaml --rerun out.rrd --out results/rec
+                                                           also record the first run for the Rerun viewer
+  run_scenario scenarios/merging.yaml --executor ray --out results/ray      a private local Ray
+
+Output folders: a batch writes only inside DIR (--out, default results/<name>) and the --rerun file
+you name: batch.json (what defines the batch), parts/ (one file per finished run), runs.parquet,
+report.html, signals/.  A folder that holds a batch is never deleted implicitly: a second batch there is refused unless you --resume
+it (same scenario and --set only) or --overwrite it.  Two batches cannot write one folder at once.
+Ctrl-C stops the batch at once and keeps every finished run (exit 130; continue with --resume).
 
 --set takes any field path of the scenario (see the YAML file): a.b.c=VALUE, VALUE in YAML syntax
-(3, 0.5, true, [1, 2], {a: 1}).  Errors in the scenario or the options print one line and exit 2;
-a batch in which some runs failed exits 1 (the failed runs are rows with status=error).
+(3, 0.5, true, [1, 2], {a: 1}).  Randomized fields draw from their own stream per seed, so fixing one
+with --set leaves the draws of the others unchanged.  Errors in the scenario or the options print one
+line and exit 2; a batch in which some runs failed exits 1 (the failed runs are rows with status=error).
+
+Python: corridor.api.run(...) takes the same options and returns the rows and signals.
 """
 
 
@@ -34,20 +46,29 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                     "a summary table per variant.")
     p.add_argument("scenario", nargs="?", default="merging",
                    help="scenario file, or the name of a packaged scenario (default: merging)")
-    p.add_argument("--runs", type=int, default=1, metavar="N", help="seeds per variant (default 1)")
+    p.add_argument("--runs", type=int, default=1, metavar="N",
+                   help="seeds per variant (default 1); runs are created lazily, one at a time")
     p.add_argument("--seed", type=int, default=None, metavar="S",
                    help="first seed; runs use S, S+1, ... (default: the scenario's seed)")
     p.add_argument("--set", action="append", default=[], metavar="A.B=C", dest="sets",
                    help="override any scenario field (repeatable)")
     p.add_argument("--variant", action="append", default=[], metavar="NAME",
                    help="run only these sweep variants (repeatable; default: all)")
-    p.add_argument("--out", default=None, metavar="DIR", help="output folder (default: results/<name>)")
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="batch folder (default: results/<name>). A folder that already holds a batch is "
+                        "never deleted implicitly: use --resume or --overwrite, or another folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the batch already in DIR (deletes its runs, report and signals)")
     p.add_argument("--workers", type=int, default=max(1, os.cpu_count() or 1), metavar="N",
                    help="parallel run processes for --executor local (default: CPU count)")
     p.add_argument("--executor", choices=["local", "ray"], default="local",
-                   help="local process pool (default) or a Ray cluster (pip install 'corridor[ray]')")
-    p.add_argument("--address", default=None, help="Ray cluster address, e.g. auto")
-    p.add_argument("--resume", action="store_true", help="keep finished runs in DIR and run the rest")
+                   help="local processes (default) or a Ray cluster (pip install -e '.[ray]' in the clone)")
+    p.add_argument("--address", default=None,
+                   help="Ray cluster address (default: start a private local Ray); 'auto' attaches to any "
+                        "Ray cluster already running on this host")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the batch in DIR: keep its finished runs, run the rest (refused if the "
+                        "scenario or --set differ from the stored batch)")
     p.add_argument("--rerun", default=None, metavar="FILE.rrd", help="record one run for the Rerun viewer")
     p.add_argument("--rerun-run", default=None, metavar="RUN_ID",
                    help="which run to record (default: the first), e.g. sumo_default-s0")
@@ -98,40 +119,23 @@ def main(argv: list[str] | None = None) -> int:
         print(f"run_scenario: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("run_scenario: interrupted; finished runs are kept, continue with --resume", file=sys.stderr)
+        print("run_scenario: interrupted; finished runs are kept: continue with the same command and --resume",
+              file=sys.stderr)
         return 130
 
 
 def _main(args: argparse.Namespace) -> int:
-    from dataclasses import replace
+    from corridor.api import run
 
-    from corridor import batch
-    from corridor.results import ResultStore
-    from corridor.scenario import load
-    from corridor.summary import summary_table
-
-    path = resolve_scenario(args.scenario)
-    sc, raw = load(path, args.sets)
-    out = Path(args.out or f"results/{sc.name}")
-    specs = batch.expand(sc, raw, str(path), args.runs, args.seed, str(out), args.variant)
-    if args.rerun:
-        target = args.rerun_run or specs[0].run_id
-        idx = next((i for i, s in enumerate(specs) if s.run_id == target), None)
-        if idx is None:
-            raise CorridorError(f"--rerun-run {target!r}: no such run; runs are {', '.join(s.run_id for s in specs[:6])}, ...")
-        specs[idx] = replace(specs[idx], rerun_path=str(Path(args.rerun).resolve()))
-    store = ResultStore(out, resume=args.resume)
-    if args.rerun and args.resume:
-        (out / "parts" / f"{specs[idx].run_id}.parquet").unlink(missing_ok=True)  # record it again
-    batch.run_batch(specs, store, args.executor, args.workers, args.address, progress=not args.quiet)
-    df = store.compact([s.run_id for s in specs])
-    if not args.no_report:
-        from corridor.analysis.report import write_report
-        from corridor.analysis.report_series import report_sections
-
-        write_report(df, sc, out / "report.html", extra_sections=report_sections(out, df, sc, path))
+    res = run(args.scenario, runs=args.runs, seed=args.seed, sets=args.sets, variants=args.variant,
+              out=args.out, resume=args.resume, overwrite=args.overwrite, executor=args.executor,
+              workers=args.workers, address=args.address, progress=not args.quiet,
+              report=not args.no_report, rerun=args.rerun, rerun_run=args.rerun_run)
+    df, out = res.rows, res.out
     if not args.quiet:
-        print(summary_table(df, sc.metrics))
+        from corridor.summary import print_summary
+
+        print_summary(df, res.scenario.metrics)
         print(f"\nresults: {out / 'runs.parquet'}" + ("" if args.no_report else f"\nreport:  {out / 'report.html'}"))
         if args.rerun:
             print(f"rerun:   {args.rerun}  (open with: rerun {args.rerun})")

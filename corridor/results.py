@@ -1,10 +1,12 @@
 """The results store: one Parquet part per finished run (written at once, atomically), compacted
-into ``runs.parquet``.  A killed batch loses no finished run; ``--resume`` skips them."""
+into ``runs.parquet``.  A killed batch loses no finished run; ``--resume`` skips them.  The store never
+deletes anything: what a folder may hold and when it may be replaced is ``corridor.batchdir``'s rule."""
 
 from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -14,15 +16,13 @@ FIRST_COLUMNS = ["run_id", "scenario", "variant", "seed", "status", "error", "wa
 
 
 class ResultStore:
-    def __init__(self, out_dir: str | Path, resume: bool = False) -> None:
+    def __init__(self, out_dir: str | Path) -> None:
         self.dir = Path(out_dir)
         self.parts = self.dir / "parts"
         self.parts.mkdir(parents=True, exist_ok=True)
-        if not resume:
-            for p in self.parts.glob("*.parquet"):
-                p.unlink()
-            (self.dir / "runs.parquet").unlink(missing_ok=True)
-        elif (self.dir / "runs.parquet").exists():
+        for tmp in self.parts.glob(".*.tmp"):  # a part whose write was cut off (killed, disk full)
+            tmp.unlink()
+        if (self.dir / "runs.parquet").exists():
             self._explode(pd.read_parquet(self.dir / "runs.parquet"))
 
     def _explode(self, df: pd.DataFrame) -> None:
@@ -34,8 +34,12 @@ class ResultStore:
     def write(self, row: dict[str, Any]) -> None:
         row = {k: (json.dumps(v) if isinstance(v, dict | list) else v) for k, v in row.items()}
         tmp = self.parts / f".{row['run_id']}.tmp"
-        pd.DataFrame([row]).to_parquet(tmp, index=False)
-        os.replace(tmp, self.parts / f"{row['run_id']}.parquet")
+        try:
+            pd.DataFrame([row]).to_parquet(tmp, index=False)
+            os.replace(tmp, self.parts / f"{row['run_id']}.parquet")
+        except BaseException:
+            tmp.unlink(missing_ok=True)  # never leave a partial part behind
+            raise
 
     def finished(self) -> set[str]:
         """Run ids with an ``ok`` row (errored runs are tried again on resume)."""
@@ -52,10 +56,13 @@ class ResultStore:
         df = pd.concat([pd.read_parquet(f) for f in files], ignore_index=True)
         return df
 
-    def compact(self, order: list[str]) -> pd.DataFrame:
+    def compact(self, order: Callable[[str], int] | list[str]) -> pd.DataFrame:
+        """Write ``runs.parquet`` with the rows in batch order (``order``: run ids, or a rank function)."""
         df = self.read()
-        rank = {rid: i for i, rid in enumerate(order)}
-        df = df.assign(_o=df["run_id"].map(lambda r: rank.get(r, len(rank)))).sort_values("_o").drop(columns="_o")
+        if not callable(order):
+            rank = {rid: i for i, rid in enumerate(order)}
+            order = lambda r: rank.get(r, len(rank))  # noqa: E731
+        df = df.assign(_o=df["run_id"].map(order)).sort_values("_o", kind="stable").drop(columns="_o")
         cols = [c for c in FIRST_COLUMNS if c in df.columns] + [c for c in df.columns if c not in FIRST_COLUMNS]
         df = df[cols].reset_index(drop=True)
         tmp = self.dir / ".runs.parquet.tmp"
