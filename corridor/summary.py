@@ -1,13 +1,25 @@
-"""The summary table printed at the end of a batch: one line per variant."""
+"""The summary table printed at the end of a batch: one line per variant, fitted to the terminal.
+
+Columns: runs, errors, collisions and the collision probability with its exact 95 % interval (only
+when the runs count collisions), then as many of the scenario's key metrics as fit the terminal width
+(mean ± standard deviation over the variant's ``ok`` runs); the rest are named under the table and
+shown in ``report.html``.
+"""
 
 from __future__ import annotations
 
 import math
+import shutil
+import sys
+from typing import TextIO
 
 import numpy as np
 import pandas as pd
 
 from corridor.analysis.stats import clopper_pearson
+
+NOTE = ("metrics: mean ± standard deviation over the variant's ok runs; P(collision): ok runs with "
+        "a collision / ok runs [exact (Clopper-Pearson) 95 % interval]")
 
 
 def _fmt(x: float) -> str:
@@ -17,26 +29,72 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}" if ax < 1000 else f"{x:.0f}"
 
 
-def summary_table(df: pd.DataFrame, key_metrics: list[str]) -> str:
-    """Per variant: runs, errors, collisions, collision probability (95 % exact CI), metrics mean ± sd."""
-    metrics = [m for m in key_metrics if m in df.columns]
-    head = ["variant", "runs", "errors", "collisions", "P(collision) [95% CI]"] + metrics
+def summary_rows(df: pd.DataFrame, key_metrics: list[str]) -> tuple[list[str], list[list[str]]]:
+    """Header and one row of strings per variant."""
+    metrics = [m for m in key_metrics if m in df.columns and m != "collisions"]
+    counts_collisions = "collisions" in df.columns
+    head = ["variant", "runs", "errors"]
+    if counts_collisions:
+        head += ["collisions", "P(collision)"]
+    head += metrics
     lines = []
     for variant, g in df.groupby("variant", sort=False):
         ok = g[g["status"] == "ok"]
-        coll = ok["collisions"].fillna(0).astype(int) if "collisions" in ok else pd.Series(dtype=int)
-        k, n = int((coll > 0).sum()), len(ok)
-        lo, hi = clopper_pearson(k, n)
-        row = [str(variant), str(len(g)), str(len(g) - n), str(int(coll.sum())),
-               f"{k}/{n} [{_fmt(lo)}, {_fmt(hi)}]" if n else "-"]
+        row = [str(variant), str(len(g)), str(len(g) - len(ok))]
+        if counts_collisions:
+            coll = pd.to_numeric(ok["collisions"], errors="coerce").fillna(0).astype(int)
+            k, n = int((coll > 0).sum()), len(ok)
+            lo, hi = clopper_pearson(k, n)
+            row += [str(int(coll.sum())), f"{k}/{n} [{_fmt(lo)}, {_fmt(hi)}]" if n else "-"]
         for m in metrics:
             v = pd.to_numeric(ok[m], errors="coerce").to_numpy(dtype=float)
             v = v[np.isfinite(v)]
             row.append(f"{_fmt(v.mean())} ± {_fmt(v.std(ddof=1))}" if len(v) > 1 else
                        (_fmt(v[0]) if len(v) else "-"))
         lines.append(row)
-    widths = [max(len(r[i]) for r in [head, *lines]) for i in range(len(head))]
-    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
-    out = [fmt.format(*head), fmt.format(*("-" * w for w in widths))]
-    out += [fmt.format(*r) for r in lines]
-    return "\n".join(out)
+    return head, lines
+
+
+def _fit(head: list[str], lines: list[list[str]], fixed: int, width: int) -> int:
+    """How many columns fit ``width`` (the first ``fixed`` always stay); 3 characters per separator."""
+    used = 0
+    for i, h in enumerate(head):
+        w = max(len(h) if i < fixed else min(len(h), 12), *(len(r[i]) for r in lines)) if lines else len(h)
+        if i >= fixed and used + w + 3 > width:
+            return i
+        used += w + 3
+    return len(head)
+
+
+def summary_table(df: pd.DataFrame, key_metrics: list[str], width: int | None = None) -> str:
+    """The table as text (for logs and tests); ``print_summary`` prints the same with colours."""
+    from io import StringIO
+
+    buf = StringIO()
+    print_summary(df, key_metrics, file=buf, width=width or 100)
+    return buf.getvalue()
+
+
+def print_summary(df: pd.DataFrame, key_metrics: list[str], file: TextIO | None = None,
+                  width: int | None = None) -> None:
+    from rich.console import Console
+    from rich.table import Table
+    from rich.text import Text
+
+    file = file or sys.stdout
+    width = width or shutil.get_terminal_size((100, 24)).columns
+    head, lines = summary_rows(df, key_metrics)
+    fixed = 5 if "collisions" in head else 3
+    n = _fit(head, lines, fixed, width - 4)
+    table = Table(title="summary per variant", caption=Text(NOTE) if n > fixed or n < len(head) else None,
+                  caption_justify="left")
+    for i, h in enumerate(head[:n]):
+        w = max(len(h) if i < fixed else min(len(h), 12), *(len(r[i]) for r in lines)) if lines else len(h)
+        table.add_column(h, justify="left" if i == 0 else "right", overflow="fold", min_width=w)
+    for r in lines:
+        table.add_row(*r[:n])
+    console = Console(file=file, width=width, highlight=False, soft_wrap=False,
+                      force_terminal=file.isatty() if hasattr(file, "isatty") else False)
+    console.print(table)
+    if n < len(head):
+        console.print(f"more metrics in report.html and runs.parquet: {', '.join(head[n:])}", markup=False)
