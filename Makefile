@@ -5,6 +5,7 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+DEV_STAMP := $(VENV)/.installed-dev
 RUNS ?= 4
 OUT ?= results/merging
 
@@ -13,20 +14,25 @@ OUT ?= results/merging
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
+	$(BIN)/pip install -q -e .
 	touch $(STAMP)
 
-run: $(STAMP)
-	$(BIN)/run_scenario scenarios/merging.yaml --runs $(RUNS) --out $(OUT)
+$(DEV_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $(DEV_STAMP)
 
-test: $(STAMP)
+# make run replaces its own batch folder (results/merging) each time; other batches go elsewhere.
+run: $(STAMP)
+	$(BIN)/run_scenario scenarios/merging.yaml --runs $(RUNS) --out $(OUT) --overwrite
+
+test: $(DEV_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/pytest -q -n 2
 
-test-all: $(STAMP)
+test-all: $(DEV_STAMP)
 	$(BIN)/pytest -q -n 2 -m ''
 
-lint: $(STAMP)
+lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 
 bench: $(STAMP)

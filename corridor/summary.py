@@ -18,8 +18,8 @@ import pandas as pd
 
 from corridor.analysis.stats import clopper_pearson
 
-NOTE = ("metrics: mean ± standard deviation over the variant's ok runs; P(collision): ok runs with "
-        "a collision / ok runs [exact (Clopper-Pearson) 95 % interval]")
+NOTE = "metrics: mean ± standard deviation over the variant's ok runs"
+NOTE_COLLISIONS = "; P(collision): ok runs with a collision / ok runs [exact (Clopper-Pearson) 95 % interval]"
 
 
 def _fmt(x: float) -> str:
@@ -29,10 +29,11 @@ def _fmt(x: float) -> str:
     return f"{x:.3g}" if ax < 1000 else f"{x:.0f}"
 
 
-def summary_rows(df: pd.DataFrame, key_metrics: list[str]) -> tuple[list[str], list[list[str]]]:
-    """Header and one row of strings per variant."""
+def summary_rows(df: pd.DataFrame, key_metrics: list[str],
+                 collisions: bool = True) -> tuple[list[str], list[list[str]]]:
+    """Header and one row of strings per variant (collision columns only if ``collisions`` apply)."""
     metrics = [m for m in key_metrics if m in df.columns and m != "collisions"]
-    counts_collisions = "collisions" in df.columns
+    counts_collisions = collisions and "collisions" in df.columns
     head = ["variant", "runs", "errors"]
     if counts_collisions:
         head += ["collisions", "P(collision)"]
@@ -66,27 +67,28 @@ def _fit(head: list[str], lines: list[list[str]], fixed: int, width: int) -> int
     return len(head)
 
 
-def summary_table(df: pd.DataFrame, key_metrics: list[str], width: int | None = None) -> str:
+def summary_table(df: pd.DataFrame, key_metrics: list[str], width: int | None = None,
+                  collisions: bool = True) -> str:
     """The table as text (for logs and tests); ``print_summary`` prints the same with colours."""
     from io import StringIO
 
     buf = StringIO()
-    print_summary(df, key_metrics, file=buf, width=width or 100)
+    print_summary(df, key_metrics, file=buf, width=width or 100, collisions=collisions)
     return buf.getvalue()
 
 
 def print_summary(df: pd.DataFrame, key_metrics: list[str], file: TextIO | None = None,
-                  width: int | None = None) -> None:
+                  width: int | None = None, collisions: bool = True) -> None:
     from rich.console import Console
     from rich.table import Table
     from rich.text import Text
 
     file = file or sys.stdout
     width = width or shutil.get_terminal_size((100, 24)).columns
-    head, lines = summary_rows(df, key_metrics)
+    head, lines = summary_rows(df, key_metrics, collisions)
     fixed = 5 if "collisions" in head else 3
     n = _fit(head, lines, fixed, width - 4)
-    table = Table(title="summary per variant", caption=Text(NOTE) if n > fixed or n < len(head) else None,
+    table = Table(title="summary per variant", caption=Text(NOTE + (NOTE_COLLISIONS if fixed == 5 else "")),
                   caption_justify="left")
     for i, h in enumerate(head[:n]):
         w = max(len(h) if i < fixed else min(len(h), 12), *(len(r[i]) for r in lines)) if lines else len(h)
