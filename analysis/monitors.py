@@ -19,7 +19,7 @@ class CollisionMonitor(Component):
     phase = Phase.DETECT
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)

@@ -41,7 +41,7 @@ class SeparationMonitor(Component):
     phase = Phase.DETECT
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
         nmac_h_m: float = Field(30.48, gt=0.0)  # [m] 100 ft
         nmac_v_m: float = Field(4.572, gt=0.0)  # [m] 15 ft

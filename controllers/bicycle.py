@@ -29,7 +29,7 @@ N_INPUT = 2  # (accel, steer)
 class BicycleParams(BaseModel):
     """Geometry and actuator limits of the ego vehicle."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     wheelbase_m: float = Field(2.7, gt=0.0)  # [m]
     length_m: float = Field(4.5, gt=0.0)  # [m] body length (collision box)

@@ -80,12 +80,12 @@ _LIBC = ctypes.CDLL(ctypes.util.find_library("c"))
 class ControlTubeParams(BaseModel):
     """Horizon, limits, tube bounds and weights of the control-tube QP."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     period_s: float = Field(0.1, gt=0.0)  # [s] decision period (must be <= step_s)
     step_s: float = Field(0.5, gt=0.0)  # [s] command step of the plan
-    n_steps: int = Field(12, ge=1)  # horizon = n_steps * step_s
-    substeps: int = Field(2, ge=1)  # constraint instants per command step
+    n_steps: int = Field(12, ge=1, le=100)  # [steps] horizon = n_steps * step_s (QP size grows with it)
+    substeps: int = Field(2, ge=1, le=20)  # constraint instants per command step
     max_speed_h_mps: float = Field(10.0, gt=0.0)  # [m/s]
     max_climb_mps: float = Field(3.0, gt=0.0)  # [m/s]
     model: PointMassParams = PointMassParams()  # ego velocity-loop model
@@ -104,7 +104,7 @@ class ControlTubeParams(BaseModel):
     w_smooth: float = Field(0.5, ge=0.0)
     slack_l1: float = Field(1e5, gt=0.0)
     slack_l2: float = Field(10.0, gt=0.0)
-    max_intruders: int = Field(8, ge=1)  # nearest intruders whose tube can reach the ego
+    max_intruders: int = Field(8, ge=1, le=64)  # [aircraft] nearest intruders whose tube can reach the ego
     infeasible_tol_m: float = Field(1e-3, gt=0.0)  # slack above this counts as infeasible
     solver: str = Field("qpoases", pattern="^(qpoases|osqp)$")
 

@@ -62,7 +62,7 @@ Road = Literal["main", "ramp"]
 class CoordinatorConfig(BaseModel):
     """Coordinator parameters (scenario ``v2x.coordinator``)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     control_zone_m: float = Field(250.0, gt=0.0)  # [m] length of the control zone before the merge
     headway_same_s: float = Field(1.2, gt=0.0)  # [s] crossing headway, same road
@@ -70,8 +70,8 @@ class CoordinatorConfig(BaseModel):
     freeze_s: float = Field(2.0, ge=0.0)  # [s] assignments this close to now are committed
     repair_tol_s: float = Field(0.3, ge=0.0)  # [s] slack before a missed slot is repaired
     repack_tol_s: float = Field(0.5, ge=0.0)  # [s] a slot this much later than needed is moved earlier
-    max_shift: int = Field(2, ge=0)  # cps: max positions a vehicle may move from its FCFS position
-    horizon: int = Field(8, ge=1)  # cps: vehicles re-sequenced at once
+    max_shift: int = Field(2, ge=0, le=8)  # [positions] cps: max positions a vehicle may move from its FCFS position
+    horizon: int = Field(8, ge=1, le=32)  # [vehicles] cps: vehicles re-sequenced at once
     fairness_delay_s: float = Field(10.0, gt=0.0)  # cps: delay scale of the quadratic cost term
     weight_main: float = Field(1.0, gt=0.0)  # cps: delay weight of mainline vehicles
     weight_ramp: float = Field(1.0, gt=0.0)  # cps: delay weight of ramp vehicles

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class MotionLimits(BaseModel):
     """Speed and acceleration limits of a controlled vehicle."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     v_min_mps: float = Field(0.0, ge=0.0)  # [m/s]
     v_max_mps: float = Field(33.3, gt=0.0)  # [m/s]

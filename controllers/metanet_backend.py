@@ -40,7 +40,7 @@ class MetanetBackend(Backend):
     """One METANET network stepped at its model step; TTS and queues as metrics."""
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         network: Literal["hegyi2005"] = "hegyi2005"
         step_s: float = Field(10.0, gt=0)  # [s] model step = this backend's period
 
@@ -94,12 +94,12 @@ def find_metanet(ctx: RunContext) -> MetanetBackend:
 
 
 class MetanetControlParams(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     control_step_s: float = Field(60.0, gt=0)  # [s]
     published_tts_vh: float | None = Field(None, gt=0)  # the paper's figure for this case [veh h]
-    horizon_ctrl_steps: int = Field(7, ge=1)  # MPC prediction horizon [control steps]
+    horizon_ctrl_steps: int = Field(7, ge=1, le=60)  # MPC prediction horizon [control steps]
     weight_rate_change: float = Field(0.4, ge=0)
-    max_cpu_time_s: float = Field(10.0, gt=0)  # IPOPT limit per solve [s]
+    max_cpu_time_s: float = Field(10.0, gt=0, le=600)  # IPOPT limit per solve [s]
 
 
 class MetanetNone(Controller):

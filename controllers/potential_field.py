@@ -44,7 +44,7 @@ from corridor.controllers.uav_models import AvoidanceObservation, TrackedAgent, 
 class PotentialFieldParams(BaseModel):
     """Weights, radii and limits of the potential field (scenario YAML may override any of them)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     period_s: float = Field(0.1, gt=0.0)  # [s] decision period
     max_speed_h_mps: float = Field(10.0, gt=0.0)  # [m/s] horizontal speed limit (norm)

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.controllers.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, RunContext
@@ -46,7 +46,7 @@ from corridor.traffic.ramp_monitors import find_detectors
 class RampParams(BaseModel):
     """Settings shared by the ramp controllers."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     tick_s: float = Field(5.0, gt=0)  # [s] controller tick (guidance); a multiple of dt
     control_step_s: float = Field(60.0, gt=0)  # [s] between metering decisions
     green_s: float = Field(2.0, gt=0)  # [s] one vehicle per green
@@ -60,6 +60,13 @@ class RampParams(BaseModel):
     override_frac: float = Field(0.7, gt=0, le=1)  # queue override at this share of storage
     vehicle_length_m: float = Field(5.0, gt=0)  # occupancy <-> density: rho = occ[%] 10 / length
     calibration_file: str | None = "ramp_metering.calibration.json"  # FD fit; see ``load_calibration``
+
+    @model_validator(mode="after")
+    def _rate_range(self) -> RampParams:
+        if self.rate_min_vph > self.open_rate_vph:
+            raise ValueError(f"rate_min_vph ({self.rate_min_vph:g} veh/h) must not exceed open_rate_vph "
+                             f"({self.open_rate_vph:g} veh/h)")
+        return self
 
 
 @dataclass
@@ -177,15 +184,15 @@ DEFAULT_FD = {"v_free_kmh": 100.0, "rho_crit": 28.0, "a": 1.867, "rho_max": 160.
 class RampMpcParams(RampParams):
     """Settings of ``ramp_mpc`` (besides the shared ones)."""
 
-    horizon_ctrl_steps: int = Field(4, ge=1)  # 4 x 60 s
+    horizon_ctrl_steps: int = Field(4, ge=1, le=30)  # [control steps] 4 x 60 s (30: half an hour)
     model_step_s: float = Field(20.0, gt=0)  # [s] METANET step (3 per control step; shorter: p95 > 2 s here)
     seg_target_km: float = Field(1.25, gt=0)  # [km] target METANET segment length
     weight_rate_change: float = Field(0.4, ge=0)
     weight_split_change: float = Field(0.4, ge=0)
     compliance: float = Field(1.0, ge=0, le=1)  # share of drivers with a real choice who follow guidance
-    guidance_extra_hops: int = Field(0, ge=0)  # a trip has a choice if the other loop is <= this longer
+    guidance_extra_hops: int = Field(0, ge=0, le=16)  # [interchanges] a trip has a choice if the other loop is <= this longer
     storage_frac: float = Field(0.8, gt=0, le=1)  # MPC queue limit = this x ramp storage
-    max_cpu_time_s: float = Field(1.5, gt=0)  # IPOPT time limit per solve [s]; beyond: the last iterate
+    max_cpu_time_s: float = Field(1.5, gt=0, le=600)  # (at most 10 min) IPOPT time limit per solve [s]; beyond: the last iterate
     #   if feasible and better than holding the rates, else ALINEA (1500 s run, seed 0: TTS 659.0 at
     #   1.5 s against 659.3 at 5 s; solve p95 1.48 s against 3.5 s)
     guidance: bool = True

@@ -35,7 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class SafetyParams(BaseModel):
     """Parameters of the safe-gap bound."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     reaction_s: float = Field(0.3, gt=0.0)  # [s] τ: command hold time + actuation delay
     b_ego_mps2: float = Field(6.0, gt=0.0)  # [m/s²] braking the ego counts on
@@ -46,7 +46,7 @@ class SafetyParams(BaseModel):
 class IdmParams(BaseModel):
     """Intelligent Driver Model (Treiber, Hennecke & Helbing 2000)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     v0_mps: float = Field(30.0, gt=0.0)  # [m/s] desired speed
     time_headway_s: float = Field(1.5, gt=0.0)  # [s] T

@@ -36,7 +36,7 @@ NMAC_VERTICAL_M = 4.572  # [m] 15 ft
 class PointMassParams(BaseModel):
     """Parameters of the first-order-velocity point mass (defaults: a ~2 kg quadcopter)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     tau_s: float = Field(0.5, gt=0.0)  # [s] velocity response time constant
     max_accel_h_mps2: float = Field(4.0, gt=0.0)  # [m/s^2] horizontal acceleration limit (norm)

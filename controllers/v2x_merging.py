@@ -71,7 +71,7 @@ class Assignment:
 
 class V2XMerging(Controller):
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         policy: Literal["fifo", "cps"] = "cps"
         channel: str = "v2x"  # a key of the scenario's `channels` (defaults if absent)
         coordinator: CoordinatorConfig = Field(default_factory=CoordinatorConfig)

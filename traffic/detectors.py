@@ -64,7 +64,7 @@ class RampDetectors(Component):
     period = 5.0  # [s] queue sampling
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         period_s: float = Field(5.0, gt=0)  # [s] queue sampling period (a multiple of dt)
         aggregate_s: float | None = Field(None, gt=0)  # [s] loop interval; None = the network's
 

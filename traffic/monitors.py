@@ -29,7 +29,7 @@ class SurrogateSafety(Component):
     phase = Phase.DETECT
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         ttc_threshold_s: float = Field(1.5, gt=0)  # for time exposed (TET)
         hard_brake_mps2: float = Field(-4.5, lt=0)
 
@@ -76,7 +76,7 @@ class SurrogateSafety(Component):
 class MergeArea(BaseModel):
     """A stretch of road around the merge, by landmark x positions of the network [m]."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     start_landmark: str = "merge_start_x"
     before_m: float = Field(300.0, ge=0)  # [m] upstream of the start landmark
     end_landmark: str = "merge_end_x"
@@ -96,7 +96,7 @@ class TrafficKpis(Component):
     phase = Phase.DETECT
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
         merge_area: MergeArea | None = None  # time loss inside this stretch, reported on its own
 

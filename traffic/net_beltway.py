@@ -62,7 +62,7 @@ EXIT_HUB_OFFSET_M = 30.0  # [m] exit hub before the entry hub along the ramp cir
 class BeltwayParams(BaseModel):
     """Ring size, number of interchanges, lanes, speeds, ramp geometry and the default meter program."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     circumference_m: float = Field(12000.0, gt=0)  # [m] of the ring reference circle
     interchanges: int = Field(4, ge=2, le=32)

@@ -29,7 +29,7 @@ MIN_RUNOUT_M = 50.0  # [m] mainline needed after the acceleration lane ends
 class HighwayOnrampParams(BaseModel):
     """Geometry and speed limits of the on-ramp merge network."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     mainline_lanes: int = Field(2, ge=1, le=6)
     upstream_length_m: float = Field(1500.0, gt=0)  # [m] x = 0 to the ramp nose

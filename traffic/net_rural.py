@@ -21,7 +21,7 @@ from corridor.traffic.network import BuildOutput, PlainNet, register_builder, ru
 class RuralTwoLaneParams(BaseModel):
     """Length, speed limit and lane width of the rural road."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     length_m: float = Field(3000.0, gt=10)  # [m]
     speed_mps: float = Field(25.0, gt=0)  # [m/s]

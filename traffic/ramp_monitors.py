@@ -57,7 +57,7 @@ class RampKpis(Component):
     period = 1.0  # [s]
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         period_s: float = Field(1.0, gt=0)  # [s] TTS sampling period
 
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:

@@ -33,7 +33,7 @@ Vec3 = tuple[float, float, float]
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class AircraftSpec(_Frozen):

@@ -64,7 +64,7 @@ class AirLink(Component):
     phase = Phase.COMMUNICATE
 
     class Params(BaseModel):
-        model_config = ConfigDict(extra="forbid", frozen=True)
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
         backend: str = "air"  # name of the air backend whose aircraft join the link
         channel: str | None = None  # name in the scenario's ``channels``; None = ChannelConfig()
@@ -79,7 +79,7 @@ class AirLink(Component):
         vel_noise_mps: float = Field(0.3, gt=0.0)  # [m/s] velocity measurement std
         stale_after_s: float = Field(3.0, gt=0.0)  # [s] drop a track without reports for this long
         sigma_factor: float = Field(3.0, ge=0.0)  # uncertainty radius = factor x position std
-        max_tracks: int = Field(8, ge=1)  # per receiver: nearest reporting UAVs tracked (+ every piloted)
+        max_tracks: int = Field(8, ge=1, le=256)  # [aircraft] per receiver: nearest reporting UAVs tracked (+ every piloted)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)

@@ -47,7 +47,7 @@ class EgoInput:
 class CompanionSpec(BaseModel):
     """A SUMO-driven vehicle inserted together with the ego, ``offset_m`` ahead of it along its route."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     route: str = "east"
     vtype: str = "car"
@@ -64,7 +64,7 @@ class EgoBicycle(Backend):
     """
 
     class Params(BaseModel):
-        model_config = ConfigDict(frozen=True, extra="forbid")
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
         vid: str = "ego"
         route: str = "east"

@@ -24,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field
 class PredictorParams(BaseModel):
     """Noise model and bookkeeping of the along-road predictor."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     model: Literal["cv", "ca"] = "cv"
     pos_noise_m: float = Field(0.5, gt=0.0)  # [m] 1-sigma sensing noise of position
