@@ -22,6 +22,8 @@ from corridor.analysis.stl.formula import (
     Predicate,
     Until,
     Var,
+    all_of,
+    any_of,
     var,
 )
 from corridor.analysis.stl.online import OnlineMonitor
@@ -33,6 +35,6 @@ from corridor.analysis.stl.time_rob import TimeRobustness, time_robustness
 __all__ = [
     "Always", "And", "BinOp", "Call", "Const", "Eventually", "Expr", "Formula", "Implies", "Neg", "Not",
     "OnlineMonitor", "Or", "Predicate", "STLSignalError", "STLSyntaxError", "SpecResult", "TimeRobustness",
-    "Until", "Var", "as_formula", "evaluate_spec", "parse_formula", "space_robustness", "time_robustness",
+    "Until", "Var", "all_of", "any_of", "as_formula", "evaluate_spec", "parse_formula", "space_robustness", "time_robustness",
     "var",
 ]

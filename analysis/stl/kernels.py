@@ -11,6 +11,13 @@
   ``x -> max(p, min(q, x))`` done pairwise-recursively (O(n) work, O(log n) numpy calls).
 
 Min and max never round, so these kernels agree with a naive evaluation to the last bit.
+
+**NaN** (see ``space``): a value is NaN exactly when its window reads a NaN. ``np.minimum``/``maximum``
+and their ``accumulate`` propagate NaN, and the van Herk/Gil-Werman halves cover exactly the window,
+so the windows need nothing more. The until decomposition is exact for numbers but *not* for NaN (its
+unbounded reach reads past the window), so ``until`` evaluates NaN-free copies and then marks the
+indices whose window reads a NaN (two more O(n) window passes, only when a NaN is present). The scan
+therefore never sees a NaN, and its short (Python loop) and long (numpy) paths cannot differ on one.
 """
 
 from __future__ import annotations
@@ -79,15 +86,41 @@ def _clamp_scan(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return out
 
 
-def unbounded_until(phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
-    """``out[k] = max_{t' >= k} min(psi[t'], min phi[k .. t'-1])`` over the whole trace."""
+def _reach(phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """Unbounded until of NaN-free traces (the scan)."""
     return _clamp_scan(psi[::-1].copy(), phi[::-1].copy())[::-1].copy()
 
 
+def unbounded_until(phi: np.ndarray, psi: np.ndarray) -> np.ndarray:
+    """``out[k] = max_{t' >= k} min(psi[t'], min phi[k .. t'-1])`` over the whole trace."""
+    return until(phi, psi, 0, np.inf)
+
+
 def until(phi: np.ndarray, psi: np.ndarray, lo: int, hi: float) -> np.ndarray:
-    """Truncated bounded (or, with ``hi = inf``, unbounded) until with window ``[k+lo, k+hi]``."""
+    """Truncated bounded (or, with ``hi = inf``, unbounded) until with window ``[k+lo, k+hi]``.
+
+    NaN where the window reads one: ``psi`` at ``k+lo .. k+hi`` or ``phi`` at ``k .. k+hi-1`` (both
+    truncated to the trace), for indices whose window is not empty.
+    """
+    bad_phi, bad_psi = np.isnan(phi), np.isnan(psi)
+    if not (bad_phi.any() or bad_psi.any()):
+        return _until(phi, psi, lo, hi)
+    out = _until(np.where(bad_phi, 0.0, phi), np.where(bad_psi, 0.0, psi), lo, hi)
     n = phi.size
-    reach = unbounded_until(phi, psi)
+    reads = window_max(bad_psi.astype(float), lo, hi) > 0
+    if hi >= 1 and n > 1:
+        phi_read = bad_phi.astype(float)
+        phi_read[-1] = 0.0  # phi at the last sample is read by no window (t' - 1 <= n - 2)
+        reads |= window_max(phi_read, 0, hi - 1) > 0
+    reads[max(n - lo, 0):] = False  # empty windows read nothing (value -inf)
+    out[reads] = np.nan
+    return out
+
+
+def _until(phi: np.ndarray, psi: np.ndarray, lo: int, hi: float) -> np.ndarray:
+    """``until`` of NaN-free traces."""
+    n = phi.size
+    reach = _reach(phi, psi)
     if not np.isinf(hi):
         reach = np.minimum(reach, window_max(psi, 0, int(hi) - lo))
     shifted = np.full(n, -np.inf)

@@ -18,6 +18,11 @@ Unbounded operators (``G[a,inf]``, ``F[a,inf]``, ``U[a,inf]``) keep a running ag
 operand's final values and are supported where their value is needed only at time 0: anywhere outside
 another temporal operator (``G(safe) & F(goal)``, ``G[0,inf](x -> F[0,5] y)``). A temporal operator
 whose operand has an infinite horizon (``F[0,10] G[0,inf] p``) is refused with ``ValueError``.
+
+NaN samples follow the offline semantics (``space``): the value is NaN exactly when it reads one, on
+every prefix. The monitor walks the tree recursively, so it balances chains of ``&`` / ``|`` first
+(a conjunction of hundreds of predicates has depth ``log2 n``; same values, min/max are associative)
+and refuses formulas still nested deeper than ``MAX_NESTING`` (100) levels with ``ValueError``.
 """
 
 from __future__ import annotations
@@ -27,9 +32,24 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from corridor.analysis.stl.formula import Always, Eventually, Formula, Predicate, Until
-from corridor.analysis.stl.parser import as_formula
-from corridor.analysis.stl.space import STLSignalError, apply_operator, interval_indices, predicate_robustness
+from corridor.analysis.stl.formula import Always, Eventually, Formula, Predicate, Until, rebalance
+from corridor.analysis.stl.parser import MAX_NESTING, as_formula
+from corridor.analysis.stl.space import (
+    STLSignalError,
+    apply_operator,
+    check_dt,
+    interval_indices,
+    predicate_robustness,
+)
+
+
+def _max(a: float, b: float) -> float:
+    """``max`` that propagates NaN (Python's ``max`` keeps its first argument against a NaN)."""
+    return float(np.maximum(a, b))
+
+
+def _min(a: float, b: float) -> float:
+    return float(np.minimum(a, b))
 
 
 class _Stream:
@@ -122,14 +142,14 @@ class _UnboundedTemporal:
             left, right = segments
             before = np.minimum(self.left_min, np.concatenate(([np.inf], np.minimum.accumulate(left)[:-1])))
             candidates = np.minimum(right, before)[keep]
-            best = max(self.acc, float(candidates.max())) if candidates.size else self.acc
-            return best, min(self.left_min, float(left.min()))
+            best = _max(self.acc, float(candidates.max())) if candidates.size else self.acc
+            return best, _min(self.left_min, float(left.min()))
         picked = segments[0][keep]
         if picked.size == 0:
             return self.acc, self.left_min
         if isinstance(self.formula, Always):
-            return min(self.acc, float(picked.min())), self.left_min
-        return max(self.acc, float(picked.max())), self.left_min
+            return _min(self.acc, float(picked.min())), self.left_min
+        return _max(self.acc, float(picked.max())), self.left_min
 
     def value0(self, m: int) -> float:
         tails = [c.values(self.consumed, m) for c in self.children]
@@ -174,12 +194,15 @@ class OnlineMonitor:
     """Robustness at time 0 of a formula, updated one sample at a time (see the module docstring)."""
 
     def __init__(self, formula: str | Formula, dt: float) -> None:
-        if dt <= 0:
-            raise ValueError(f"dt must be > 0, got {dt}")
+        dt = check_dt(dt)
         self.formula = as_formula(formula)
         self.dt = dt  # [s]
         self.names = sorted(self.formula.signal_names())
-        self._root = _build(self.formula, dt)
+        tree = rebalance(self.formula)
+        if tree.depth() > MAX_NESTING:
+            raise ValueError(f"formula nests deeper than {MAX_NESTING} levels (after balancing & and | "
+                             f"chains): too deep for online monitoring (offline evaluation has no limit)")
+        self._root = _build(tree, dt)
         self.n_samples = 0
         self._final: float | None = None
 

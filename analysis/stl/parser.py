@@ -19,13 +19,21 @@ Grammar (lowest precedence first; ``->`` is right-associative, ``&``/``|`` left-
 signal names. A parenthesis may open a formula or an arithmetic expression; the parser tries the
 predicate reading first and falls back to the formula reading. Errors raise ``STLSyntaxError`` with
 a one-line message ``col N: expected ...`` (columns are 1-based).
+
+Long flat specs are fine: chains of ``&`` / ``|`` / ``->`` / ``U`` (hundreds of predicates) and runs
+of prefix operators (``! G F``) are read in loops, so none of them costs Python recursion (the trees
+they make are deep, and every walk over a tree is iterative, see ``formula``). What does recurse is nesting: parentheses, function calls, unary minus and
+``^``; more than ``MAX_NESTING`` (100) levels of those is an ``STLSyntaxError`` ``formula nests deeper
+than 100 levels``.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypeVar
 
 from corridor.analysis.stl.formula import (
     COMPARISONS,
@@ -47,6 +55,9 @@ from corridor.analysis.stl.formula import (
     Until,
     Var,
 )
+
+T = TypeVar("T")
+MAX_NESTING = 100  # parentheses / calls / unary minus / powers inside one another
 
 
 class STLSyntaxError(ValueError):
@@ -114,6 +125,17 @@ class _Parser:
     def __init__(self, tokens: list[Token]) -> None:
         self.tokens = tokens
         self.pos = 0
+        self.depth = 0  # current nesting (see MAX_NESTING)
+
+    def nested(self, parse: Callable[[], T]) -> T:
+        """Run ``parse()`` one nesting level deeper; refuse beyond ``MAX_NESTING``."""
+        if self.depth >= MAX_NESTING:
+            raise STLSyntaxError(self.tok.col, f"formula nests deeper than {MAX_NESTING} levels")
+        self.depth += 1
+        try:
+            return parse()
+        finally:
+            self.depth -= 1
 
     # ---- token helpers ---------------------------------------------------------------------------
     @property
@@ -138,10 +160,13 @@ class _Parser:
 
     # ---- formulas --------------------------------------------------------------------------------
     def formula(self) -> Formula:
-        left = self.disjunction()
-        if self.accept("->"):
-            return Implies(left, self.formula())
-        return left
+        items = [self.disjunction()]
+        while self.accept("->"):
+            items.append(self.disjunction())
+        out = items[-1]
+        for left in reversed(items[:-1]):  # right-associative
+            out = Implies(left, out)
+        return out
 
     def disjunction(self) -> Formula:
         left = self.conjunction()
@@ -156,23 +181,32 @@ class _Parser:
         return left
 
     def until(self) -> Formula:
-        left = self.unary()
-        if self.accept("U"):
-            a, b = self.interval()
-            return Until(left, self.until(), a, b)
-        return left
+        items, intervals = [self.unary()], []
+        while self.accept("U"):
+            intervals.append(self.interval())
+            items.append(self.unary())
+        out = items[-1]
+        for left, (a, b) in zip(reversed(items[:-1]), reversed(intervals), strict=True):  # right-assoc.
+            out = Until(left, out, a, b)
+        return out
 
     def unary(self) -> Formula:
-        if self.accept("!"):
-            return Not(self.unary())
-        token = self.accept("G", "F")
-        if token is not None:
-            a, b = self.interval()
-            arg = self.unary()
-            return Always(arg, a, b) if token.text == "G" else Eventually(arg, a, b)
+        prefixes: list[tuple[str, float, float]] = []
+        while True:
+            if self.accept("!"):
+                prefixes.append(("!", 0.0, INF))
+                continue
+            token = self.accept("G", "F")
+            if token is None:
+                break
+            prefixes.append((token.text, *self.interval()))
         if self.tok.kind == "op" and self.tok.text == "(":
-            return self.parenthesised()
-        return self.predicate()
+            out = self.parenthesised()
+        else:
+            out = self.predicate()
+        for op, a, b in reversed(prefixes):
+            out = Not(out) if op == "!" else Always(out, a, b) if op == "G" else Eventually(out, a, b)
+        return out
 
     def parenthesised(self) -> Formula:
         """``(`` opens either a predicate like ``(x - y) > 2`` or a formula; try the predicate first."""
@@ -183,7 +217,7 @@ class _Parser:
             self.pos = start
             try:
                 self.expect("(", "")
-                inner = self.formula()
+                inner = self.nested(self.formula)
                 self.expect(")", "to close '('")
                 return inner
             except STLSyntaxError as as_formula:  # report whichever reading got further
@@ -234,10 +268,10 @@ class _Parser:
             follower = self.tokens[min(self.pos + 1, len(self.tokens) - 1)]
             if self.tok.kind == "num" and not (follower.kind == "op" and follower.text == "^"):
                 return Const(-self.number("a number"))  # a negative literal, not Neg(Const)
-            return Neg(self.factor())
+            return Neg(self.nested(self.factor))
         base = self.atom()
         if self.accept("^"):
-            return BinOp("^", base, self.factor())
+            return BinOp("^", base, self.nested(self.factor))
         return base
 
     def atom(self) -> Expr:
@@ -250,16 +284,16 @@ class _Parser:
                 return self.call(token)
             return Var(token.text)
         if self.accept("("):
-            inner = self.expr()
+            inner = self.nested(self.expr)
             self.expect(")", "to close '('")
             return inner
         raise STLSyntaxError(token.col, f"expected a signal, number or '(', found '{token.text}'")
 
     def call(self, name: Token) -> Expr:
         self.expect("(", f"after {name.text}")
-        args = [self.expr()]
+        args = [self.nested(self.expr)]
         while self.accept(","):
-            args.append(self.expr())
+            args.append(self.nested(self.expr))
         close = self.expect(")", f"to close {name.text}(")
         if len(args) != FUNCTIONS[name.text]:
             raise STLSyntaxError(close.col, f"{name.text}() takes {FUNCTIONS[name.text]} argument(s)")

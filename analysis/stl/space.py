@@ -12,9 +12,21 @@ index at once: ``space_robustness`` returns ``rho[k]``, the robustness of the fo
   operator's identity (``+inf`` for G, ``-inf`` for F and U). This is RTAMT's offline discrete-time
   convention (``StlDiscreteTimeSpecification.evaluate``), so values agree with RTAMT exactly; only
   indices whose whole horizon lies inside the trace are free of the convention.
+* **NaN is unknown, and it propagates**: ``rho[k]`` is NaN exactly when the definition of the value at
+  ``k`` reads a NaN (a NaN sample, or one an expression made, e.g. ``sqrt`` of a negative): a predicate
+  at a NaN sample, ``!``/``&``/``|``/``->`` of a NaN, ``G``/``F`` whose window holds a NaN, ``U`` when
+  ``right`` at a time of its window or ``left`` before it is NaN. Never otherwise: a NaN outside every
+  window read leaves the value alone, so values do not depend on the trace length or on which kernel
+  (short or long scan) ran. A missing sample never helps a formula: it is neither true nor false, and
+  ``evaluate_spec`` reports a NaN robustness as not satisfied. (RTAMT does not define NaN; its Python
+  ``min``/``max`` give order-dependent results, which is why we do not follow it here.)
+* **Trace length** is the common length of the signals the formula reads; a formula that reads none
+  (``G[0,2](1 > 0)``) takes it from the signals given.
+* ``dt`` must be a finite number > 0 (``check_dt``).
 
 All kernels are O(n) (see ``kernels``). ``evaluate_tree`` is shared with the time robustness, which
-runs the same recursion with different leaf signals.
+runs the same bottom-up evaluation with different leaf signals; it is iterative, so formulas of any
+depth evaluate (a conjunction of hundreds of predicates is a flat, legitimate spec).
 """
 
 from __future__ import annotations
@@ -41,6 +53,7 @@ from corridor.analysis.stl.formula import (
     Predicate,
     Until,
     Var,
+    fold,
 )
 from corridor.analysis.stl.parser import as_formula
 
@@ -54,8 +67,22 @@ class STLSignalError(KeyError):
         return str(self.args[0]) if self.args else ""
 
 
+def check_dt(dt: float) -> float:
+    """``dt`` as a float; ``ValueError`` unless it is a finite number > 0 [s]."""
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise ValueError(f"dt must be a finite number > 0 [s], got {dt!r}")
+    return value
+
+
 def interval_indices(a: float, b: float, dt: float) -> tuple[int, float]:
     """Sample offsets ``(lo, hi)`` whose times lie in ``[a, b]``; ``hi`` is ``inf`` when ``b`` is."""
+    dt = check_dt(dt)
+    if not math.isfinite(a / dt) or not (math.isinf(b) or math.isfinite(b / dt)):
+        raise ValueError(f"interval [{a}, {b}] has too many samples for dt = {dt}")
     lo = math.ceil(a / dt - _INDEX_EPS)
     hi = math.inf if math.isinf(b) else float(math.floor(b / dt + _INDEX_EPS))
     if hi < lo:
@@ -64,17 +91,23 @@ def interval_indices(a: float, b: float, dt: float) -> tuple[int, float]:
 
 
 def check_signals(formula: Formula, signals: Mapping[str, np.ndarray]) -> tuple[dict[str, np.ndarray], int]:
-    """Float arrays of the formula's signals and their common length; raise ``STLSignalError``."""
+    """Float arrays of the formula's signals and the trace length; raise ``STLSignalError``.
+
+    The length is that of the signals the formula reads; a formula that reads none (``G(1 > 0)``)
+    takes it from all the signals given (which must then agree), so it is evaluated on as many
+    samples as the online monitor would have seen.
+    """
     arrays: dict[str, np.ndarray] = {}
     for name in sorted(formula.signal_names()):
         if name not in signals:
             known = ", ".join(sorted(signals)) or "none"
             raise STLSignalError(f"signal '{name}' is not recorded (known signals: {known})")
         arrays[name] = np.asarray(signals[name], dtype=float)
-    lengths = {a.shape for a in arrays.values()}
-    if len(lengths) > 1 or any(a.ndim != 1 for a in arrays.values()):
-        raise STLSignalError(f"signals must be 1-D of one length, got shapes {sorted(lengths)}")
-    n = next(iter(arrays.values())).size if arrays else 0
+    shaped = arrays or {name: np.asarray(value) for name, value in signals.items()}
+    shapes = {a.shape for a in shaped.values()}
+    if len(shapes) > 1 or any(a.ndim != 1 for a in shaped.values()):
+        raise STLSignalError(f"signals must be 1-D of one length, got shapes {sorted(shapes)}")
+    n = next(iter(shaped.values())).size if shaped else 0
     return arrays, n
 
 
@@ -88,18 +121,22 @@ _CALLS: dict[str, Callable[..., np.ndarray]] = {
 
 
 def evaluate_expr(expr: Expr, signals: Mapping[str, np.ndarray], n: int) -> np.ndarray:
-    """The expression's value at every sample (length ``n``)."""
-    if isinstance(expr, Var):
-        return np.asarray(signals[expr.name], dtype=float)
-    if isinstance(expr, Const):
-        return np.full(n, expr.value)
-    if isinstance(expr, Neg):
-        return -evaluate_expr(expr.arg, signals, n)
-    if isinstance(expr, BinOp):
-        return _BINARY[expr.op](evaluate_expr(expr.left, signals, n), evaluate_expr(expr.right, signals, n))
-    if isinstance(expr, Call):
-        return _CALLS[expr.func](*(evaluate_expr(a, signals, n) for a in expr.args))
-    raise TypeError(f"not an expression: {expr!r}")
+    """The expression's value at every sample (length ``n``); NaN where it is undefined."""
+    def one(node: Expr, args: list[np.ndarray]) -> np.ndarray:
+        if isinstance(node, Var):
+            return np.asarray(signals[node.name], dtype=float)
+        if isinstance(node, Const):
+            return np.full(n, node.value)
+        if isinstance(node, Neg):
+            return -args[0]
+        if isinstance(node, BinOp):
+            return _BINARY[node.op](*args)
+        if isinstance(node, Call):
+            return _CALLS[node.func](*args)
+        raise TypeError(f"not an expression: {node!r}")
+
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):  # NaN / inf are the answer
+        return fold(expr, one)
 
 
 def predicate_robustness(pred: Predicate, signals: Mapping[str, np.ndarray], n: int) -> np.ndarray:
@@ -110,7 +147,10 @@ def predicate_robustness(pred: Predicate, signals: Mapping[str, np.ndarray], n: 
 
 
 def predicate_holds(pred: Predicate, rho: np.ndarray) -> np.ndarray:
-    """Boolean satisfaction from the predicate's robustness (strict ops need ``rho > 0``)."""
+    """Boolean satisfaction from the predicate's robustness (strict ops need ``rho > 0``).
+
+    False where ``rho`` is NaN: callers that must tell "unknown" apart test ``np.isnan(rho)``.
+    """
     return rho > 0 if pred.op in (">", "<") else rho >= 0
 
 
@@ -139,16 +179,16 @@ def apply_operator(formula: Formula, children: list[np.ndarray], dt: float) -> n
 
 
 def evaluate_tree(formula: Formula, leaf: LeafFn, dt: float) -> np.ndarray:
-    """Bottom-up evaluation: ``leaf(predicate)`` gives the leaf traces, operators combine them."""
-    if isinstance(formula, Predicate):
-        return leaf(formula)
-    return apply_operator(formula, [evaluate_tree(c, leaf, dt) for c in formula.children()], dt)
+    """Bottom-up evaluation (iterative): ``leaf(predicate)`` gives the leaf traces, operators combine."""
+    def one(node: Formula, children: list[np.ndarray]) -> np.ndarray:
+        return leaf(node) if isinstance(node, Predicate) else apply_operator(node, children, dt)
+
+    return fold(formula, one)
 
 
 def space_robustness(spec: str | Formula, signals: Mapping[str, np.ndarray], dt: float) -> np.ndarray:
     """Space robustness trace ``rho[k]`` of the formula at every sample time ``k*dt`` [s]."""
-    if dt <= 0:
-        raise ValueError(f"dt must be > 0, got {dt}")
+    dt = check_dt(dt)
     formula = as_formula(spec)
     arrays, n = check_signals(formula, signals)
     return evaluate_tree(formula, lambda p: predicate_robustness(p, arrays, n), dt)

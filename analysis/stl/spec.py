@@ -9,7 +9,7 @@ import numpy as np
 
 from corridor.analysis.stl.formula import Formula
 from corridor.analysis.stl.parser import as_formula
-from corridor.analysis.stl.space import check_signals, space_robustness
+from corridor.analysis.stl.space import check_dt, check_signals, space_robustness
 from corridor.analysis.stl.time_rob import time_robustness
 
 
@@ -18,7 +18,9 @@ class SpecResult:
     """Robustness of a specification at t = 0.
 
     ``satisfied`` is the exact Boolean semantics (the sign of the time robustness, which is never 0),
-    so with a space robustness of exactly 0 it tells strict from non-strict predicates apart.
+    so with a space robustness of exactly 0 it tells strict from non-strict predicates apart. When the
+    value at t = 0 reads a missing (NaN) sample, ``space`` and the time values are NaN and
+    ``satisfied`` is False: unknown never counts as satisfied.
     ``space`` is in the signal's units, ``time_left`` / ``time_right`` / ``time`` (combined) in
     seconds, ``trace`` the space robustness at every sample.
     """
@@ -33,6 +35,7 @@ class SpecResult:
 
 def evaluate_spec(formula: str | Formula, signals: Mapping[str, np.ndarray], dt: float) -> SpecResult:
     """Space and time robustness of ``formula`` over signals sampled every ``dt`` seconds."""
+    dt = check_dt(dt)
     tree = as_formula(formula)
     _, n = check_signals(tree, signals)
     if n == 0:
@@ -40,7 +43,7 @@ def evaluate_spec(formula: str | Formula, signals: Mapping[str, np.ndarray], dt:
     trace = space_robustness(tree, signals, dt)
     theta = time_robustness(tree, signals, dt)
     return SpecResult(
-        satisfied=bool(theta.right[0] > 0),
+        satisfied=bool(theta.right[0] > 0) and not np.isnan(trace[0]),  # NaN > 0 is False too
         space=float(trace[0]),
         time_left=float(theta.left[0]),
         time_right=float(theta.right[0]),
