@@ -134,7 +134,7 @@ class V2XMerging(Controller):
         self.x_merge = nose + self.p.merge_point_frac * (end - nose)
         self.y_rsu = -float(lm["lane_width_m"]) * float(lm["mainline_lanes"])
         self.right_lanes = {"upstream_0", "merge_1"}  # the mainline lane that ramp vehicles join
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"))
+        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self.channel.attach(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
@@ -383,5 +383,6 @@ class V2XMerging(Controller):
         aoi_mean = self._aoi_sum / self._aoi_n if self._aoi_n else np.nan
         return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_aoi_mean_s": aoi_mean,
                 "v2x_aoi_max_s": self._aoi_max if self._aoi_n else np.nan, "v2x_sent": st.sent, "v2x_fallbacks": self.stale_releases,
+                "v2x_dropped_after_end": st.dropped_after_end, "v2x_dropped_overflow": st.dropped_overflow,
                 "v2x_commands": self.commands_sent,
                 "min_virtual_gap_m": self.min_virtual_gap if math.isfinite(self.min_virtual_gap) else np.nan}

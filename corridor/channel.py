@@ -9,6 +9,13 @@ Model choices (written down because metrics depend on them):
 - **Jitter** is uniform: ``delay = latency_s + U(0, jitter_s)``, so the mean delay is
   ``latency_s + jitter_s / 2`` and the delay lies in ``[latency_s, latency_s + jitter_s]``.
   Messages of one link may therefore overtake each other (as on a real radio with retries).
+  ``latency_s`` and ``jitter_s`` are at most ``MAX_DELAY_S`` (60 s), checked at scenario load.
+- **What can never arrive is dropped at send.** A channel built with the run's end ``t_end_s`` drops
+  copies whose arrival time lies after it (``dropped_after_end``: nothing could read them), and at
+  most ``max_in_flight`` copies are in flight: beyond, new copies are dropped (``dropped_overflow``).
+  Both drops happen after the loss and delay draws, so they never change another copy's fate; a
+  copy dropped after the end would not have been delivered within the run either, so the other
+  statistics are the same as without the drop.
 - **Range** is a disc (sphere in 3-D) of radius ``range_m`` around the sender, checked against
   positions known at send time (``set_positions`` each tick).  When the sender's or a receiver's
   position is unknown, that copy is not range checked.
@@ -42,18 +49,21 @@ receivers at once, and the Gilbert–Elliott states are an N×N boolean matrix i
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 _T_EPS_S = 1e-9  # [s] tolerance of the delivery time comparison
+MAX_DELAY_S = 60.0  # [s] upper bound of latency_s and jitter_s: no radio link of a scenario is slower
+DEFAULT_MAX_IN_FLIGHT = 1_000_000  # copies; beyond, new copies are dropped (``dropped_overflow``)
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class BernoulliLoss(_Frozen):
@@ -88,7 +98,15 @@ class ChannelConfig(_Frozen):
     latency_s: float = Field(0.02, ge=0.0)  # [s] fixed part of the delay
     jitter_s: float = Field(0.01, ge=0.0)  # [s] width of the uniform random part of the delay
     loss: LossModel = BernoulliLoss(p=0.0)
-    rate_hz: float = Field(10.0, gt=0.0)  # [Hz] nominal message rate of periodic senders
+    rate_hz: float = Field(10.0, gt=0.0, le=1000.0)  # [Hz] nominal message rate of periodic senders
+    max_in_flight: int = Field(DEFAULT_MAX_IN_FLIGHT, ge=1, le=100_000_000)  # copies in flight at most
+
+    @field_validator("latency_s", "jitter_s")
+    @classmethod
+    def _plausible_delay(cls, v: float) -> float:
+        if v > MAX_DELAY_S:
+            raise ValueError(f"must be at most {MAX_DELAY_S:g} s (got {v:g} s)")
+        return v
 
     @property
     def period_s(self) -> float:
@@ -136,6 +154,8 @@ class ChannelStats:
     delivery_ratio: float
     aoi_mean_s: float
     aoi_max_s: float
+    dropped_after_end: int = 0  # copies that would have arrived after the run's end
+    dropped_overflow: int = 0  # copies dropped because ``max_in_flight`` copies were in flight
 
     def as_dict(self, prefix: str = "") -> dict[str, float]:
         """Flat dict for a results row, e.g. ``prefix="v2x_"``."""
@@ -162,9 +182,13 @@ class Channel:
     each receiver reads ``inbox(its_id)``.
     """
 
-    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator) -> None:
+    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator, t_end_s: float | None = None) -> None:
+        """``t_end_s`` [s]: the run's end; copies arriving later are dropped at send (None: never)."""
         self.cfg = cfg
         self._rng = rng
+        self._t_end_s = math.inf if t_end_s is None else float(t_end_s)
+        self._n_in_flight = 0
+        self._n_late = self._n_overflow = 0
         self._index: dict[str, int] = {}
         self._names: list[str] = []
         self._cap = 0
@@ -245,9 +269,10 @@ class Channel:
         self._n_sent += n
         self._n_oor += int(n - in_range.sum())
         self._n_lost += int(lost.sum())
+        t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay
+        keep = self._admit(keep, t_recv)
         if keep.any():
-            t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay[keep]
-            self._pending.append(_Batch(self._seq, src, src_idx, float(t_s), payload, dst_idx[keep], t_recv))
+            self._pending.append(_Batch(self._seq, src, src_idx, float(t_s), payload, dst_idx[keep], t_recv[keep]))
         self._seq += 1
         return int(keep.sum())
 
@@ -285,6 +310,7 @@ class Channel:
         self._n_sent += n
         self._n_oor += int(n - in_range.sum())
         self._n_lost += int(lost.sum())
+        keep = self._admit(keep, t_recv)
         kept = np.bincount(msg[keep], minlength=len(messages))
         out = []
         for i, (src, payload, _, _) in enumerate(messages):
@@ -300,6 +326,24 @@ class Channel:
             self._seq += 1
             out.append(k)
         return out
+
+    def _admit(self, keep: np.ndarray, t_recv: np.ndarray) -> np.ndarray:
+        """The copies of ``keep`` that go in flight: those arriving after the run's end are dropped,
+        and beyond ``max_in_flight`` copies in flight the newest are (both counted)."""
+        late = keep & (t_recv > self._t_end_s + _T_EPS_S)
+        if late.any():
+            self._n_late += int(late.sum())
+            keep = keep & ~late
+        n = int(keep.sum())
+        room = max(self.cfg.max_in_flight - self._n_in_flight, 0)
+        if n > room:
+            over = np.flatnonzero(keep)[room:]
+            keep = keep.copy()
+            keep[over] = False
+            self._n_overflow += over.size
+            n = room
+        self._n_in_flight += n
+        return keep
 
     def _targets(self, src_idx: int, dst: str | None) -> tuple[np.ndarray, np.ndarray]:
         """Receiver node indices and positions of one send (sender excluded)."""
@@ -363,6 +407,7 @@ class Channel:
         due_batches: list[_Batch] = []
         due_parts: list[tuple[np.ndarray, np.ndarray]] = []
         keep: list[_Batch] = []
+        n_left = 0
         for b in self._pending:
             live = self._attached[b.dst_idx]
             due = (b.t_recv_s <= t_s + _T_EPS_S) & live
@@ -370,11 +415,16 @@ class Channel:
                 due_batches.append(b)
                 due_parts.append((b.dst_idx[due], b.t_recv_s[due]))
             rest = ~due & live
-            if rest.any():
+            if rest.all():
+                keep.append(b)
+                n_left += b.dst_idx.size
+            elif rest.any():
                 keep.append(
                     _Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[rest], b.t_recv_s[rest])
                 )
+                n_left += int(rest.sum())
         self._pending = keep
+        self._n_in_flight = n_left
         return due_batches, due_parts
 
     def _record_received(self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
@@ -430,7 +480,7 @@ class Channel:
     @property
     def in_flight(self) -> int:
         """Copies sent but not yet delivered."""
-        return sum(b.dst_idx.size for b in self._pending)
+        return self._n_in_flight
 
     # -- statistics -----------------------------------------------------------------------------
     def stats(self) -> ChannelStats:
@@ -444,6 +494,8 @@ class Channel:
             delivery_ratio=self._n_delivered / in_range if in_range else float("nan"),
             aoi_mean_s=self._aoi_sum_s / self._aoi_count if self._aoi_count else float("nan"),
             aoi_max_s=self._aoi_max_s if self._aoi_count else float("nan"),
+            dropped_after_end=self._n_late,
+            dropped_overflow=self._n_overflow,
         )
 
     def _sample_aoi(self, t_s: float) -> None:

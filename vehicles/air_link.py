@@ -101,7 +101,7 @@ class AirLink(Component):
     def setup(self, ctx: RunContext) -> None:
         p = self.params
         backend = ctx.get(p.backend)
-        channel = Channel(self.cfg, ctx.rng(f"{self.name}/channel"))
+        channel = Channel(self.cfg, ctx.rng(f"{self.name}/channel"), t_end_s=ctx.duration)
         self.link = MavlinkLink(
             channel, self.origin, LinkRates(p.heartbeat_hz, p.position_hz, p.adsb_hz),
             udp_mirror=p.udp_mirror, log_path=str(self.log_path) if self.log_path else None,
@@ -190,6 +190,8 @@ class AirLink(Component):
             "link_delivered": float(st.delivered),
             "link_lost": float(st.lost_random),
             "link_out_of_range": float(st.out_of_range),
+            "link_dropped_after_end": float(st.dropped_after_end),
+            "link_dropped_overflow": float(st.dropped_overflow),
             "link_fused_reports": float(self.fused),
         }
         out.update(self.link.stats("mavlink_"))

@@ -241,3 +241,78 @@ def test_send_many_falls_back_to_send_for_unicasts_and_bursty_loss() -> None:
             a.send(float(k), "a", k), a.send(float(k), "b", -k, dst="a")]
     assert [d.payload for d in a.deliver(1e3)] == [d.payload for d in b.deliver(1e3)]
     assert a.stats() == b.stats()
+
+
+# -- messages that can never arrive ---------------------------------------------------------------
+@pytest.mark.parametrize("field", ["latency_s", "jitter_s"])
+@pytest.mark.parametrize("value", [1e9, 60.5, math.nan, math.inf])
+def test_config_rejects_implausible_or_non_finite_delay(field: str, value: float) -> None:
+    with pytest.raises(pydantic.ValidationError) as exc:
+        ChannelConfig(**{field: value})
+    msg = str(exc.value)
+    assert field in msg
+    assert ("60 s" in msg) if math.isfinite(value) else ("finite" in msg)
+    ChannelConfig(**{field: 60.0})  # the bound itself is allowed
+
+
+def test_scenario_rejects_huge_latency_in_one_line(capsys) -> None:
+    from pathlib import Path
+
+    from corridor.cli import main
+
+    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+    assert main([str(scenario), "--set", "channels.v2x.latency_s=1e9"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "channels.v2x.latency_s" in err and "60 s" in err, err
+
+
+def test_copies_arriving_after_the_run_end_are_dropped_and_counted() -> None:
+    cfg = ChannelConfig(latency_s=50.0, jitter_s=0.0)
+    ch = Channel(cfg, np.random.default_rng(0), t_end_s=10.0)
+    for name in ("a", "b", "c"):
+        ch.attach(name)
+    for k in range(100):  # 10 s of 10 Hz broadcasts, each would arrive 50 s later: after the end
+        assert ch.send(0.1 * k, "a", k) == 0
+        ch.deliver(0.1 * k)
+    assert ch.in_flight == 0
+    assert not ch._pending  # nothing kept to be scanned every tick
+    st = ch.stats()
+    assert st.sent == 200 and st.delivered == 0 and st.dropped_after_end == 200 and st.dropped_overflow == 0
+
+
+def test_end_drop_keeps_every_copy_that_arrives_in_time_identical() -> None:
+    """Dropping late copies changes nothing else: same draws, same deliveries within the run."""
+    cfg = ChannelConfig(latency_s=0.3, jitter_s=0.5, loss=BernoulliLoss(p=0.2))
+
+    def run(t_end: float | None) -> tuple[list, object]:
+        ch = Channel(cfg, np.random.default_rng(3), t_end_s=t_end)
+        for name in ("a", "b", "c", "d"):
+            ch.attach(name)
+        got = []
+        for k in range(51):
+            t = 0.1 * k
+            ch.send(t, "a", k)
+            ch.send_many(t, [("b", -k, None, None), ("c", 1000 + k, None, None)])
+            got += [(d.src, d.dst, d.payload, d.t_recv_s) for d in ch.deliver(t)]
+        return got, ch.stats()
+
+    free, st_free = run(None)
+    ended, st_end = run(5.0)
+    assert ended == free
+    assert st_end.delivered == st_free.delivered and st_end.lost_random == st_free.lost_random
+    assert st_end.dropped_after_end > 0 and st_free.dropped_after_end == 0
+
+
+def test_in_flight_queue_is_bounded_and_overflow_counted() -> None:
+    cfg = ChannelConfig(latency_s=10.0, jitter_s=0.0, max_in_flight=25)
+    ch = Channel(cfg, np.random.default_rng(0))
+    for name in ("a", "b", "c"):
+        ch.attach(name)
+    sent_copies = [ch.send(0.1 * k, "a", k) for k in range(20)]  # 2 copies each
+    sent_copies += ch.send_many(2.0, [("b", "x", None, None), ("c", "y", None, None)])
+    assert ch.in_flight == 25
+    assert sum(sent_copies) == 25
+    st = ch.stats()
+    assert st.dropped_overflow == 44 - 25
+    assert len(ch.deliver(100.0)) == 25 and ch.in_flight == 0
+    assert ch.send(100.0, "a", "again") == 2  # room again after delivery
