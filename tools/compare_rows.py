@@ -1,0 +1,109 @@
+"""Before/after proof for refactors: record the rows of every scenario (short, fixed seeds), then
+compare two recordings column by column.
+
+    python tools/compare_rows.py record before.parquet            # on the old commit
+    python tools/compare_rows.py record after.parquet             # on the new commit
+    python tools/compare_rows.py diff before.parquet after.parquet [--rename old=new ...]
+
+Columns that measure the machine, not the simulation (wall time, real-time factor, solver times)
+are left out of the comparison; every other column must be equal (floats to 1e-9 relative), and a
+column present on one side only is reported (renames are given with ``--rename``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+ROOT = Path(__file__).resolve().parents[1]
+# machine-dependent columns: timings and what is derived from them
+VOLATILE = re.compile(r"(^|[._])(wall|rtf|traceback)($|[._])|solve|_time_s$|^wall_s$|cpu")
+
+
+def record(out: Path, seeds: int, duration_s: float, scenarios: list[Path]) -> None:
+    from corridor.baseline import short_overrides
+    from corridor.batch import expand, run_batch
+    from corridor.results import ResultStore
+    from corridor.scenario import load
+
+    frames = []
+    for path in scenarios:
+        sc, _ = load(path)
+        sc, raw = load(path, short_overrides(sc, duration_s))
+        plan = expand(sc, raw, str(path), seeds)
+        with tempfile.TemporaryDirectory() as tmp:
+            store = ResultStore(tmp)
+            run_batch(plan, store, workers=2, progress=False)
+            df = store.compact(plan.rank)
+        df.insert(0, "scenario_file", path.name)
+        frames.append(df)
+        print(f"{path.name}: {len(df)} runs, {int((df['status'] != 'ok').sum())} errors", file=sys.stderr)
+    pd.concat(frames, ignore_index=True).to_parquet(out, index=False)
+
+
+def _equal(a: pd.Series, b: pd.Series) -> bool:
+    x, y = pd.to_numeric(a, errors="coerce"), pd.to_numeric(b, errors="coerce")
+    if x.notna().equals(a.notna()) and y.notna().equals(b.notna()):
+        xa, ya = x.to_numpy(dtype=float), y.to_numpy(dtype=float)
+        return bool(np.all((xa == ya) | (np.isnan(xa) & np.isnan(ya)) |
+                           (np.abs(xa - ya) <= 1e-9 * np.maximum(np.abs(xa), np.abs(ya)))))
+    return a.astype(str).tolist() == b.astype(str).tolist()
+
+
+def diff(a_path: Path, b_path: Path, renames: dict[str, str]) -> int:
+    a = pd.read_parquet(a_path).rename(columns=renames).set_index(["scenario_file", "run_id"]).sort_index()
+    b = pd.read_parquet(b_path).set_index(["scenario_file", "run_id"]).sort_index()
+    problems = []
+    if list(a.index) != list(b.index):
+        problems.append(f"runs differ: only before {sorted(set(a.index) - set(b.index))[:5]}, "
+                        f"only after {sorted(set(b.index) - set(a.index))[:5]}")
+    common = a.index.intersection(b.index)
+    cols_a = {c for c in a.columns if not VOLATILE.search(c)}
+    cols_b = {c for c in b.columns if not VOLATILE.search(c)}
+    for c in sorted(cols_a ^ cols_b):
+        side = "before" if c in cols_a else "after"
+        # a column that is empty on every run of one side is no difference
+        col = (a if side == "before" else b)[c]
+        if col.notna().any():
+            problems.append(f"column {c!r} only {side}")
+    compared = 0
+    for c in sorted(cols_a & cols_b):
+        x, y = a.loc[common, c], b.loc[common, c]
+        compared += 1
+        if not _equal(x, y):
+            bad = [i for i in common if not _equal(x.loc[[i]], y.loc[[i]])]
+            problems.append(f"column {c!r} differs in {len(bad)} runs, e.g. {bad[0]}: "
+                            f"{x.loc[bad[0]]!r} -> {y.loc[bad[0]]!r}")
+    for p in problems:
+        print(p)
+    print(f"{len(common)} runs, {compared} columns compared, {len(problems)} differences")
+    return 1 if problems else 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="action", required=True)
+    r = sub.add_parser("record")
+    r.add_argument("out", type=Path)
+    r.add_argument("--seeds", type=int, default=2)
+    r.add_argument("--duration", type=float, default=60.0, help="simulated seconds per run")
+    r.add_argument("scenarios", nargs="*", type=Path)
+    d = sub.add_parser("diff")
+    d.add_argument("before", type=Path)
+    d.add_argument("after", type=Path)
+    d.add_argument("--rename", action="append", default=[], metavar="OLD=NEW")
+    args = ap.parse_args(argv)
+    if args.action == "record":
+        record(args.out, args.seeds, args.duration, args.scenarios or sorted((ROOT / "scenarios").glob("*.yaml")))
+        return 0
+    return diff(args.before, args.after, dict(r.split("=", 1) for r in args.rename))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
