@@ -164,6 +164,28 @@ def safety_signals(states: np.ndarray, lead_x: np.ndarray, onc_x: np.ndarray, on
     }
 
 
+def box_clearance(states: np.ndarray, ego: BicycleParams, others_xy: np.ndarray, others_heading: np.ndarray,
+                  others_size: np.ndarray) -> np.ndarray:
+    """Smallest clearance [m] between the ego (each state) and any other vehicle, whoever it is.
+
+    Boxes are taken as their axis-aligned hulls in the road frame (the ego's from ``hull_half_extents``,
+    the others' from their heading and (length, width)); the clearance of a pair is the larger of the
+    longitudinal and the lateral gap between the hulls, so it is > 0 iff an axis-aligned line separates
+    them and <= 0 whenever the boxes touch (conservative: hulls contain the boxes). ``others_xy`` are
+    body centres [M, 2] in the road frame; 1e3 when there is nobody.
+    """
+    xc, yc = body_centre(states, ego.wheelbase_m)
+    hx, hy = hull_half_extents(states[:, 2], ego)
+    if len(others_xy) == 0:
+        return np.full_like(xc, 1.0e3)
+    c, s = np.abs(np.cos(others_heading)), np.abs(np.sin(others_heading))
+    ox = 0.5 * (others_size[:, 0] * c + others_size[:, 1] * s)  # [M] half extents of the others' hulls
+    oy = 0.5 * (others_size[:, 0] * s + others_size[:, 1] * c)
+    gap_x = np.abs(others_xy[None, :, 0] - xc[:, None]) - (hx[:, None] + ox[None, :])
+    gap_y = np.abs(others_xy[None, :, 1] - yc[:, None]) - (hy[:, None] + oy[None, :])
+    return np.minimum(np.maximum(gap_x, gap_y).min(axis=1), 1.0e3)
+
+
 def safety_spec(lead_m: float = 0.0, ahead_m: float = 0.0, lat_m: float = 0.0, onc_m: float = 0.0,
                 always: bool = True) -> str:
     """STL text of the safety specification over ``safety_signals`` (margins in metres)."""
@@ -441,10 +463,10 @@ class OvertakingController:
         if np.hypot(*(obs.ego[:2] - self.plan.sol.states[k, :2])) > p.track_tol_m:
             return "tracking"
         space, time_right = self.plan_robustness(obs.t_s, prob)
-        if space < p.space_threshold_m:
+        if not space >= p.space_threshold_m:  # NaN (a prediction reads a missing value) re-plans too
             return "space"
         _, time_nominal = self.plan_robustness(obs.t_s, self.plan.problem, shift=k)
-        if time_right < time_nominal - p.time_loss_threshold_s:
+        if not time_right >= time_nominal - p.time_loss_threshold_s:
             return "time"
         return None
 

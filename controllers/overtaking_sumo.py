@@ -27,6 +27,7 @@ from corridor.controllers.overtaking import (
     OvertakingObservation,
     OvertakingParams,
     VehicleObs,
+    box_clearance,
     safety_signals,
 )
 from corridor.controllers.overtaking_mpc import FAR_M, body_centre
@@ -159,6 +160,10 @@ class OvertakingSumo(Controller):
         sig = safety_signals(ego, lead_x, onc_x, onc_v, p.ego, p.road)
         for name, val in sig.items():
             ctx.signals.record(name, ctx.t, float(val[0]))
+        keep = ctx.snapshot.ids != self.vid  # everyone, not only the lead and oncoming cars the spec names
+        others = np.column_stack((ctx.snapshot.position[keep, 0], ctx.snapshot.position[keep, 1] - self.lane_y))
+        clearance = box_clearance(ego, p.ego, others, ctx.snapshot.heading[keep], ctx.snapshot.size[keep, :2])
+        ctx.signals.record("clearance", ctx.t, float(clearance[0]))
         ctx.signals.record("lane_offset", ctx.t, yc)
         ctx.signals.record("ego_speed", ctx.t, float(ego[0, 3]))
         if sig["lat_lead"][0] <= 0.0 and k is not None:  # sharing the lead's lane
