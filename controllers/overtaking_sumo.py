@@ -10,8 +10,10 @@ puts an ``EgoInput`` on the bus for the ego backend.
 Every tick where it runs it records the signals of the STL specs of ``scenarios/overtaking.yaml`` from
 the TRUE (noise-free) snapshot: ``gap_lead`` / ``ahead_lead`` (bumper gap behind / ahead of the lead
 being overtaken), ``lat_lead`` / ``lat_onc`` (lateral clearance to the own / oncoming lane's vehicle
-box), ``gap_onc`` (longitudinal clearance to the oncoming vehicles), ``lane_offset`` (the ego's body
-centre y in the road frame) and ``ego_speed``; the metrics of issue 5 are returned by ``finish``.
+box), ``gap_onc`` (longitudinal clearance to the oncoming vehicles), ``clearance`` (smallest hull gap
+to ANY other vehicle, followers included: <= 0 on every contact the collision monitor can report),
+``lane_offset`` (the ego's body centre y in the road frame) and ``ego_speed``; the metrics of issue 5
+are returned by ``finish``. (These judged signals belong in a monitor, not in the controller under test.)
 """
 
 from __future__ import annotations
