@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
+from corridor.analysis.ccd import Poses, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import Kind, Role
@@ -14,7 +15,11 @@ from corridor.snapshot import Kind, Role
 
 class CollisionMonitor(Component):
     """Counts collisions: each backend's own report (SUMO's) plus oriented-box overlap for every pair
-    that a backend cannot see (an externally driven or non-road entity is involved)."""
+    that a backend cannot see (an externally driven or non-road entity is involved).
+
+    The box check is continuous (``corridor.analysis.ccd``): besides the overlap at the tick, boxes
+    that met between the previous and this tick (closest approach of the straight-line motion) count,
+    with the contact time inside the interval; a pair that overlaps at the tick keeps the tick's time."""
 
     phase = Phase.DETECT
 
@@ -25,20 +30,31 @@ class CollisionMonitor(Component):
         super().__init__(name)
         self.period = scenario.dt
         self.pairs: dict[tuple[str, str], float] = {}  # unordered pair -> first contact time [s]
+        self._prev: Poses | None = None  # geometry of the previous tick's snapshot
 
     def tick(self, ctx: RunContext) -> None:
         for b in ctx.backends():
             for t, a, v, kind in getattr(b, "new_collisions", ()):
                 self._add(ctx, t, a, v, f"{b.name} ({kind})")
         s = ctx.snapshot
+        prev, self._prev = self._prev, None
         if len(s) < 2 or (s.role.max() < Role.CONTROLLED and s.kind.max() <= Kind.TRUCK):
             return  # only backend-driven road vehicles: their backend reports collisions
         special = (s.role == Role.CONTROLLED) | ((s.kind != Kind.CAR) & (s.kind != Kind.TRUCK))
         pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
                                   s.position[:, 2], s.size[:, 2])
+        now: set[tuple[int, int]] = set()
         for i, j in pairs:
             if special[i] or special[j]:
+                now.add((int(i), int(j)))
                 self._add(ctx, ctx.t, str(s.ids[i]), str(s.ids[j]), "box overlap")
+        cur = Poses.of(s)
+        if prev is not None and ctx.t > prev.t:
+            for i, j, frac in zip(*swept_overlaps(prev, cur, np.flatnonzero(special)), strict=True):
+                if (int(i), int(j)) not in now:
+                    t_hit = prev.t + float(frac) * (ctx.t - prev.t)
+                    self._add(ctx, t_hit, str(s.ids[i]), str(s.ids[j]), "box overlap between ticks")
+        self._prev = cur
 
     def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:
         key = (a, b) if a < b else (b, a)

@@ -20,7 +20,16 @@ thresholds; each entry counts once (an encounter that stays inside for many tick
 emits an event (``los`` or ``nmac``). Signals ``min_sep_h`` (smallest horizontal separation over all
 pairs) and ``min_sep_3d`` (smallest 3-D distance) are recorded at the monitor's period for reports,
 STL specs and the Rerun view. ``sep_min_v_m`` is the smallest vertical separation of pairs closer
-than ``nmac_h_m`` horizontally (NaN if no pair came that close). Per UAV with a goal (from the air backend): time to goal (first time
+than ``nmac_h_m`` horizontally (NaN if no pair came that close).
+
+Between ticks (continuous detection, ``corridor.analysis.ccd``): the aircraft are taken to move on
+straight lines from the previous tick's positions to the current ones, so every pair's relative
+position moves on a segment. The minima (``sep_min_*`` and the signals, each the minimum over the
+interval that ends at the tick) use that segment's closest approach, and a pair that passes through
+a NMAC or LoS cylinder between two ticks (the exact sub-interval where both the horizontal and the
+vertical separation are below their thresholds is non-empty) enters the violated state even if it is
+outside at both ticks. Pairs with an aircraft that moved more than ``ccd.MAX_STEP_M`` in one interval
+(a teleport) and ticks where the set of aircraft changed are checked at the tick only. Per UAV with a goal (from the air backend): time to goal (first time
 within ``goal_radius_m``) and the ratio of flown path length to the straight start-goal distance.
 """
 
@@ -31,6 +40,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from corridor.analysis.ccd import MAX_STEP_M, closest_approach, interval_below
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import Kind
 
@@ -92,6 +102,7 @@ class SeparationMonitor(Component):
             return
         if self.ids is None or len(ids) != len(self.ids) or np.any(ids != self.ids):
             self._init_pairs(ids, s.kind[air])
+        prev = self.last_pos
         self._progress(ctx.t, pos)
         if len(self.i) == 0:
             return
@@ -99,30 +110,73 @@ class SeparationMonitor(Component):
         dh = np.hypot(d[:, 0], d[:, 1])
         dv = np.abs(d[:, 2])
         d3 = np.hypot(dh, dv)
-        self.min_h = min(self.min_h, float(dh.min()))
-        self.min_3d = min(self.min_3d, float(d3.min()))
-        close = dh < self.params.nmac_h_m
-        if close.any():
-            self.min_v_close = min(self.min_v_close, float(dv[close].min()))
-        ctx.signals.record("min_sep_h", ctx.t, float(dh.min()))
-        ctx.signals.record("min_sep_3d", ctx.t, float(d3.min()))
         p = self.params
-        self.in_los = self._count(ctx, (dh < self.los_h) & (dv < self.los_v), self.in_los, self.pair_los, "los", dh, dv)
-        self.in_nmac = self._count(ctx, (dh < p.nmac_h_m) & (dv < p.nmac_v_m), self.in_nmac, self.pair_nmac,
-                                   "nmac", dh, dv)
+        now_los = (dh < self.los_h) & (dv < self.los_v)
+        now_nmac = (dh < p.nmac_h_m) & (dv < p.nmac_v_m)
+        # between ticks: the minima of the straight-line relative motion, and cylinders passed through
+        swept = self._swept(prev, pos, d) if prev is not None else None
+        if swept is None:
+            min_h, min_3d = float(dh.min()), float(d3.min())
+            close = dh < p.nmac_h_m
+            min_v_close = float(dv[close].min()) if close.any() else np.inf
+            in_los, in_nmac, at_los, at_nmac = now_los, now_nmac, (dh, dv), (dh, dv)
+        else:
+            min_h, min_3d, min_v_close, (in_los, at_los), (in_nmac, at_nmac) = swept
+            in_los, in_nmac = in_los | now_los, in_nmac | now_nmac
+        self.min_h = min(self.min_h, min_h)
+        self.min_3d = min(self.min_3d, min_3d)
+        self.min_v_close = min(self.min_v_close, min_v_close)
+        ctx.signals.record("min_sep_h", ctx.t, min_h)
+        ctx.signals.record("min_sep_3d", ctx.t, min_3d)
+        self.in_los = self._count(ctx, in_los, now_los, self.in_los, self.pair_los, "los", dh, dv, at_los)
+        self.in_nmac = self._count(ctx, in_nmac, now_nmac, self.in_nmac, self.pair_nmac, "nmac", dh, dv, at_nmac)
 
-    def _count(self, ctx: RunContext, now: np.ndarray, before: np.ndarray, per_pair: np.ndarray, kind: str,
-               dh: np.ndarray, dv: np.ndarray) -> np.ndarray:
-        """Count and report pairs that enter the violated state this tick."""
-        for k in np.flatnonzero(now & ~before):
+    def _swept(self, prev: np.ndarray, pos: np.ndarray, d1: np.ndarray) -> tuple | None:
+        """Minima and cylinder passes of the straight-line motion from ``prev`` to ``pos``; None when
+        no pair can be swept. Teleported pairs keep their values at the tick."""
+        moved = np.linalg.norm(pos - prev, axis=1) <= MAX_STEP_M
+        ok = moved[self.i] & moved[self.j]
+        if not ok.any():
+            return None
+        d0 = np.where(ok[:, None], prev[self.i] - prev[self.j], d1)  # teleported: static at the tick
+        _, dh_min = closest_approach(d0[:, :2], d1[:, :2])
+        _, d3_min = closest_approach(d0, d1)
+        p = self.params
+        lo_h, hi_h = interval_below(d0[:, :2], d1[:, :2], p.nmac_h_m)
+        z0, z1 = d0[:, 2], d1[:, 2]
+        # smallest |dz| while horizontally inside the NMAC radius (dz is linear in s)
+        close = lo_h < hi_h
+        zl, zh = z0 + lo_h * (z1 - z0), z0 + hi_h * (z1 - z0)
+        v_close = np.where(zl * zh <= 0.0, 0.0, np.minimum(np.abs(zl), np.abs(zh)))
+        min_v_close = float(v_close[close].min()) if close.any() else np.inf
+
+        def passes(r_h: np.ndarray | float, r_v: np.ndarray | float) -> tuple[np.ndarray, tuple]:
+            lo_a, hi_a = interval_below(d0[:, :2], d1[:, :2], r_h)
+            lo_b, hi_b = interval_below(d0[:, 2:], d1[:, 2:], r_v)
+            lo, hi = np.maximum(lo_a, lo_b), np.minimum(hi_a, hi_b)
+            mid = (0.5 * (lo + hi))[:, None]
+            at = d0 + mid * (d1 - d0)  # a point of the pass (for the event text)
+            return lo < hi, (np.hypot(at[:, 0], at[:, 1]), np.abs(at[:, 2]))
+
+        return (float(dh_min.min()), float(d3_min.min()), min_v_close,
+                passes(self.los_h, self.los_v), passes(p.nmac_h_m, p.nmac_v_m))
+
+    def _count(self, ctx: RunContext, entered: np.ndarray, now: np.ndarray, before: np.ndarray,
+               per_pair: np.ndarray, kind: str, dh: np.ndarray, dv: np.ndarray,
+               at: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Count and report pairs that entered the violated state since the last tick (at the tick or
+        between ticks); returns the state at this tick."""
+        for k in np.flatnonzero(entered & ~before):
+            # at the tick, or (passed through between ticks) a point of the pass
+            h_m, v_m = (float(dh[k]), float(dv[k])) if now[k] else (float(at[0][k]), float(at[1][k]))
             a, b = str(self.ids[self.i[k]]), str(self.ids[self.j[k]])
             per_pair[k] += 1
             if kind == "nmac":
                 self.nmac_events += 1
             else:
                 self.los_events += 1
-            ctx.events.emit(ctx.t, self.name, kind, f"{a} x {b}: {dh[k]:.1f} m horizontal, {dv[k]:.1f} m vertical",
-                            a=a, b=b, h_m=float(dh[k]), v_m=float(dv[k]))
+            ctx.events.emit(ctx.t, self.name, kind, f"{a} x {b}: {h_m:.1f} m horizontal, {v_m:.1f} m vertical",
+                            a=a, b=b, h_m=h_m, v_m=v_m)
         return now
 
     def _progress(self, t: float, pos: np.ndarray) -> None:
