@@ -99,8 +99,6 @@ def test_fallback_collision_is_recorded_by_the_spec_signals(fallback_run) -> Non
     assert not result["spec.contact.satisfied"] and result["spec.contact.space"] <= 0.0
 
 
-@pytest.mark.xfail(strict=True, reason="scenarios/overtaking.yaml's safety spec names only the lead and the "
-                   "oncoming cars; it needs '& (clearance > 0)' (file owned by the scenario's maintainer)")
 def test_fallback_collision_violates_the_scenario_safety_spec(fallback_run) -> None:
     metrics, _, _ = fallback_run
     assert metrics["collisions"] >= 1
