@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import IntEnum
+from pathlib import Path, PurePath
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,28 @@ class Phase(IntEnum):
     INTEGRATE = 4
     DETECT = 5
     RECORD = 6
+
+
+def relative_output_path(text: str) -> str:
+    """Check an output file name of a scenario: relative, no ``..`` component, not empty (the run
+    resolves it under its output folder); returns it unchanged or raises ValueError (one line)."""
+    p = PurePath(text)
+    if not text.strip() or not p.parts:
+        raise ValueError("must be a file name relative to the run's output folder, got an empty path")
+    if p.is_absolute() or text.startswith(("/", "\\", "~")) or (len(text) > 1 and text[1] == ":"):
+        raise ValueError(f"must be a path relative to the run's output folder (--out), got {text!r}")
+    if ".." in p.parts or ".." in PurePath(text.replace("\\", "/")).parts:
+        raise ValueError(f"must stay inside the run's output folder: no '..' component allowed, got {text!r}")
+    return text
+
+
+def path_inside(root: str | Path, rel: str | Path) -> Path:
+    """``root / rel`` resolved (symlinks followed), refused unless it lies inside ``root``."""
+    base = Path(root).resolve()
+    out = (base / rel).resolve()
+    if out != base and base not in out.parents:
+        raise ValueError(f"output path {str(rel)!r} escapes the output folder {str(base)!r}")
+    return out
 
 
 def stable_key(name: str) -> int:
@@ -79,6 +102,24 @@ class RunContext:
     components: dict[str, Component] = field(default_factory=dict)
     scenario: Any = None
     workdir: Any = None  # a per-run scratch directory (pathlib.Path)
+    out_dir: Path | None = None  # the batch's output folder (--out); None: files go to workdir
+    run_id: str = "run"  # e.g. "none-s0"; part of every per-run file name
+
+    def output_path(self, rel: str | Path, per_run: bool = True) -> Path:
+        """Where a component writes the file ``rel`` (relative, checked by ``relative_output_path``):
+        under the batch's output folder (the scratch workdir when there is none), with the run id
+        added to the file name (``mavlink/link.tlog`` -> ``mavlink/link-none-s0.tlog``) so the runs
+        of a batch never overwrite each other. The parent folders are created; a path that would
+        leave the folder (``..``, an absolute path, a symlink pointing out) raises ValueError."""
+        rel = PurePath(relative_output_path(str(rel)))
+        if per_run:
+            rel = rel.with_name(f"{rel.stem}-{self.run_id}{rel.suffix}")
+        root = self.out_dir if self.out_dir is not None else self.workdir
+        if root is None:
+            raise ValueError(f"no output folder for {str(rel)!r}")
+        out = path_inside(root, rel)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        return path_inside(root, rel)  # again after mkdir: a symlinked folder cannot lead out
 
     def rng(self, name: str) -> np.random.Generator:
         """An independent generator per subsystem, derived from the run seed and the name only,

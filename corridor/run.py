@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from corridor.engine import Component, RunContext, Simulation
+from corridor.engine import Component, RunContext, Simulation, path_inside
 from corridor.errors import CorridorError
 from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
@@ -49,8 +49,10 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
     return comp
 
 
-def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None) -> Simulation:
-    """Assemble backends, controllers, monitors and recorders for one run."""
+def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
+          out_dir: str | Path | None = None, run_id: str = "run") -> Simulation:
+    """Assemble backends, controllers, monitors and recorders for one run; components write their
+    files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None)."""
     comps: list[Component] = []
     if sc.road is not None:
         from corridor.traffic.sumo_backend import SumoBackend
@@ -67,7 +69,8 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None)
         from corridor.analysis.rerun_log import RerunRecorder
 
         comps.append(RerunRecorder("rerun", sc, rerun_path))
-    ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=workdir)
+    ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=workdir,
+                     out_dir=Path(out_dir) if out_dir else None, run_id=run_id)
     return Simulation(ctx, comps)
 
 
@@ -122,7 +125,7 @@ def evaluate_specs(sc: Scenario, ctx: RunContext) -> dict[str, Any]:
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
     with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
-        sim = build(sc, seed, Path(tmp), rerun_path)
+        sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
         metrics = sim.run()
     metrics.update(evaluate_specs(sc, sim.ctx))
     for kind in ("mode", "fallback"):
@@ -130,7 +133,10 @@ def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = 
     if out_dir and sc.outputs.signals:
         sig_dir = Path(out_dir) / "signals"
         sig_dir.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(sig_dir / f"{run_id}.npz", **sim.ctx.signals.as_arrays())
+        path = path_inside(sig_dir, f"{run_id}.npz")  # a run id with a '/' or '..' cannot lead out
+        if path.parent != sig_dir.resolve():
+            raise ValueError(f"run id {run_id!r} is not a plain file name")
+        np.savez_compressed(path, **sim.ctx.signals.as_arrays())
     return metrics, sim.ctx, sim.wall_s
 
 

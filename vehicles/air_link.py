@@ -37,11 +37,11 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.uav_models import TrackedAgent
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
 
 from .mavlink_link import LinkRates, MavlinkLink, ReceivedReport
@@ -73,13 +73,20 @@ class AirLink(Component):
         adsb_hz: float = Field(10.0, gt=0.0)
         bit_error_rate: float = Field(0.0, ge=0.0, le=0.5)  # per received bit
         udp_mirror: str | None = None  # e.g. "udpout:127.0.0.1:14550" for a real ground station
-        log_path: str | None = None  # write every sent byte to this raw MAVLink file
+        log_path: str | None = None  # write every sent byte to this raw MAVLink file: a path relative
+        #   to the batch's output folder (--out); the run id is added to the name (``mavlink/link.tlog``
+        #   -> ``<out>/mavlink/link-none-s0.tlog``)
         process_noise: float = Field(2.0, gt=0.0)  # [m^2/s^3] white acceleration density of the CV model
         meas_noise_m: float = Field(0.5, gt=0.0)  # [m] position measurement std
         vel_noise_mps: float = Field(0.3, gt=0.0)  # [m/s] velocity measurement std
         stale_after_s: float = Field(3.0, gt=0.0)  # [s] drop a track without reports for this long
         sigma_factor: float = Field(3.0, ge=0.0)  # uncertainty radius = factor x position std
         max_tracks: int = Field(8, ge=1, le=256)  # [aircraft] per receiver: nearest reporting UAVs tracked (+ every piloted)
+
+        @field_validator("log_path")
+        @classmethod
+        def _relative_log_path(cls, v: str | None) -> str | None:
+            return None if v is None else relative_output_path(v)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -94,7 +101,7 @@ class AirLink(Component):
         self.link: MavlinkLink | None = None
         self.tables: dict[str, TrackTable] = {}
         self.piloted: set[str] = set()
-        self.log_path = Path(params.log_path) if params.log_path else None
+        self.log_path: Path | None = None  # resolved under the run's output folder in setup
         self._pending: dict[str, dict[str, ReceivedReport]] = {}  # receiver -> source -> newest report
         self.fused = 0
 
@@ -102,6 +109,7 @@ class AirLink(Component):
         p = self.params
         backend = ctx.get(p.backend)
         channel = Channel(self.cfg, ctx.rng(f"{self.name}/channel"), t_end_s=ctx.duration)
+        self.log_path = ctx.output_path(p.log_path) if p.log_path else None
         self.link = MavlinkLink(
             channel, self.origin, LinkRates(p.heartbeat_hz, p.position_hz, p.adsb_hz),
             udp_mirror=p.udp_mirror, log_path=str(self.log_path) if self.log_path else None,

@@ -71,9 +71,10 @@ def test_mavlink_bytes_decode_with_pymavlink_and_rerun_shows_aircraft(tmp_path: 
     from pymavlink.dialects.v20 import common as mavlink2
     from rerun.chunk import RrdReader
 
-    log, rrd = tmp_path / "link.bin", tmp_path / "enc.rrd"
+    # the log path is relative to the output folder; the run id is added to the file name
+    log, rrd = tmp_path / "m" / "mavlink" / "link-none-s0.bin", tmp_path / "enc.rrd"
     df = cli(str(ENCOUNTER), "--runs", "1", "--variant", "none", "--out", str(tmp_path / "m"),
-             "--set", "duration=3", "--set", f"backends.link.params.log_path={log}", "--rerun", str(rrd))
+             "--set", "duration=3", "--set", "backends.link.params.log_path=mavlink/link.bin", "--rerun", str(rrd))
     paths = {c.entity_path for c in RrdReader(rrd).stream()}
     assert {"/world/entities", "/world/trails", "/metrics/min_sep_h", "/metrics/min_sep_3d"} <= paths
     assert (df["status"] == "ok").all()
