@@ -26,6 +26,12 @@ counted by the link; the track restarts from the first report inside the range, 
 velocity both measured). Tracks without a report for ``stale_after_s`` are dropped, so a
 silent aircraft disappears from the picture (never ground truth).
 
+``udp_mirror: udpout:HOST:PORT`` copies every datagram the link sends to a UDP address (a ground
+station such as QGroundControl sees each aircraft as its own MAVLink system); ``realtime_factor``
+paces the run so that simulated time never runs ahead of wall time x factor (the link sleeps in its
+tick), otherwise the mirror replays the flight as fast as the simulation runs. ``log_path`` writes
+the same bytes to a raw MAVLink file under the batch's output folder, one per run.
+
 The avoidance runs on board each UAV, so its commands go straight to the UAV's own autopilot (the
 command bus), not through a ground-station uplink. The first link tick (t = 0) precedes the first
 world snapshot and publishes nothing.
@@ -33,11 +39,12 @@ world snapshot and publishes nothing.
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.uav_models import TrackedAgent
@@ -73,6 +80,9 @@ class AirLink(Component):
         adsb_hz: float = Field(10.0, gt=0.0)
         bit_error_rate: float = Field(0.0, ge=0.0, le=0.5)  # per received bit
         udp_mirror: str | None = None  # e.g. "udpout:127.0.0.1:14550" for a real ground station
+        # pace the run for the mirror: simulated time never runs ahead of wall time x this factor
+        # (1.0: real time, 2.0: twice as fast); None: as fast as the simulation goes (~9x real time)
+        realtime_factor: float | None = Field(None, gt=0.0, le=1000.0)
         log_path: str | None = None  # write every sent byte to this raw MAVLink file: a path relative
         #   to the batch's output folder (--out); the run id is added to the name (``mavlink/link.tlog``
         #   -> ``<out>/mavlink/link-none-s0.tlog``)
@@ -87,6 +97,12 @@ class AirLink(Component):
         @classmethod
         def _relative_log_path(cls, v: str | None) -> str | None:
             return None if v is None else relative_output_path(v)
+
+        @model_validator(mode="after")
+        def _pacing_needs_mirror(self) -> AirLink.Params:
+            if self.realtime_factor is not None and self.udp_mirror is None:
+                raise ValueError("realtime_factor paces the UDP mirror: set udp_mirror too")
+            return self
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -104,6 +120,8 @@ class AirLink(Component):
         self.log_path: Path | None = None  # resolved under the run's output folder in setup
         self._pending: dict[str, dict[str, ReceivedReport]] = {}  # receiver -> source -> newest report
         self.fused = 0
+        self._pace_origin: tuple[float, float] | None = None  # (sim time [s], wall clock [s]) of the first tick
+        self.paced_sleep_s = 0.0
 
     def setup(self, ctx: RunContext) -> None:
         p = self.params
@@ -125,7 +143,23 @@ class AirLink(Component):
                                                stale_after_s=p.stale_after_s, vel_noise=p.vel_noise_mps)
                 self._pending[a.id] = {}
 
+    def _pace(self, t_s: float) -> None:
+        """With ``realtime_factor``: sleep until wall time has caught up with simulated time."""
+        factor = self.params.realtime_factor
+        if factor is None:
+            return
+        now = time.perf_counter()
+        if self._pace_origin is None:
+            self._pace_origin = (t_s, now)
+            return
+        t0, wall0 = self._pace_origin
+        wait = wall0 + (t_s - t0) / factor - now
+        if wait > 0.0:
+            time.sleep(wait)
+            self.paced_sleep_s += wait
+
     def tick(self, ctx: RunContext) -> None:
+        self._pace(ctx.t)
         s = ctx.snapshot
         air = (s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT)
         if air.any():
@@ -189,6 +223,7 @@ class AirLink(Component):
         return {src: r for src, r in pend.items() if src in keep or src in self.piloted}
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._pace(ctx.t)  # the last ticks after this link's last tick are paced too
         st = self.link.channel.stats()
         out = {
             "link_delivery_ratio": st.delivery_ratio,
@@ -202,6 +237,8 @@ class AirLink(Component):
             "link_dropped_overflow": float(st.dropped_overflow),
             "link_fused_reports": float(self.fused),
         }
+        if self.params.realtime_factor is not None:
+            out["link_paced_sleep_s"] = self.paced_sleep_s
         out.update(self.link.stats("mavlink_"))
         return out
 
