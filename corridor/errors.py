@@ -8,7 +8,18 @@ class CorridorError(Exception):
 
 
 class ScenarioError(CorridorError):
-    """A scenario file, override or command-line value is wrong."""
+    """A scenario file, override or command-line value is wrong.
+
+    The message is kept to one line of at most ``MAX_MESSAGE`` characters whatever it quotes (the
+    raising code clips the user values it echoes; this is the last guard)."""
+
+    MAX_MESSAGE = 299
+
+    def __init__(self, message: object = "") -> None:
+        text = " ".join(str(message).split("\n"))
+        if len(text) > self.MAX_MESSAGE:
+            text = text[: self.MAX_MESSAGE - 1] + "…"
+        super().__init__(text)
 
 
 def clip(value: object, limit: int = 60) -> str:

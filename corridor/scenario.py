@@ -10,18 +10,50 @@ from __future__ import annotations
 
 import copy
 import difflib
+import math
+import re
+import stat
 from pathlib import Path
 from typing import Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from corridor.channel import ChannelConfig
-from corridor.errors import ScenarioError
+from corridor.errors import ScenarioError, clip
+
+# ---------------------------------------------------------------- limits of the loader and the schema
+MAX_FILE_BYTES = 1_000_000  # a scenario file (and each file it extends)
+MAX_YAML_DEPTH = 64  # nesting levels of a YAML document
+MAX_YAML_NODES = 200_000  # YAML nodes after alias expansion (a "billion laughs" file stops here)
+MAX_STEPS = 100_000_000  # duration / dt
+MAX_DURATION_S = 30 * 86400.0  # 30 days
+MIN_DT_S, MAX_DT_S = 1e-3, 10.0
+MAX_FLOW_VPH = 20_000.0  # per flow (scale included); a 10-lane freeway carries ~ 22 000 veh/h
+MAX_SEED = 2**32 - 1  # numpy SeedSequence / SUMO --seed
+NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # scenario and variant names become file names
+# SUMO options that change the simulation but write no file (anything else is refused: an option such
+# as --fcd-output PATH would overwrite PATH)
+SUMO_ALLOWED_OPTIONS = ("--lateral-resolution", "--max-depart-delay", "--ignore-junction-blocker",
+                        "--step-method.ballistic", "--extrapolate-departpos")
+SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+def _key(name: Any) -> str:
+    """A user-chosen key inside a field path: as is when short and printable, else clipped."""
+    text = str(name)
+    return text if len(text) <= 40 and text.isprintable() else clip(text, 40)
+
+
+def _check_name(value: str, what: str) -> str:
+    if not NAME_PATTERN.fullmatch(value) or ".." in value:
+        raise ValueError(f"{what} {clip(value)} must be 1-64 letters, digits, '_', '-' or '.', start with a "
+                         "letter or digit and not contain '..' (it names files)")
+    return value
 
 
 # ---------------------------------------------------------------- road
@@ -52,7 +84,7 @@ class VehicleTypeSpec(Strict):
 class FlowSpec(Strict):
     route: str  # a route name of the network (e.g. main, ramp)
     vtype: str = "car"
-    flow_vph: float | None = Field(None, ge=0)  # constant rate [veh/h]
+    flow_vph: float | None = Field(None, ge=0, le=MAX_FLOW_VPH, json_schema_extra={"unit": "veh/h"})  # constant rate
     profile: list[tuple[float, float]] | None = None  # [(t_s, veh/h)], piecewise linear
     arrivals: Literal["poisson", "uniform"] = "poisson"
     connected_share: float = Field(0.0, ge=0, le=1)  # share of connected/automated vehicles
@@ -67,7 +99,12 @@ class FlowSpec(Strict):
             ts = [p[0] for p in self.profile]
             if any(b < a for a, b in zip(ts, ts[1:])) or any(p[1] < 0 for p in self.profile):
                 raise ValueError("profile times must increase and rates be >= 0")
+            if any(p[1] > MAX_FLOW_VPH for p in self.profile):
+                raise ValueError(f"profile rates must be <= {MAX_FLOW_VPH:.0f} veh/h")
         return self
+
+    def max_rate(self) -> float:
+        return self.flow_vph if self.profile is None else max((r for _, r in self.profile), default=0.0)
 
     def rate_profile(self, duration_s: float, scale: float) -> list[tuple[float, float]]:
         if self.profile is None:
@@ -84,18 +121,56 @@ class DemandSpec(Strict):
     def _types_exist(self) -> DemandSpec:
         for name, fl in self.flows.items():
             if "." in name:
-                raise ValueError(f"flows.{name}: flow names cannot contain '.'")
+                raise ValueError(f"flows.{_key(name)}: flow names cannot contain '.'")
             if fl.vtype not in self.vehicle_types:
-                raise ValueError(f"flows.{name}.vtype: unknown vehicle type {fl.vtype!r}")
+                raise ValueError(f"flows.{_key(name)}.vtype: unknown vehicle type {clip(fl.vtype)}")
+            if fl.max_rate() * self.scale > MAX_FLOW_VPH:
+                raise ValueError(f"flows.{_key(name)}: rate x scale = {fl.max_rate() * self.scale:.4g} veh/h, "
+                                 f"must be <= {MAX_FLOW_VPH:.0f} veh/h")
         return self
 
 
 class SumoOptions(Strict):
-    step_length: float = Field(0.1, gt=0)  # [s]
+    step_length: float = Field(0.1, ge=MIN_DT_S, le=MAX_DT_S, json_schema_extra={"unit": "s"})
     collision_action: Literal["warn", "teleport", "remove", "none"] = "warn"
     collision_check_junctions: bool = True
     time_to_teleport: float = 300.0  # [s]; < 0 disables
-    extra_args: list[str] = Field(default_factory=list)
+    extra_args: list[str] = Field(default_factory=list)  # SUMO_ALLOWED_OPTIONS / _PREFIXES only
+
+    @field_validator("extra_args", mode="before")
+    @classmethod
+    def _numbers_as_text(cls, args: Any) -> Any:  # [--lateral-resolution, 0.8]: YAML reads 0.8 as a number
+        if isinstance(args, list):
+            return [str(a) if isinstance(a, int | float) and not isinstance(a, bool) else a for a in args]
+        return args
+
+    @field_validator("extra_args")
+    @classmethod
+    def _no_output_options(cls, args: list[str]) -> list[str]:
+        expect_value = False
+        for arg in args:
+            is_option = arg.startswith("-") and not _is_number(arg)
+            if not is_option:
+                if not expect_value:
+                    raise ValueError(f"{clip(arg)} is not an option (give ['--option', 'value', ...])")
+                expect_value = False
+                continue
+            name = arg.split("=", 1)[0]
+            ok = name in SUMO_ALLOWED_OPTIONS or (
+                name.startswith(SUMO_ALLOWED_PREFIXES) and not name.endswith(("-output", "-log", ".output")))
+            if not ok:
+                allowed = ", ".join((*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
+                raise ValueError(f"{clip(name, 30)} may write files; allowed: {allowed}")
+            expect_value = "=" not in arg
+        return args
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 class RoadSpec(Strict):
@@ -108,7 +183,7 @@ class RoadSpec(Strict):
 # ---------------------------------------------------------------- components, specs, batches
 class ComponentSpec(Strict):
     type: str  # a registry name (BACKENDS, CONTROLLERS or MONITORS)
-    period: float | None = Field(None, gt=0)  # [s]; None = the component's default
+    period: float | None = Field(None, gt=0, le=MAX_DURATION_S, json_schema_extra={"unit": "s"})  # None: default
     params: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -129,7 +204,30 @@ class Distribution(Strict):
     def _exactly_one(self) -> Distribution:
         if sum(v is not None for v in (self.uniform, self.normal, self.integers, self.choice)) != 1:
             raise ValueError("give exactly one of uniform, normal, integers, choice")
+        if self.uniform is not None:
+            lo, hi = self.uniform
+            if not lo <= hi or not math.isfinite(hi - lo):
+                raise ValueError(f"uniform: [low, high] needs finite low <= high, got [{lo:.6g}, {hi:.6g}]")
+        if self.normal is not None and not 0 <= self.normal[1] < 1e300:
+            raise ValueError(f"normal: [mean, std] needs std >= 0, got std {self.normal[1]:.6g}")
+        if self.integers is not None:
+            lo, hi = self.integers
+            if not -2**62 <= lo <= hi <= 2**62:
+                raise ValueError(f"integers: [low, high] needs low <= high (inclusive, |x| <= 2**62), "
+                                 f"got [{clip(lo, 24)[1:-1]}, {clip(hi, 24)[1:-1]}]")
+        if self.choice is not None and not 1 <= len(self.choice) <= 10_000:
+            raise ValueError(f"choice: needs 1 to 10000 options, got {len(self.choice)}")
         return self
+
+    def extremes(self) -> list[Any]:
+        """Values a draw can take at the edges (checked against the schema at load)."""
+        if self.uniform is not None:
+            return list(self.uniform)
+        if self.normal is not None:
+            return [self.normal[0]]
+        if self.integers is not None:
+            return list(self.integers)
+        return list(self.choice[:20])
 
     def draw(self, rng: Any) -> Any:
         if self.uniform is not None:
@@ -149,15 +247,15 @@ class Origin(Strict):
 
 class Outputs(Strict):
     signals: bool = True  # keep per-run time series (signals/<run_id>.npz)
-    rerun_period: float = Field(0.2, gt=0)  # [s] between Rerun frames
+    rerun_period: float = Field(0.2, ge=MIN_DT_S, le=MAX_DURATION_S, json_schema_extra={"unit": "s"})  # between frames
 
 
 class Scenario(Strict):
     name: str
     description: str = ""
-    seed: int = Field(0, ge=0)
-    duration: float = Field(600.0, gt=0)  # [s]
-    dt: float = Field(0.1, gt=0)  # [s] base tick
+    seed: int = Field(0, ge=0, le=MAX_SEED)
+    duration: float = Field(600.0, gt=0, le=MAX_DURATION_S, json_schema_extra={"unit": "s"})
+    dt: float = Field(0.1, ge=MIN_DT_S, le=MAX_DT_S, json_schema_extra={"unit": "s"})  # base tick
     warmup: float = Field(0.0, ge=0)  # [s] metrics ignore vehicles departing before this
     origin: Origin = Field(default_factory=Origin)
     road: RoadSpec | None = None
@@ -171,28 +269,173 @@ class Scenario(Strict):
     randomize: dict[str, Distribution] = Field(default_factory=dict)
     outputs: Outputs = Field(default_factory=Outputs)
 
+    @field_validator("name")
+    @classmethod
+    def _safe_name(cls, v: str) -> str:
+        return _check_name(v, "name")
+
+    @field_validator("sweep")
+    @classmethod
+    def _safe_variant_names(cls, v: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        for name in v:
+            _check_name(name, "variant name")
+        return v
+
     @model_validator(mode="after")
     def _consistent(self) -> Scenario:
         if self.warmup >= self.duration:
             raise ValueError("warmup must be shorter than duration")
         if not self.sweep:
             raise ValueError("sweep needs at least one variant")
+        if self.duration / self.dt > MAX_STEPS:
+            raise ValueError(f"duration / dt = {self.duration / self.dt:.3g} steps, must be <= {MAX_STEPS:.0e} "
+                             "(raise dt or shorten duration)")
         return self
 
 
 # ---------------------------------------------------------------- loading
-def read_yaml(path: Path) -> dict[str, Any]:
-    if not path.exists():
-        raise ScenarioError(f"{path}: no such file")
+class _LimitError(yaml.MarkedYAMLError):
+    """A loader limit or a duplicate key; its ``problem`` holds no file content beyond what it names."""
+
+
+class _Loader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` with a nesting limit, an alias-expansion limit (nodes counted as if every
+    alias were a copy), no recursive aliases and no duplicate keys."""
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._nodes = 0
+        self._sizes: dict[int, int] = {}  # id(node) -> its size once expanded (set when composed)
+        self.root_key_lines: dict[Any, int] | None = None  # the document's top-level keys -> line (0-based)
+
+    def _count(self, n: int, mark: Any) -> None:
+        self._nodes += n
+        if self._nodes > MAX_YAML_NODES:
+            raise _LimitError(problem=f"more than {MAX_YAML_NODES} values once aliases are expanded", problem_mark=mark)
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            node = self.anchors.get(event.anchor)
+            if node is not None:
+                if id(node) not in self._sizes:
+                    raise _LimitError(problem="an alias inside its own anchor (recursive data)",
+                                      problem_mark=event.start_mark)
+                self._count(self._sizes[id(node)], event.start_mark)
+            return super().compose_node(parent, index)
+        mark = self.peek_event().start_mark
+        self._depth += 1
+        if self._depth > MAX_YAML_DEPTH:
+            raise _LimitError(problem=f"nested deeper than {MAX_YAML_DEPTH} levels", problem_mark=mark)
+        start = self._nodes
+        self._count(1, mark)
+        node = super().compose_node(parent, index)
+        self._depth -= 1
+        self._sizes[id(node)] = self._nodes - start
+        return node
+
+    def construct_mapping(self, node: Any, deep: bool = False) -> Any:
+        if isinstance(node, yaml.MappingNode):
+            first: dict[Any, int] = {}
+            for key_node, _ in node.value:
+                if key_node.tag == "tag:yaml.org,2002:merge":
+                    continue
+                key = self.construct_object(key_node, deep=True)
+                try:
+                    line = first.get(key)
+                except TypeError:  # unhashable: the base class says so
+                    continue
+                if line is not None:
+                    raise _LimitError(problem=f"duplicate key {clip(key, 40)} (lines {line + 1} and "
+                                              f"{key_node.start_mark.line + 1})", problem_mark=key_node.start_mark)
+                first[key] = key_node.start_mark.line
+            if self.root_key_lines is None:  # the root mapping is constructed first
+                self.root_key_lines = first
+        return super().construct_mapping(node, deep=deep)
+
+
+def _yaml_load(text: str) -> Any:
+    return _yaml_load_lines(text)[0]
+
+
+def _yaml_load_lines(text: str) -> tuple[Any, dict[Any, int]]:
+    """The document and the lines of its top-level keys."""
+    loader = _Loader(text)
     try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ScenarioError(f"{path}: invalid YAML: {where}{problem}") from None
+        return loader.get_single_data(), loader.root_key_lines or {}
+    finally:
+        loader.dispose()
+
+
+_QUOTED = re.compile(r"'[^']*'|\"[^\"]*\"")  # what PyYAML quotes in a problem: a token name or the file's text
+_HARMLESS = re.compile(r"[^A-Za-z0-9\s]{1,3}|<[a-z ]+>")  # ':' or '<block end>' say no more than the syntax
+
+
+def _yaml_problem(exc: Exception) -> str:
+    """Where and what, without the file's text: PyYAML quotes the offending characters (and ``str(exc)``
+    the offending line), which for a file that is not a scenario (``extends: /etc/shadow``) is its
+    content.  Keeps the line/column and the generic part of the reason."""
+    if isinstance(exc, yaml.reader.ReaderError):
+        return f"position {exc.position}: {exc.reason}"
+    if not isinstance(exc, yaml.MarkedYAMLError):
+        return "a value cannot be read (e.g. an invalid date or a too long number)"
+    mark = exc.problem_mark
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+    problem = exc.problem or "syntax error"
+    if not isinstance(exc, _LimitError):
+        problem = _QUOTED.sub(lambda m: m[0] if _HARMLESS.fullmatch(m[0][1:-1]) else "…", problem)
+    return f"{where}{clip(problem, 120)[1:-1]}"
+
+
+def _show(path: Path | str) -> str:
+    text = str(path)
+    return text if len(text) <= 120 and text.isprintable() else clip(text, 120)
+
+
+def read_text(path: Path) -> str:
+    """A scenario file's text: a regular UTF-8 file of at most ``MAX_FILE_BYTES``."""
+    try:
+        st = path.stat()
+    except ValueError:
+        raise ScenarioError(f"{_show(path)}: a path cannot contain a NUL byte") from None
+    except FileNotFoundError:
+        raise ScenarioError(f"{_show(path)}: no such file") from None
+    except (OSError, RuntimeError) as exc:  # symlink loop, name too long, permission denied, ...
+        raise ScenarioError(f"{_show(path)}: cannot read ({getattr(exc, 'strerror', None) or 'symlink loop'})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise ScenarioError(f"{_show(path)}: is a directory, not a scenario file")
+    if not stat.S_ISREG(st.st_mode):
+        raise ScenarioError(f"{_show(path)}: not a regular file")
+    if st.st_size > MAX_FILE_BYTES:
+        raise ScenarioError(f"{_show(path)}: larger than {MAX_FILE_BYTES // 1000} kB, not a scenario file")
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except OSError as exc:
+        raise ScenarioError(f"{_show(path)}: cannot read ({exc.strerror or 'I/O error'})") from None
+    if len(raw) > MAX_FILE_BYTES:
+        raise ScenarioError(f"{_show(path)}: larger than {MAX_FILE_BYTES // 1000} kB, not a scenario file")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(f"{_show(path)}: not a UTF-8 text file (byte {exc.start})") from None
+
+
+def read_yaml(path: Path) -> dict[str, Any]:
+    text = read_text(path)
+    try:
+        data, lines = _yaml_load_lines(text)
+    except (yaml.YAMLError, ValueError, OverflowError, RecursionError) as exc:
+        raise ScenarioError(f"{_show(path)}: invalid YAML: {_yaml_problem(exc)}") from None
     if not isinstance(data, dict):
-        raise ScenarioError(f"{path}: a scenario must be a YAML mapping, got {type(data).__name__}")
+        raise ScenarioError(f"{_show(path)}: a scenario must be a YAML mapping, got {type(data).__name__}")
+    fields = [*Scenario.model_fields, "extends"]
+    for key in data:  # a mapping of other keys is some other file (/etc/shadow is one): do not echo it
+        if key in fields or isinstance(key, str) and difflib.get_close_matches(key[:80], fields, n=1, cutoff=0.75):
+            continue  # a field, or a typo of one that validation names with a hint
+        raise ScenarioError(f"{_show(path)}: not a scenario file: the top-level key at line "
+                            f"{lines.get(key, -1) + 1} is not a scenario field")
     return data
 
 
@@ -206,47 +449,83 @@ def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+MAX_EXTENDS = 16  # files in one extends chain
+
+
 def resolve_extends(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    path = path.resolve()
-    if path in seen:
-        raise ScenarioError(f"{path}: extends: cycle through {' -> '.join(p.name for p in seen)}")
-    data = read_yaml(path)
+    try:
+        real = path.resolve()
+    except (OSError, RuntimeError, ValueError):  # NUL byte, symlink loop (3.11 raises RuntimeError)
+        read_text(path)  # raises the one-line reason
+        raise ScenarioError(f"{_show(path)}: cannot resolve this path") from None
+    if real in seen:
+        raise ScenarioError(f"{_show(real)}: extends: cycle through {' -> '.join(_show(p.name) for p in seen)}")
+    if len(seen) >= MAX_EXTENDS:
+        raise ScenarioError(f"{_show(real)}: extends: more than {MAX_EXTENDS} files in the chain")
+    data = read_yaml(real)
     parent = data.pop("extends", None)
     if parent is None:
         return data
-    return deep_merge(resolve_extends(path.parent / str(parent), (*seen, path)), data)
+    if not isinstance(parent, str) or not parent:
+        raise ScenarioError(f"{_show(real)}: extends: must be a file path, got {type(parent).__name__}")
+    return deep_merge(resolve_extends(real.parent / parent, (*seen, real)), data)
 
 
 def parse_value(text: str) -> Any:
     """``--set`` values are YAML scalars/flows: ``3``, ``0.5``, ``true``, ``[1, 2]``, ``{a: 1}``."""
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
+        return _yaml_load(text)
+    except (yaml.YAMLError, ValueError, OverflowError, RecursionError):
         return text
 
 
+def _keyed_by_paths(prefix: list[str]) -> bool:
+    """``randomize`` and each ``sweep`` variant are maps keyed by whole dotted paths."""
+    return prefix == ["randomize"] or (len(prefix) == 2 and prefix[0] == "sweep")
+
+
 def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
-    """Set ``a.b.0.c`` in nested dicts/lists, creating dicts on the way (validation catches typos)."""
+    """Set ``a.b.0.c`` in nested dicts/lists, creating dicts on the way (validation catches typos).
+
+    Below ``randomize`` and ``sweep.<variant>`` the keys are dotted paths themselves: the rest of the
+    path is matched against them (``sweep.v2x_cps.controllers.merge.params.policy`` sets ``policy`` in
+    the variant's ``controllers.merge`` entry) or becomes a new key (``sweep.v2x_cps.duration``)."""
     keys = dotted.split(".")
+    if len(keys) > MAX_YAML_DEPTH:
+        raise ScenarioError(f"{clip(dotted)}: more than {MAX_YAML_DEPTH} levels")
     node: Any = data
-    for i, key in enumerate(keys):
+    i = 0
+    while i < len(keys):
+        key = keys[i]
         last = i == len(keys) - 1
         if isinstance(node, list):
             if not key.isdigit() or int(key) >= len(node):
-                raise ScenarioError(f"{'.'.join(keys[:i + 1])}: no list item {key!r}")
+                raise ScenarioError(f"{clip('.'.join(keys[:i + 1]))}: no list item {clip(key, 20)}")
             if last:
                 node[int(key)] = value
             else:
                 node = node[int(key)]
+            i += 1
             continue
         if not isinstance(node, dict):
-            raise ScenarioError(f"{'.'.join(keys[:i])}: is a value, cannot set {dotted!r} below it")
+            raise ScenarioError(f"{clip('.'.join(keys[:i]))}: is a value, cannot set {clip(dotted)} below it")
+        if _keyed_by_paths(keys[:i]):
+            rest = keys[i:]
+            match = max((k for k in node if isinstance(k, str) and k.split(".") == rest[:k.count(".") + 1]),
+                        key=len, default=None)
+            if match is None or match.count(".") + 1 == len(rest):
+                node[match or ".".join(rest)] = value
+                return
+            node = node[match]
+            i += match.count(".") + 1
+            continue
         if last:
             node[key] = value
         else:
             if not isinstance(node.get(key), dict | list):
                 node[key] = {}
             node = node[key]
+        i += 1
 
 
 def apply_overrides(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -280,22 +559,40 @@ def _model_in(ann: Any) -> Any:
     return None
 
 
+def _unit(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
+    """The ``unit`` a field declares (``json_schema_extra``), for bound messages."""
+    cur: Any = model
+    info = None
+    for part in loc:
+        fields = getattr(cur, "model_fields", None)
+        if fields is None or part not in fields:
+            continue
+        info = fields[part]
+        cur = _model_in(info.annotation)
+    extra = getattr(info, "json_schema_extra", None)
+    return f" {extra['unit']}" if isinstance(extra, dict) and "unit" in extra else ""
+
+
 def format_error(source: str, exc: ValidationError, model: type[BaseModel], prefix: str = "") -> str:
     """The first validation error as ``FILE: field.path: message (did you mean 'x'?)``."""
     err = exc.errors()[0]
     loc = tuple(err["loc"])
-    path = ".".join(str(p) for p in loc)
+    path = ".".join(_key(p) for p in loc)
     path = f"{prefix}.{path}" if prefix and path else (prefix or path)
     msg = err["msg"]
     if err["type"] == "extra_forbidden":
         allowed = _field_names(model, _model_path(model, loc[:-1]))
-        close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
-        msg = "unknown key" + (f" (did you mean {close[0]!r}?)" if close else
-                               (f"; allowed: {', '.join(allowed)}" if allowed else ""))
+        close = difflib.get_close_matches(str(loc[-1])[:80], allowed, n=1)
+        listed = ", ".join(allowed)
+        listed = listed if len(listed) <= 120 else listed[:listed.rfind(", ", 0, 118)] + ", …"
+        msg = "unknown key" + (f" (did you mean {close[0]!r}?)" if close else (f"; allowed: {listed}" if allowed else ""))
     elif err["type"] in ("greater_than_equal", "greater_than", "less_than_equal", "less_than"):
-        msg = msg.replace("Input should be", "must be")
+        msg = msg.replace("Input should be", "must be") + _unit(model, loc)
+    elif err["type"] == "finite_number":
+        msg = "must be a finite number"
     elif msg.startswith("Value error, "):
         msg = msg[len("Value error, "):]
+    msg = msg if len(msg) <= 240 else msg[:239] + "…"
     n = len(exc.errors())
     more = f" (+{n - 1} more)" if n > 1 else ""
     return f"{source}: {path}: {msg}{more}" if path else f"{source}: {msg}{more}"
@@ -313,12 +610,30 @@ def _model_path(model: type[BaseModel], loc: tuple[Any, ...]) -> tuple[Any, ...]
     return tuple(out)
 
 
+def _non_finite(data: Any, path: tuple[str, ...] = ()) -> tuple[str, ...] | None:
+    """The path of the first NaN or infinite number anywhere in the raw data (component params too)."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return path
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list | tuple) else ()
+    for k, v in items:
+        found = _non_finite(v, (*path, _key(k)))
+        if found is not None:
+            return found
+    return None
+
+
 def validate(data: dict[str, Any], source: str) -> Scenario:
     """Validate raw scenario data, including each component's own ``params`` model."""
+    source = _show(source)
+    bad = _non_finite(data)
+    if bad is not None:
+        raise ScenarioError(f"{source}: {'.'.join(bad)}: must be a finite number")
     try:
         sc = Scenario.model_validate(data)
     except ValidationError as exc:
         raise ScenarioError(format_error(source, exc, Scenario)) from None
+    except RecursionError:
+        raise ScenarioError(f"{source}: nested too deeply") from None
     _validate_component_params(sc, source)
     return sc
 
@@ -328,27 +643,57 @@ def _validate_component_params(sc: Scenario, source: str) -> None:
 
     for table, registry in (("backends", BACKENDS), ("controllers", CONTROLLERS), ("monitors", MONITORS)):
         for name, spec in getattr(sc, table).items():
+            where = f"{table}.{_key(name)}"
             if spec.type not in registry:
-                close = difflib.get_close_matches(spec.type, list(registry), n=1)
+                close = difflib.get_close_matches(spec.type[:80], list(registry), n=1)
                 hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(sorted(registry))}"
-                raise ScenarioError(f"{source}: {table}.{name}.type: unknown {registry.what} {spec.type!r}{hint}")
+                raise ScenarioError(f"{source}: {where}.type: unknown {registry.what} {clip(spec.type)}{hint}")
             params_model = getattr(registry.get(spec.type), "Params", None)
             if params_model is not None:
                 try:
                     params_model.model_validate(spec.params)
                 except ValidationError as exc:
-                    raise ScenarioError(format_error(source, exc, params_model, f"{table}.{name}.params")) from None
+                    raise ScenarioError(format_error(source, exc, params_model, f"{where}.params")) from None
     if sc.road is not None:
         from corridor.traffic.network import params_model
 
         try:
             model = params_model(sc.road.network.type)
         except KeyError as exc:
-            raise ScenarioError(f"{source}: road.network.type: {exc.args[0]}") from None
+            raise ScenarioError(f"{source}: road.network.type: {clip(exc.args[0], 200)[1:-1]}") from None
         try:
             model.model_validate(sc.road.network.params)
         except ValidationError as exc:
             raise ScenarioError(format_error(source, exc, model, "road.network.params")) from None
+
+
+def check_randomize(sc: Scenario, data: dict[str, Any], source: str) -> None:
+    """Each ``randomize`` path at the edges of its distribution must give a valid scenario in at least
+    one sweep variant that is valid by itself (a path or value no variant accepts is an error at load,
+    not an error row in every run)."""
+    source = _show(source)
+    bases = [over for over in sc.sweep.values() if _is_valid(apply_overrides(data, over))]
+    for path, dist in sorted(sc.randomize.items()):
+        for value in dist.extremes():
+            errors = []
+            for over in bases:
+                try:
+                    validate(apply_overrides(data, {**over, path: value}), source)
+                    break
+                except ScenarioError as exc:
+                    errors.append(str(exc).removeprefix(f"{source}: "))
+            else:
+                if errors:
+                    raise ScenarioError(f"{source}: randomize.{clip(path, 60)[1:-1]}: the draw {clip(value, 30)} "
+                                        f"is invalid: {errors[0]}")
+
+
+def _is_valid(data: dict[str, Any]) -> bool:
+    try:
+        validate(data, "")
+    except ScenarioError:
+        return False
+    return True
 
 
 def load_raw(path: str | Path, sets: list[str] | None = None) -> dict[str, Any]:
@@ -356,8 +701,8 @@ def load_raw(path: str | Path, sets: list[str] | None = None) -> dict[str, Any]:
     data = resolve_extends(Path(path))
     for item in sets or []:
         key, eq, value = item.partition("=")
-        if not eq or not key:
-            raise ScenarioError(f"--set {item!r}: expected FIELD.PATH=VALUE")
+        if not eq or not key.strip():
+            raise ScenarioError(f"--set {clip(item)}: expected FIELD.PATH=VALUE")
         set_path(data, key.strip(), parse_value(value))
         _unrandomize(data, key.strip())
     return data
@@ -373,7 +718,42 @@ def _unrandomize(data: dict[str, Any], key: str) -> None:
         del rnd[path]
 
 
+_COMPONENT_TABLES = ("backends", "controllers", "monitors")
+
+
+def _variant_hint(data: dict[str, Any], sets: list[str], message: str) -> str:
+    """When a ``--set`` below a component fails on the base scenario and a sweep variant redefines that
+    component (merging.yaml: ``controllers.merge`` is ``v2x_merging`` only in the v2x variants), say
+    how to set the variant's parameter instead."""
+    sweep = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
+    for item in sets:
+        key = item.partition("=")[0].strip()
+        parts = key.split(".")
+        if len(parts) < 3 or parts[0] not in _COMPONENT_TABLES or ".".join(parts[:2]) not in message:
+            continue
+        comp = ".".join(parts[:2])
+        variants = [v for v, over in sweep.items() if isinstance(over, dict)
+                    and any(isinstance(k, str) and (k == comp or k.startswith(comp + ".")) for k in over)]
+        if variants:
+            names = ", ".join(_key(v) for v in variants[:4])
+            return (f"; sweep variants {clip(names, 60)[1:-1]} change {comp}: set a variant's value with "
+                    f"--set sweep.VARIANT.{clip(key, 60)[1:-1]}=VALUE")
+    return ""
+
+
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:
     """Load, resolve, override and validate; returns the typed scenario and its raw data."""
     data = load_raw(path, sets)
-    return validate(data, str(path)), data
+    try:
+        sc = validate(data, str(path))
+    except ScenarioError as exc:
+        hint = _variant_hint(data, sets or [], str(exc))
+        if not hint:
+            raise
+        raise ScenarioError(re.sub("; allowed: .*", "", str(exc)) + hint) from None
+    for item in sets or []:  # a variant the user --set is checked now, not in every run of the batch
+        parts = item.partition("=")[0].strip().split(".")
+        if len(parts) > 2 and parts[0] == "sweep" and parts[1] in sc.sweep:
+            validate(apply_overrides(data, sc.sweep[parts[1]]), f"{path} [sweep.{_key(parts[1])}]")
+    check_randomize(sc, data, str(path))
+    return sc, data
