@@ -33,6 +33,8 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from corridor.controllers.control_tube import ControlTubeParams
+from corridor.controllers.potential_field import PotentialFieldParams
 from corridor.controllers.uav_models import AvoidanceObservation
 from corridor.controllers.uav_models import VelocityCommand as MethodCommand
 from corridor.engine import Controller, RunContext
@@ -56,8 +58,10 @@ class UavAvoidanceParams(BaseModel):
     # [m] slack of the relevance range (track sigma, report age, time to the next decision) on top of
     # the method's own reach; None: every reporting UAV may be tracked (nearest link max_tracks)
     relevance_margin_m: float | None = Field(15.0, ge=0.0)
-    potential_field: dict[str, Any] = Field(default_factory=dict)  # PotentialFieldParams overrides
-    control_tube: dict[str, Any] = Field(default_factory=dict)  # ControlTubeParams overrides
+    # the methods' own parameters, typed so that a misspelt one fails at scenario load (not in every run);
+    # control_tube.period_s defaults to the controller's period (see ControlTubeController.build_methods)
+    potential_field: PotentialFieldParams = Field(default_factory=PotentialFieldParams)
+    control_tube: ControlTubeParams = Field(default_factory=ControlTubeParams)
 
 
 class _UavController(Controller):
@@ -180,9 +184,9 @@ class PotentialFieldController(_UavController):
     """``controllers.potential_field.PotentialFieldAvoidance`` per UAV (speed limit = its cruise)."""
 
     def build_methods(self) -> None:
-        from corridor.controllers.potential_field import PotentialFieldAvoidance, PotentialFieldParams
+        from corridor.controllers.potential_field import PotentialFieldAvoidance
 
-        base = PotentialFieldParams(**self.params.potential_field)
+        base = self.params.potential_field
         self.methods = {uid: PotentialFieldAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
                         for uid in self.uav_ids}
 
@@ -207,10 +211,10 @@ class ControlTubeController(_UavController):
     """``controllers.control_tube.ControlTubeAvoidance`` per UAV (one CasADi QP each, warm plans)."""
 
     def build_methods(self) -> None:
-        from corridor.controllers.control_tube import ControlTubeAvoidance, ControlTubeParams
+        from corridor.controllers.control_tube import ControlTubeAvoidance
         from corridor.vehicles.jsbsim_fleet import quiet_fds
 
-        base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube})
+        base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube.model_dump(exclude_unset=True)})
         self._quiet = quiet_fds
         self.methods = {uid: ControlTubeAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
                         for uid in self.uav_ids}

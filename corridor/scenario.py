@@ -721,23 +721,28 @@ def _unrandomize(data: dict[str, Any], key: str) -> None:
 _COMPONENT_TABLES = ("backends", "controllers", "monitors")
 
 
-def _variant_hint(data: dict[str, Any], sets: list[str], message: str) -> str:
-    """When a ``--set`` below a component fails on the base scenario and a sweep variant redefines that
-    component (merging.yaml: ``controllers.merge`` is ``v2x_merging`` only in the v2x variants), say
-    how to set the variant's parameter instead."""
-    sweep = data.get("sweep") if isinstance(data.get("sweep"), dict) else {}
+def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
+    """When a ``--set`` below a component fails on the base scenario but works inside a sweep variant
+    (merging.yaml: ``controllers.merge`` is ``v2x_merging`` only in the v2x variants, so its params
+    cannot be set on the base), say how to set it there."""
     for item in sets:
         key = item.partition("=")[0].strip()
         parts = key.split(".")
-        if len(parts) < 3 or parts[0] not in _COMPONENT_TABLES or ".".join(parts[:2]) not in message:
+        if len(parts) < 3 or parts[0] not in _COMPONENT_TABLES or f"{parts[0]}.{parts[1]}" not in message:
             continue
-        comp = ".".join(parts[:2])
-        variants = [v for v, over in sweep.items() if isinstance(over, dict)
-                    and any(isinstance(k, str) and (k == comp or k.startswith(comp + ".")) for k in over)]
-        if variants:
-            names = ", ".join(_key(v) for v in variants[:4])
-            return (f"; sweep variants {clip(names, 60)[1:-1]} change {comp}: set a variant's value with "
-                    f"--set sweep.VARIANT.{clip(key, 60)[1:-1]}=VALUE")
+        rest = [s for s in sets if s is not item]
+        sweep = load_raw(path, rest).get("sweep")
+        works = []
+        for variant in list(sweep)[:8] if isinstance(sweep, dict) else []:
+            try:
+                data = load_raw(path, [*rest, f"sweep.{variant}.{item}"])
+                validate(apply_overrides(data, data["sweep"][variant]), "")
+            except ScenarioError:
+                continue
+            works.append(_key(variant))
+        if works:
+            return (f"; {parts[0]}.{_key(parts[1])} is set per variant: use --set sweep.VARIANT.{clip(key, 60)[1:-1]}"
+                    f"=VALUE (works for {clip(', '.join(works), 50)[1:-1]})")
     return ""
 
 
@@ -747,7 +752,7 @@ def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dic
     try:
         sc = validate(data, str(path))
     except ScenarioError as exc:
-        hint = _variant_hint(data, sets or [], str(exc))
+        hint = _variant_hint(path, sets or [], str(exc))
         if not hint:
             raise
         raise ScenarioError(re.sub("; allowed: .*", "", str(exc)) + hint) from None

@@ -314,8 +314,20 @@ def test_megabyte_vtype_is_clipped(capsys):
 # ---------------------------------------------------------------- item 11: a variant's own parameters
 def test_param_of_a_variant_only_controller_says_how_to_set_it(capsys):
     code, err = run_cli(capsys, str(MERGING), "--set", "controllers.merge.params.policy=fifo")
-    assert_one_line(code, err, "sweep variants v2x_fifo, v2x_cps change controllers.merge",
-                    "--set sweep.VARIANT.controllers.merge.params.policy=VALUE")
+    assert_one_line(code, err, "controllers.merge is set per variant",
+                    "--set sweep.VARIANT.controllers.merge.params.policy=VALUE (works for v2x_fifo, v2x_cps)")
+
+
+def test_param_of_one_variant_type_names_that_variant(capsys):
+    code, err = run_cli(capsys, str(ROOT / "scenarios" / "ramp_metering.yaml"), "--set",
+                        "controllers.ramps.params.weight_rate_change=1")
+    assert_one_line(code, err, "--set sweep.VARIANT.controllers.ramps.params.weight_rate_change=VALUE (works for mpc)")
+
+
+def test_a_real_typo_gets_no_variant_hint(capsys):
+    code, err = run_cli(capsys, str(MERGING), "--set", "monitors.ssm.params.ttc_treshold_s=2")
+    assert_one_line(code, err, "did you mean 'ttc_threshold_s'")
+    assert "per variant" not in err
 
 
 def test_set_a_parameter_of_one_variant():
@@ -334,3 +346,36 @@ def test_a_variant_set_from_the_command_line_is_validated_at_load(capsys):
 def test_set_a_randomize_path():
     sc, _ = load(MERGING, ["randomize.road.demand.scale.uniform=[0.8, 1.2]"])
     assert sc.randomize["road.demand.scale"].uniform == (0.8, 1.2)
+
+
+# ---------------------------------------------------------------- item 12: typed nested method params
+UAV = ROOT / "scenarios" / "uav_encounter.yaml"
+
+
+@pytest.mark.parametrize("setting", [
+    "controllers.avoid.params.potential_field={bogus_gain: 3}",
+    "controllers.avoid.params.control_tube={bogus_gain: 3}",
+    "sweep.potential_field.controllers.avoid.params.potential_field.bogus_gain=3",
+])
+def test_unknown_nested_avoidance_param_fails_at_load(capsys, setting):
+    code, err = run_cli(capsys, str(UAV), "--set", setting)
+    assert_one_line(code, err, "controllers.avoid.params.", ".bogus_gain: unknown key")
+
+
+def test_nested_avoidance_param_bounds_checked_at_load(capsys):
+    code, err = run_cli(capsys, str(UAV), "--set", "controllers.avoid.params.potential_field.uav_weight=-1")
+    assert_one_line(code, err, "potential_field.uav_weight: must be greater than or equal to 0")
+
+
+def test_avoidance_methods_get_the_same_params_as_before():
+    from corridor.controllers.control_tube import ControlTubeParams
+    from corridor.controllers.potential_field import PotentialFieldParams
+    from corridor.controllers.uav_avoidance import UavAvoidanceParams
+
+    p = UavAvoidanceParams.model_validate({"potential_field": {"vortex_gain": 2}, "control_tube": {"step_s": 0.4}})
+    assert p.potential_field == PotentialFieldParams(vortex_gain=2)
+    # the tube's period_s still defaults to the controller's period: only the fields given are passed on
+    assert p.control_tube.model_dump(exclude_unset=True) == {"step_s": 0.4}
+    assert UavAvoidanceParams().control_tube.model_dump(exclude_unset=True) == {}
+    assert UavAvoidanceParams().potential_field == PotentialFieldParams()
+    assert ControlTubeParams(**{"period_s": 0.2, **p.control_tube.model_dump(exclude_unset=True)}).period_s == 0.2
