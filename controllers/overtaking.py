@@ -54,7 +54,7 @@ _WARM_COMPATIBLE = {(m, m) for m in MODES} | {("pass", "return"), ("abort", "ret
 class OvertakingParams(BaseModel):
     """Everything the overtaking controller needs, with defaults; a scenario overrides what differs."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     desired_speed_mps: float = Field(26.0, gt=0.0)  # [m/s] cruise speed when the road is free
     pass_speed_margin_mps: float = Field(3.0, ge=0.0)  # [m/s] overtake only leads slower by this

@@ -44,7 +44,7 @@ FAR_M = 1.0e4  # [m] position used for absent vehicles (numerically inert in the
 class RoadGeometry(BaseModel):
     """Lane layout and the sizes of the other vehicles (the ego's size is in ``BicycleParams``)."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     lane_width_m: float = Field(3.5, gt=0.0)  # [m]
     other_length_m: float = Field(4.5, gt=0.0)  # [m]
@@ -54,11 +54,11 @@ class RoadGeometry(BaseModel):
 class OvertakingMpcParams(BaseModel):
     """Horizon, specification margins, cost weights and solver options of the overtaking MPC."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     dt_s: float = Field(0.2, gt=0.0)  # [s] MPC step (= controller period)
-    horizon_steps: int = Field(40, ge=5)  # 8 s at 0.2 s
-    max_oncoming: int = Field(3, ge=1)  # oncoming vehicles considered (nearest first)
+    horizon_steps: int = Field(40, ge=5, le=200)  # [steps] of dt_s: 8 s at 0.2 s, at most 40 s
+    max_oncoming: int = Field(3, ge=1, le=10)  # oncoming vehicles considered (nearest first)
     speed_limit_mps: float = Field(27.8, gt=0.0)  # [m/s] 100 km/h
     lead_standstill_gap_m: float = Field(3.0, ge=0.0)  # [m] bumper gap behind the lead at v = 0
     lead_time_gap_s: float = Field(0.9, ge=0.0)  # [s] plus this times the ego's speed
@@ -76,8 +76,8 @@ class OvertakingMpcParams(BaseModel):
     w_heading: float = 5.0
     w_daccel: float = 0.2  # on input rate (comfort)
     w_dsteer: float = 200.0
-    max_iter: int = Field(200, ge=1)
-    decision_max_iter: int = Field(40, ge=1)  # a pass not found within this many iterations is refused
+    max_iter: int = Field(200, ge=1, le=10_000)  # IPOPT iterations
+    decision_max_iter: int = Field(40, ge=1, le=10_000)  # a pass not found within this many iterations is refused
     tol: float = Field(1e-4, gt=0.0)
 
 

@@ -31,7 +31,7 @@ from corridor.events import EventLog
 class OvertakingWorldParams(BaseModel):
     """Randomised traffic of one run."""
 
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     duration_s: float = Field(40.0, gt=0.0)
     dt_s: float = Field(0.1, gt=0.0)  # [s] integration step (the controller runs every period_s)
@@ -41,7 +41,7 @@ class OvertakingWorldParams(BaseModel):
     lead_gap_m: tuple[float, float] = (25.0, 45.0)  # [m] initial bumper gap ego -> lead
     lead_reacts_prob: float = Field(0.3, ge=0.0, le=1.0)  # lead speeds up when overtaken
     lead_reaction_mps: float = Field(4.0, ge=0.0)  # [m/s] by this much
-    oncoming_count: int = Field(10, ge=0)
+    oncoming_count: int = Field(10, ge=0, le=200)
     oncoming_first_m: tuple[float, float] = (150.0, 700.0)  # [m] ahead of the ego at t = 0
     oncoming_gap_m: tuple[float, float] = (100.0, 700.0)  # [m] between consecutive oncoming vehicles
     oncoming_speed_mps: tuple[float, float] = (18.0, 26.0)  # magnitude, travelling towards -x

@@ -45,18 +45,18 @@ class OvertakingSumo(Controller):
     """Drives the ego bicycle of backend ``ego`` with the event-triggered STL overtaking MPC."""
 
     class Params(BaseModel):
-        model_config = ConfigDict(frozen=True, extra="forbid")
+        model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
         ego: str = "ego"  # name of the EgoBicycle backend component (it drives east, on route ``east``)
         sensor_range_m: float = Field(400.0, gt=0.0)  # [m]
         sensor_pos_noise_m: float = Field(0.3, ge=0.0)  # [m] 1-sigma
         sensor_speed_noise_mps: float = Field(0.2, ge=0.0)  # [m/s] 1-sigma
-        controller: dict[str, Any] = Field(default_factory=dict)  # OvertakingParams fields
+        controller: OvertakingParams = Field(default_factory=OvertakingParams)  # typed: a wrong nested key fails at load
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.cparams = OvertakingParams.model_validate(params.controller)
+        self.cparams = params.controller
         self.period = self.cparams.period_s
         self.ctrl: OvertakingController | None = None
         self.spec_lead: str | None = None

@@ -88,3 +88,12 @@ def test_control_tube_bounds():
     with pytest.raises(ValidationError):
         ControlTubeParams(w_track=float("nan"))
     ControlTubeParams(n_steps=100)
+
+
+@pytest.mark.parametrize("field,value", [("controller.mpc.horizon_steps", "100000"),
+                                         ("controller.mpc.max_iter", "10000000"),
+                                         ("controller.mpc.w_speed", ".nan")])
+def test_overtaking_mpc_size_and_weights_bounded(capsys, field, value):
+    err = one_line_exit_2(capsys, str(SC / "overtaking.yaml"), "--set",
+                          f"controllers.overtaking.params.{field}={value}")
+    assert f"controllers.overtaking.params.{field}" in err
