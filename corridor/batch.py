@@ -24,7 +24,7 @@ from corridor.engine import stable_key
 from corridor.errors import CorridorError, clip
 from corridor.results import ResultStore
 from corridor.run import RunSpec, execute
-from corridor.scenario import Scenario
+from corridor.scenario import MAX_SEED, Scenario
 
 
 def draw_seed(seed: int, path: str) -> np.random.SeedSequence:
@@ -48,6 +48,9 @@ class RunPlan(Sequence[RunSpec]):
                  out_dir: str | None = None, variants: list[str] | None = None) -> None:
         self.sc, self.raw, self.source, self.runs, self.out_dir = sc, raw, source, runs, out_dir
         self.base_seed = sc.seed if seed is None else seed
+        if self.base_seed < 0 or self.base_seed + runs - 1 > MAX_SEED:
+            raise CorridorError(f"{source}: seeds {self.base_seed}..{self.base_seed + runs - 1} (--seed, --runs) "
+                                f"must lie in 0..{MAX_SEED}")
         names = list(sc.sweep)
         if variants:
             unknown = [v for v in variants if v not in sc.sweep]

@@ -17,6 +17,8 @@ examples:
   run_scenario merging --set road.demand.scale=1.2 --out results/m12
                                                            a packaged scenario by name, 20 % more demand
   run_scenario scenarios/merging.yaml --variant sumo_default --runs 4 --seed 7 --out results/sumo7
+  run_scenario merging --set sweep.v2x_cps.controllers.merge.params.policy=fifo --out results/p
+                                                           a parameter of one sweep variant
   run_scenario scenarios/merging.yaml --runs 8 --resume    finish (or extend) the batch in results/merging
   run_scenario scenarios/merging.yaml --overwrite          replace the batch in results/merging
   run_scenario scenarios/merging.yaml --rerun out.rrd --out results/rec

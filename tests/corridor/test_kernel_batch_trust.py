@@ -203,3 +203,11 @@ def test_python_api_gives_the_cli_rows(tmp_path):
     pd.testing.assert_frame_equal(res.rows[cols], cli_rows[cols])
     sig = res.signals("none-s0")
     assert any(k.endswith(".t") for k in sig)
+
+
+def test_seeds_beyond_the_seed_range_are_one_line_and_create_nothing(capsys, tmp_path):
+    out = tmp_path / "never"
+    assert main([HEGYI, *FAST, "--seed", str(2**32 - 2), "--runs", "3", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "must lie in 0..4294967295" in err and err.count("\n") == 1
+    assert not out.exists()
