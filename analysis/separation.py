@@ -61,6 +61,9 @@ class SeparationMonitor(Component):
         los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
         goal_radius_m: float = Field(5.0, gt=0.0)  # [m]
         backend: str | None = "air"  # air backend holding the goals (None: no goal metrics)
+        track_period_s: float | None = Field(1.0, gt=0.0, le=3600.0)  # [s] between recorded positions
+        # (signals track_e_<id>, track_n_<id>, track_u_<id> [m] ENU, for the report's trajectory plots;
+        # None: none recorded)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -70,6 +73,7 @@ class SeparationMonitor(Component):
         self.min_h = self.min_3d = np.inf
         self.min_v_close = np.inf  # [m] min vertical separation among pairs closer than nmac_h_m
         self.los_events = self.nmac_events = 0  # pair-encounters entering LoS / NMAC (whole run)
+        self._next_track_s = 0.0  # [s] next time positions are recorded
 
     # ---- pair geometry ---------------------------------------------------------------------------
     def _init_pairs(self, ids: np.ndarray, kind: np.ndarray) -> None:
@@ -104,6 +108,7 @@ class SeparationMonitor(Component):
             self._init_pairs(ids, s.kind[air])
         prev = self.last_pos
         self._progress(ctx.t, pos)
+        self._record_tracks(ctx, ids, pos)
         if len(self.i) == 0:
             return
         d = pos[self.i] - pos[self.j]
@@ -130,6 +135,17 @@ class SeparationMonitor(Component):
         ctx.signals.record("min_sep_3d", ctx.t, min_3d)
         self.in_los = self._count(ctx, in_los, now_los, self.in_los, self.pair_los, "los", dh, dv, at_los)
         self.in_nmac = self._count(ctx, in_nmac, now_nmac, self.in_nmac, self.pair_nmac, "nmac", dh, dv, at_nmac)
+
+    def _record_tracks(self, ctx: RunContext, ids: np.ndarray, pos: np.ndarray) -> None:
+        """Every ``track_period_s``: each aircraft's ENU position, as signals for trajectory plots."""
+        period = self.params.track_period_s
+        if period is None or ctx.t + 1e-9 < self._next_track_s:
+            return
+        self._next_track_s = ctx.t + period
+        for vid, (e, n, u) in zip(ids, pos):
+            ctx.signals.record(f"track_e_{vid}", ctx.t, float(e))
+            ctx.signals.record(f"track_n_{vid}", ctx.t, float(n))
+            ctx.signals.record(f"track_u_{vid}", ctx.t, float(u))
 
     def _swept(self, prev: np.ndarray, pos: np.ndarray, d1: np.ndarray) -> tuple | None:
         """Minima and cylinder passes of the straight-line motion from ``prev`` to ``pos``; None when

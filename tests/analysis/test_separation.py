@@ -105,3 +105,14 @@ def test_time_to_goal_and_path_ratio() -> None:
     assert m["time_to_goal_mean_s"] == pytest.approx(np.ceil((20.0 - 10.0 / np.hypot(15, 15)) / 0.1) * 0.1, abs=1e-6)
     assert m["path_ratio_mean"] == pytest.approx(2.0 * np.hypot(15.0, 15.0) / 30.0, rel=1e-6)
     assert m["goal_reached_frac"] == 1.0
+
+
+def test_tracks_are_recorded_every_track_period_at_the_true_positions() -> None:
+    _, ctx = run_pair((20.0, 5.0), duration_s=5.0, track_period_s=1.0)
+    t, e = ctx.signals.get("track_e_a")
+    _, n = ctx.signals.get("track_n_b")
+    _, u = ctx.signals.get("track_u_b")
+    assert np.allclose(t, [0.1, 1.1, 2.1, 3.1, 4.1])  # the first tick after each period
+    assert np.allclose(e, -100.0 + 10.0 * t) and np.allclose(n, 20.0) and np.allclose(u, 55.0)
+    _, ctx = run_pair((20.0, 0.0), duration_s=1.0, track_period_s=None)
+    assert not any(k.startswith("track_") for k in ctx.signals.names())
