@@ -1,6 +1,12 @@
-"""Register components by name (Gymnasium style): a scenario says ``type: alinea`` and the registry
-finds the class.  Entries are ``"module:Attr"`` strings imported lazily, so loading a scenario does not
-import CasADi or JSBSim unless the scenario uses them.  Adding a controller is one file and one line.
+"""Register components by name through Python entry points (as pytest, Gymnasium and BlueSky
+plug-ins do): a scenario says ``type: alinea`` and the registry finds the class.
+
+Every component is an entry point of the group ``corridor.components`` named ``<kind>.<type>``
+(``backend.sumo``, ``controller.ramp_alinea``, ``monitor.collisions``, ``recorder.rerun``) whose value
+is ``module:Class``.  corridor declares its own in ``pyproject.toml``; a user's package adds a
+controller, monitor or backend by declaring one in its own metadata, without editing corridor.
+Entries are read from the installed distributions' metadata once, and a class is imported only
+when a scenario uses it, so loading a scenario does not import CasADi or JSBSim unless it needs them.
 """
 
 from __future__ import annotations
@@ -8,7 +14,11 @@ from __future__ import annotations
 import importlib
 from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import cache
+from importlib.metadata import entry_points
 from typing import Any
+
+GROUP = "corridor.components"
 
 
 @dataclass(frozen=True)
@@ -18,62 +28,63 @@ class Entry:
 
     def load(self) -> Any:
         module, _, attr = self.entry_point.partition(":")
-        return getattr(importlib.import_module(module), attr)
+        obj: Any = importlib.import_module(module)
+        for part in attr.split("."):
+            obj = getattr(obj, part)
+        return obj
+
+
+@cache
+def _declared() -> dict[str, dict[str, str]]:
+    """kind -> {type name -> "module:Attr"} of every ``corridor.components`` entry point installed.
+    Two distributions declaring one name differently is an error (no silent shadowing)."""
+    out: dict[str, dict[str, str]] = {}
+    for ep in entry_points(group=GROUP):
+        kind, dot, name = ep.name.partition(".")
+        if not dot or not name:
+            raise ValueError(f"{GROUP} entry point {ep.name!r}: expected '<kind>.<name>', e.g. controller.alinea")
+        table = out.setdefault(kind, {})
+        if table.get(name, ep.value) != ep.value:
+            raise ValueError(f"{GROUP}: {kind} {name!r} is declared twice ({table[name]} and {ep.value})")
+        table[name] = ep.value
+    return out
 
 
 class Registry:
-    """A named table of lazily imported entry points."""
+    """A named table of lazily imported entry points: those declared under ``<kind>.`` in the
+    ``corridor.components`` group, plus any registered in code (tests)."""
 
     def __init__(self, what: str) -> None:
-        self.what = what
+        self.what = what  # the kind: backend, controller, monitor, recorder
         self._entries: dict[str, Entry] = {}
 
+    def _all(self) -> dict[str, Entry]:
+        declared = {n: Entry(n, v) for n, v in _declared().get(self.what, {}).items()}
+        return {**declared, **self._entries}
+
     def register(self, name: str, entry_point: str) -> None:
-        if name in self._entries and self._entries[name].entry_point != entry_point:
+        known = self._all().get(name)
+        if known is not None and known.entry_point != entry_point:
             raise ValueError(f"{self.what} {name!r} is already registered")
         self._entries[name] = Entry(name, entry_point)
 
     def get(self, name: str) -> Any:
         try:
-            return self._entries[name].load()
+            entry = self._all()[name]
         except KeyError:
             raise KeyError(f"unknown {self.what} {name!r}; known: {', '.join(sorted(self))}") from None
+        return entry.load()
 
     def __contains__(self, name: object) -> bool:
-        return name in self._entries
+        return name in self._all()
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._entries)
+        return iter(self._all())
 
 
-# The component tables of corridor.  Each entry point is a class with a nested pydantic ``Params``
-# model (validated at scenario load) and a constructor ``cls(name, params, scenario)``.
+# The component tables.  Each entry point is a class with a nested pydantic ``Params`` model
+# (validated at scenario load) and a constructor ``cls(name, params, scenario)``.
 BACKENDS = Registry("backend")
 CONTROLLERS = Registry("controller")
 MONITORS = Registry("monitor")
-
-CONTROLLERS.register("none", "corridor.engine:NoController")
-CONTROLLERS.register("v2x_merging", "corridor.controllers.v2x_merging:V2XMerging")
-
-MONITORS.register("collisions", "corridor.analysis.monitors:CollisionMonitor")
-MONITORS.register("surrogate_safety", "corridor.traffic.monitors:SurrogateSafety")
-MONITORS.register("traffic_kpis", "corridor.traffic.monitors:TrafficKpis")
-
-BACKENDS.register("jsbsim_fleet", "corridor.vehicles.air_backend:AirBackend")
-BACKENDS.register("mavlink_link", "corridor.vehicles.air_link:AirLink")
-CONTROLLERS.register("uav_none", "corridor.controllers.uav_avoidance:UavNone")
-CONTROLLERS.register("potential_field", "corridor.controllers.uav_avoidance:PotentialFieldController")
-CONTROLLERS.register("control_tube", "corridor.controllers.uav_avoidance:ControlTubeController")
-MONITORS.register("uav_separation", "corridor.analysis.separation:SeparationMonitor")
-CONTROLLERS.register("ramp_none", "corridor.controllers.ramp_control:RampNone")
-CONTROLLERS.register("ramp_alinea", "corridor.controllers.ramp_control:RampAlinea")
-CONTROLLERS.register("ramp_mpc", "corridor.controllers.ramp_control:RampMpc")
-MONITORS.register("ramp_detectors", "corridor.traffic.detectors:RampDetectors")
-MONITORS.register("ramp_kpis", "corridor.traffic.ramp_monitors:RampKpis")
-BACKENDS.register("ego_bicycle", "corridor.vehicles.ego_bicycle:EgoBicycle")
-CONTROLLERS.register("overtaking", "corridor.controllers.overtaking_sumo:OvertakingSumo")
-CONTROLLERS.register("ramp_fixed", "corridor.controllers.ramp_control:RampFixed")
-BACKENDS.register("metanet", "corridor.controllers.metanet_backend:MetanetBackend")
-CONTROLLERS.register("metanet_none", "corridor.controllers.metanet_backend:MetanetNone")
-CONTROLLERS.register("metanet_alinea", "corridor.controllers.metanet_backend:MetanetAlinea")
-CONTROLLERS.register("metanet_mpc", "corridor.controllers.metanet_backend:MetanetMpc")
+RECORDERS = Registry("recorder")  # cls(name, scenario, path): record a run to a file (Rerun)

@@ -18,7 +18,7 @@ import numpy as np
 
 from corridor.engine import Component, RunContext, Simulation, path_inside
 from corridor.errors import CorridorError
-from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
+from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
@@ -66,9 +66,7 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
     for name, spec in {**DEFAULT_MONITORS, **sc.monitors}.items():
         comps.append(make_component("monitors", name, spec, sc))
     if rerun_path:
-        from corridor.analysis.rerun_log import RerunRecorder
-
-        comps.append(RerunRecorder("rerun", sc, rerun_path))
+        comps.append(RECORDERS.get("rerun")("rerun", sc, rerun_path))
     ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=workdir,
                      out_dir=Path(out_dir) if out_dir else None, run_id=run_id)
     return Simulation(ctx, comps)
