@@ -25,6 +25,7 @@ import base64
 import html
 import io
 import math
+from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +33,11 @@ import numpy as np
 import pandas as pd
 
 from corridor.analysis.stats import clopper_pearson, mean_ci
+from corridor.variants import collisions_apply, has_entities, variant_scenarios
+from corridor.variants import component_class as _component_class
+from corridor.variants import registries as _registries
+
+__all__ = ["collisions_apply", "has_entities", "variant_scenarios", "write_report", "write_batch_report"]
 
 CSS = """body{font-family:system-ui,sans-serif;margin:2em auto;max-width:1100px;color:#222}
 table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}
@@ -42,65 +48,6 @@ NON_METRICS = {"run_id", "scenario", "variant", "seed", "status", "error", "trac
 
 
 ENTITY_FREE_REASON = "no vehicles: none of its backends puts entities in the world snapshot"
-
-
-def _registries() -> dict[str, Any]:
-    from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
-
-    return {"backends": BACKENDS, "controllers": CONTROLLERS, "monitors": MONITORS}
-
-
-def variant_scenarios(scenario: Any) -> dict[str, Any]:
-    """Each sweep variant's validated scenario (base + that variant's overrides, as a run builds it;
-    draws not applied); None for a variant that does not validate, or when ``scenario`` is not a
-    corridor ``Scenario`` (then nothing is left out of the report)."""
-    sweep = getattr(scenario, "sweep", None)
-    if not isinstance(sweep, dict) or not hasattr(scenario, "model_dump"):
-        return {}
-    from corridor.errors import CorridorError
-    from corridor.scenario import apply_overrides, validate
-
-    base = scenario.model_dump(exclude_unset=True)
-    out: dict[str, Any] = {}
-    for v, over in sweep.items():
-        try:
-            out[str(v)] = validate(apply_overrides(base, over), f"variant {v}")
-        except (CorridorError, ValueError, TypeError):
-            out[str(v)] = None
-    return out
-
-
-def _component_class(table: str, spec: Any) -> Any:
-    try:
-        return _registries()[table].get(spec.type)
-    except Exception:  # noqa: BLE001 - an unknown or unimportable class: treat as using everything
-        return None
-
-
-def has_entities(vsc: Any) -> bool:
-    """Whether a variant's scenario has anything a collision monitor can see: a road, or a backend
-    whose class contributes entities to the world snapshot (unknown classes count as having some)."""
-    if vsc is None or getattr(vsc, "road", None) is not None:
-        return True
-    from corridor.engine import Backend
-
-    for spec in vsc.backends.values():
-        cls = _component_class("backends", spec)
-        if cls is None or getattr(cls, "snapshot_part", None) is not Backend.snapshot_part:
-            return True
-    return False
-
-
-def collisions_apply(df: pd.DataFrame, scenario: Any) -> bool:
-    """Show collision probabilities?  Not when the rows have no ``collisions`` column, nor when no
-    variant that ran has entities (a macroscopic model); always when some run reported one."""
-    if "collisions" not in df:
-        return False
-    if (pd.to_numeric(df["collisions"], errors="coerce").fillna(0) > 0).any():
-        return True
-    scen = variant_scenarios(scenario)
-    ran = [v for v in dict.fromkeys(df["variant"].astype(str)) if v in scen] if "variant" in df else []
-    return not ran or any(has_entities(scen[v]) for v in ran)
 
 
 def _channel_refs(value: Any, key: str = "") -> set[str]:
@@ -416,3 +363,15 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     path.write_text(f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(scenario.name)}"
                     f"</title><style>{CSS}</style></head><body>{''.join(body)}</body></html>")
     return path
+
+
+SECTIONS_GROUP = "corridor.report_sections"  # entry points: fn(out_dir, df, scenario, scenario_path) -> [html]
+
+
+def write_batch_report(df: pd.DataFrame, scenario: Any, out_dir: Path, scenario_path: Path | str | None) -> Path:
+    """The ``html`` entry of ``corridor.reports``: ``report.html`` with the sections of every
+    ``corridor.report_sections`` entry point (in the order of their names) after the distributions."""
+    sections: list[str] = []
+    for ep in sorted(entry_points(group=SECTIONS_GROUP), key=lambda e: e.name):
+        sections += ep.load()(out_dir, df, scenario, scenario_path)
+    return write_report(df, scenario, Path(out_dir) / "report.html", extra_sections=sections)

@@ -95,8 +95,7 @@ def _run_locked(sc: Scenario, raw: dict[str, Any], path: Path, out: Path, runs: 
     batch.run_batch(plan, store, executor, workers, address, progress=progress)
     df = store.compact(plan.rank)
     if report:
-        from corridor.analysis.report import write_report
-        from corridor.analysis.report_series import report_sections
+        from corridor.reports import write_reports
 
-        write_report(df, sc, out / "report.html", extra_sections=report_sections(out, df, sc, path))
+        write_reports(df, sc, out, path)
     return BatchResult(df, out, sc)

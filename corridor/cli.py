@@ -135,8 +135,8 @@ def _main(args: argparse.Namespace) -> int:
               report=not args.no_report, rerun=args.rerun, rerun_run=args.rerun_run)
     df, out = res.rows, res.out
     if not args.quiet:
-        from corridor.analysis.report import collisions_apply
         from corridor.summary import print_summary
+        from corridor.variants import collisions_apply
 
         print_summary(df, res.scenario.metrics, collisions=collisions_apply(df, res.scenario))
         print(f"\nresults: {out / 'runs.parquet'}" + ("" if args.no_report else f"\nreport:  {out / 'report.html'}"))

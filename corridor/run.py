@@ -22,6 +22,8 @@ from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
+# added last when the scenario declares ``specs``: evaluates them on the recorded signals at the end
+SPEC_MONITOR = ("stl_specs", ComponentSpec(type="stl_specs"))
 
 
 @dataclass(frozen=True)
@@ -67,57 +69,11 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
         comps.append(make_component("monitors", name, spec, sc))
     if rerun_path:
         comps.append(RECORDERS.get("rerun")("rerun", sc, rerun_path))
+    if sc.specs:  # last: its finish() reads every signal the others recorded, their finish() included
+        comps.append(make_component("monitors", SPEC_MONITOR[0], SPEC_MONITOR[1], sc))
     ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=workdir,
                      out_dir=Path(out_dir) if out_dir else None, run_id=run_id)
     return Simulation(ctx, comps)
-
-
-def evaluate_specs(sc: Scenario, ctx: RunContext) -> dict[str, Any]:
-    """Evaluate the scenario's STL specs on the recorded signals, resampled to the base tick.
-
-    Resampling never invents a measurement. A spec's t = 0 is the first recorded sample of the signals
-    it reads (a vehicle that enters at 60 s is judged from its entry, not on its first value copied
-    back to the start of the run) and its trace ends at their last sample. Between two samples a signal
-    is interpolated linearly only when they are at most 1.5 of its recording periods (median interval)
-    apart; across a longer gap, before a signal starts and after it stops it is NaN, which the STL
-    semantics never counts as satisfied. A spec reading a signal that was never recorded is an error
-    (the run becomes an error row), never judged on zeros.
-    """
-    if not sc.specs:
-        return {}
-    from corridor.analysis.stl import STLSignalError, as_formula, evaluate_spec
-
-    def _resample(t: np.ndarray, v: np.ndarray, grid: np.ndarray, dt: float) -> np.ndarray:
-        """``v(t)`` on ``grid``: linear between samples at most 1.5 periods apart, NaN elsewhere (no data)."""
-        tol = 1e-6 * dt  # [s] a grid time this close to a sample time is that sample
-        g = np.clip(grid, t[0], t[-1])
-        inside = np.abs(g - grid) <= tol
-        if t.size == 1:
-            return np.where(inside, v[0], np.nan)
-        max_gap = 1.5 * float(np.median(np.diff(t)))  # [s]
-        i = np.clip(np.searchsorted(t, g, side="right"), 1, t.size - 1)  # t[i-1] <= g <= t[i]
-        on_sample = (np.abs(g - t[i - 1]) <= tol) | (np.abs(g - t[i]) <= tol)
-        known = inside & (on_sample | (t[i] - t[i - 1] <= max_gap))
-        return np.where(known, np.interp(g, t, v), np.nan)
-
-    out: dict[str, Any] = {}
-    for spec in sc.specs:
-        formula = as_formula(spec.formula)
-        names = sorted(formula.signal_names())
-        missing = [n for n in names if n not in ctx.signals.names() or not len(ctx.signals.get(n)[0])]
-        if missing:
-            known = ", ".join(sorted(ctx.signals.names())) or "none"
-            raise STLSignalError(f"spec {spec.name!r}: signal '{missing[0]}' is not recorded (known: {known})")
-        recorded = {n: ctx.signals.get(n) for n in names}
-        start = min((float(t[0]) for t, _ in recorded.values()), default=0.0)
-        end = max((float(t[-1]) for t, _ in recorded.values()), default=sc.duration)
-        grid = start + sc.dt * np.arange(int(np.floor((end - start) / sc.dt + 1e-6)) + 1)
-        signals = {n: _resample(t, v, grid, sc.dt) for n, (t, v) in recorded.items()} or {"t": grid}
-        r = evaluate_spec(formula, signals, sc.dt)
-        out[f"spec.{spec.name}.satisfied"] = bool(r.satisfied)
-        out[f"spec.{spec.name}.space"] = float(r.space)
-        out[f"spec.{spec.name}.time"] = float(r.time)
-    return out
 
 
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
@@ -125,7 +81,6 @@ def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = 
     with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
         metrics = sim.run()
-    metrics.update(evaluate_specs(sc, sim.ctx))
     for kind in ("mode", "fallback"):
         metrics[f"events_{kind}"] = sim.ctx.events.counts.get(kind, 0)
     if out_dir and sc.outputs.signals:

@@ -16,7 +16,7 @@ from typing import TextIO
 import numpy as np
 import pandas as pd
 
-from corridor.analysis.stats import clopper_pearson
+from corridor.stats import clopper_pearson
 
 NOTE = "metrics: mean ± standard deviation over the variant's ok runs"
 NOTE_COLLISIONS = "; P(collision): ok runs with a collision / ok runs [exact (Clopper-Pearson) 95 % interval]"

@@ -18,12 +18,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from corridor.analysis.spec_monitor import evaluate_specs
 from corridor.analysis.stl import STLSignalError
 from corridor.controllers.bicycle import BicycleParams
 from corridor.controllers.overtaking import box_clearance
 from corridor.controllers.overtaking_mpc import OvertakingMpc
 from corridor.engine import Signals
-from corridor.run import evaluate_specs, simulate
+from corridor.run import simulate
 from corridor.scenario import load
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "overtaking.yaml"
