@@ -8,14 +8,14 @@ and give identical rows.
 
 from __future__ import annotations
 
-import multiprocessing as mp
 import os
+import pickle
 import signal
+import subprocess
 import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from multiprocessing.connection import Connection
+from dataclasses import dataclass, field
 from multiprocessing.connection import wait as mp_wait
-from multiprocessing.process import BaseProcess
 from typing import Any
 
 import numpy as np
@@ -109,10 +109,40 @@ def expand(sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int 
 WORKER_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _child(spec: RunSpec, conn: Connection) -> None:
-    """A worker process: one run, its row sent back through ``conn``."""
-    conn.send(execute(spec))
-    conn.close()
+@dataclass
+class _Worker:
+    """One run in its own ``python -m corridor.worker`` process; its row arrives on ``fd``."""
+
+    proc: subprocess.Popen
+    spec: RunSpec
+    fd: int
+    data: bytearray = field(default_factory=bytearray)
+
+
+def _start(spec: RunSpec) -> _Worker:
+    r, w = os.pipe()
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "corridor.worker", str(w), str(os.getpid())], stdin=subprocess.PIPE,
+                                pass_fds=(w,), start_new_session=True)  # own session: no terminal SIGINT
+    except BaseException:
+        os.close(r)
+        raise
+    finally:
+        os.close(w)
+    try:
+        os.set_blocking(r, False)
+        assert proc.stdin is not None
+        try:
+            proc.stdin.write(pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL))
+            proc.stdin.close()
+        except OSError:  # the worker died at once; its row says so
+            pass
+    except BaseException:  # e.g. Ctrl-C right now: a worker in its own session must not outlive us
+        proc.kill()
+        proc.wait()
+        os.close(r)
+        raise
+    return _Worker(proc, spec, r)
 
 
 def _died_row(spec: RunSpec, exitcode: int | None) -> dict[str, Any]:
@@ -121,58 +151,56 @@ def _died_row(spec: RunSpec, exitcode: int | None) -> dict[str, Any]:
             "status": "error", "error": f"worker process died ({how}) before returning a row"}
 
 
+def _finish(w: _Worker) -> dict[str, Any]:
+    os.close(w.fd)
+    code = w.proc.wait()
+    try:
+        row = pickle.loads(bytes(w.data)) if w.data else None
+    except Exception:  # a truncated row: the worker died while writing it
+        row = None
+    return row if isinstance(row, dict) else _died_row(w.spec, code)
+
+
 def _local(specs: Iterable[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
-    """At most ``workers`` runs at once, each in its own fresh ``spawn`` process (libsumo allows one
+    """At most ``workers`` runs at once, each in a fresh process of its own (libsumo allows one
     simulation per process).  A worker that dies (segfault, kill -9) costs its own row only.  Workers
-    start with SIGINT ignored: Ctrl-C reaches the parent, which stops them (see ``run_batch``)."""
-    for var in WORKER_THREAD_ENV:  # spawned workers inherit the environment and read it at import
+    run in sessions of their own: a terminal's Ctrl-C reaches only the parent, which stops them (see
+    ``run_batch``)."""
+    for var in WORKER_THREAD_ENV:  # workers inherit the environment and read it at import
         os.environ.setdefault(var, "1")
-    ctx = mp.get_context("spawn")  # no inherited libsumo/CasADi state; same behaviour on every OS
     queue = iter(specs)
-    running: dict[Connection, tuple[BaseProcess, RunSpec]] = {}
+    running: dict[int, _Worker] = {}
     try:
         while True:
             while len(running) < workers and (spec := next(queue, None)) is not None:
-                recv, send = ctx.Pipe(duplex=False)
-                proc = ctx.Process(target=_child, args=(spec, send), name=f"corridor-{spec.run_id}")
-                old = signal.signal(signal.SIGINT, signal.SIG_IGN)  # inherited by the new interpreter
-                try:
-                    proc.start()
-                finally:
-                    signal.signal(signal.SIGINT, old)
-                send.close()
-                running[recv] = (proc, spec)
+                w = _start(spec)
+                running[w.fd] = w
             if not running:
                 return
-            sentinels = {proc.sentinel: conn for conn, (proc, _) in running.items()}
-            for ready in mp_wait([*running, *sentinels]):
-                conn = sentinels.get(ready, ready)
-                if conn not in running:
+            for fd in mp_wait(list(running)):
+                w = running[fd]
+                chunk = os.read(fd, 1 << 20)
+                if chunk:
+                    w.data += chunk
                     continue
-                proc, spec = running.pop(conn)
-                row = None
-                try:
-                    if conn.poll():
-                        row = conn.recv()
-                except (EOFError, OSError):
-                    row = None
-                conn.close()
-                proc.join()
-                yield row if row is not None else _died_row(spec, proc.exitcode)
+                del running[fd]  # end of file: the worker is done (or dead)
+                yield _finish(w)
     finally:
         _stop(running)
 
 
-def _stop(running: dict[Connection, tuple[BaseProcess, RunSpec]]) -> None:
+def _stop(running: dict[int, _Worker]) -> None:
     """Terminate runs still in progress (interrupt, write failure): SIGTERM, then SIGKILL."""
-    for proc, _ in running.values():
-        proc.terminate()
-    for conn, (proc, _) in running.items():
-        proc.join(3.0)
-        if proc.is_alive():
-            proc.kill()
-            proc.join()
-        conn.close()
+    for w in running.values():
+        if w.proc.poll() is None:
+            w.proc.terminate()
+    for w in running.values():
+        try:
+            w.proc.wait(3.0)
+        except subprocess.TimeoutExpired:
+            w.proc.kill()
+            w.proc.wait()
+        os.close(w.fd)
     running.clear()
 
 

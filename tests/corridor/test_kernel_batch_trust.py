@@ -143,9 +143,9 @@ def test_run_plan_is_lazy_and_ranks_run_ids():
         ["sumo_default-s0", "v2x_fifo-s0", "v2x_cps-s0", "sumo_default-s1", "v2x_fifo-s1", "v2x_cps-s1"]
 
 
-def _start(out: Path, runs: int) -> subprocess.Popen:
+def _start(out: Path, runs: int, *extra: str) -> subprocess.Popen:
     args = [sys.executable, "-m", "corridor.cli", MERGING, *SLOWISH, "--out", str(out), "--runs", str(runs),
-            "--workers", "2"]
+            "--workers", "2", *extra]
     return subprocess.Popen(args, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
 
@@ -159,7 +159,7 @@ def _wait_for(cond, timeout: float = 300) -> None:
 
 def _workers(pid: int) -> list[int]:
     kids = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()
-    return [int(k) for k in kids if b"spawn_main" in Path(f"/proc/{k}/cmdline").read_bytes()]
+    return [int(k) for k in kids if b"corridor.worker" in Path(f"/proc/{k}/cmdline").read_bytes()]
 
 
 def test_a_killed_worker_costs_its_own_row_only(tmp_path):
@@ -211,3 +211,14 @@ def test_seeds_beyond_the_seed_range_are_one_line_and_create_nothing(capsys, tmp
     err = capsys.readouterr().err
     assert "must lie in 0..4294967295" in err and err.count("\n") == 1
     assert not out.exists()
+
+
+def test_workers_die_with_a_killed_parent(tmp_path):
+    out = tmp_path / "orphans"
+    proc = _start(out, 4, "--set", "duration=600")  # a run takes far longer than the 10 s allowed below
+    _wait_for(lambda: len(_workers(proc.pid)) == 2)
+    workers = _workers(proc.pid)
+    os.killpg(proc.pid, signal.SIGKILL)  # the parent's group only: workers have sessions of their own
+    proc.wait()
+    _wait_for(lambda: not any(Path(f"/proc/{w}").exists() and b"corridor.worker" in
+                              Path(f"/proc/{w}/cmdline").read_bytes() for w in workers), timeout=10)
