@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from corridor.analysis.stats import clopper_pearson, mean_ci
+from corridor.traffic.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
 from corridor.variants import component_class as _component_class
 from corridor.variants import registries as _registries
@@ -96,7 +97,7 @@ def draw_not_applicable(vsc: Any, path: str) -> str | None:
     if head == "channels" and len(parts) > 1:
         return None if parts[1] in channels_used(vsc) else f"no component uses channel {parts[1]}"
     if head == "road":
-        return None if vsc.road is not None else "no road"
+        return None if road_spec(vsc) is not None else "no road"
     if head in ("controllers", "backends", "monitors") and len(parts) > 1:
         spec = getattr(vsc, head).get(parts[1])
         if spec is None:

@@ -288,7 +288,9 @@ def merge_loss_section(df: pd.DataFrame) -> str:
 
 def ramp_storage_veh(scenario: Any) -> float | None:
     """On-ramp storage [veh] of a beltway scenario (as the network builder computes it), else None."""
-    road = getattr(scenario, "road", None)
+    from corridor.traffic.road_spec import road_spec
+
+    road = road_spec(scenario)
     if road is None or road.network.type != "beltway":
         return None
     from corridor.traffic.net_beltway import VEHICLE_SPACING_M, BeltwayParams

@@ -14,6 +14,7 @@ from pathlib import Path
 from corridor.engine import RunContext
 from corridor.run import simulate
 from corridor.scenario import load
+from corridor.traffic.road_spec import road_spec
 from corridor.traffic.sumo_backend import SumoBackend
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -27,11 +28,11 @@ def bare_libsumo(sc, seed: int, read_state: bool = False) -> tuple[float, int]:
     import numpy as np
 
     with tempfile.TemporaryDirectory() as tmp:
-        backend = SumoBackend("sumo", sc)
+        backend = SumoBackend("road", road_spec(sc), sc)
         ctx = RunContext(run_seed=seed, dt=sc.dt, duration=sc.duration, scenario=sc, workdir=Path(tmp))
         routes = backend._write_demand(ctx)
         libsumo.start(backend._args(routes, 12345, sc.duration))
-        steps = round(sc.duration / sc.road.sumo.step_length)
+        steps = round(sc.duration / backend.road.sumo.step_length)
         vehicle_steps = 0
         t0 = time.perf_counter()
         ls = libsumo

@@ -41,6 +41,7 @@ from corridor.traffic.meters import (
 )
 from corridor.traffic.monitors import road_backend
 from corridor.traffic.ramp_monitors import find_detectors
+from corridor.traffic.road_spec import road_spec
 
 
 class RampParams(BaseModel):
@@ -279,7 +280,7 @@ class DemandForecast:
     """
 
     def __init__(self, scenario: Any, n: int) -> None:
-        d = scenario.road.demand
+        d = road_spec(scenario).demand
         self.profiles: list[tuple[int, np.ndarray]] = []
         for fl in d.flows.values():
             parsed = parse_od_route(fl.route)
@@ -373,8 +374,9 @@ class RampMpc(RampControl):
                                a=fd["a"], rho_max=fd["rho_max"], ramp_cap_vph=p.open_rate_vph,
                                ramp_storage_veh=storage, compliance=0.0)
         sc = ctx.scenario
-        self.choices = choice_set(od_by_loop(sc.road.demand.flows), n, p.guidance_extra_hops)
-        net = beltway(layout, od_matrix(sc.road.demand.flows, n), MetanetParams(step_h=p.model_step_s / 3600.0))
+        flows = road_spec(sc).demand.flows
+        self.choices = choice_set(od_by_loop(flows), n, p.guidance_extra_hops)
+        net = beltway(layout, od_matrix(flows, n), MetanetParams(step_h=p.model_step_s / 3600.0))
         self.net = with_guidance_bounds(net, self.choices, p.compliance if p.guidance else 0.0)
         self.m_seg = self.net.n_seg // (2 * n)
         self.lanes = int(lm["lanes"])

@@ -56,10 +56,6 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
     """Assemble backends, controllers, monitors and recorders for one run; components write their
     files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None)."""
     comps: list[Component] = []
-    if sc.road is not None:
-        from corridor.traffic.sumo_backend import SumoBackend
-
-        comps.append(SumoBackend("sumo", sc))
     for name, spec in sc.backends.items():
         comps.append(make_component("backends", name, spec, sc))
     for name, spec in sc.controllers.items():

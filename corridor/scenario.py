@@ -14,7 +14,7 @@ import math
 import re
 import stat
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
@@ -29,14 +29,11 @@ MAX_YAML_NODES = 200_000  # YAML nodes after alias expansion (a "billion laughs"
 MAX_STEPS = 100_000_000  # duration / dt
 MAX_DURATION_S = 30 * 86400.0  # 30 days
 MIN_DT_S, MAX_DT_S = 1e-3, 10.0
-MAX_FLOW_VPH = 20_000.0  # per flow (scale included); a 10-lane freeway carries ~ 22 000 veh/h
 MAX_SEED = 2**32 - 1  # numpy SeedSequence / SUMO --seed
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # scenario and variant names become file names
-# SUMO options that change the simulation but write no file (anything else is refused: an option such
-# as --fcd-output PATH would overwrite PATH)
-SUMO_ALLOWED_OPTIONS = ("--lateral-resolution", "--max-depart-delay", "--ignore-junction-blocker",
-                        "--step-method.ballistic", "--extrapolate-departpos")
-SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
+# Top-level shorthands of the loader: ``KEY: X`` is ``backends.KEY = {type: TYPE, params: X}``.  Only a
+# name table (no import): ``road: {...}`` is the SUMO backend entry ``backends.road`` (type ``sumo``).
+SHORTHANDS: dict[str, str] = {"road": "sumo"}
 
 
 class Strict(BaseModel):
@@ -49,135 +46,24 @@ def _key(name: Any) -> str:
     return text if len(text) <= 40 and text.isprintable() else clip(text, 40)
 
 
+key_text = _key  # for components' own params validators
+
+
+class NestedParamsError(ValueError):
+    """Raised by a component's params validator that checked a free-form mapping (``where``, e.g.
+    ``params`` of a network) against another model: the loader reports the inner field's path
+    (``road.network.params.lanes: must be >= 1``) and the hints of ``model``."""
+
+    def __init__(self, where: str, error: ValidationError, model: type[BaseModel]) -> None:
+        super().__init__(str(error).splitlines()[0])
+        self.where, self.error, self.model = where, error, model
+
+
 def _check_name(value: str, what: str) -> str:
     if not NAME_PATTERN.fullmatch(value) or ".." in value:
         raise ValueError(f"{what} {clip(value)} must be 1-64 letters, digits, '_', '-' or '.', start with a "
                          "letter or digit and not contain '..' (it names files)")
     return value
-
-
-# ---------------------------------------------------------------- road
-class NetworkSpec(Strict):
-    type: str = "highway_onramp"  # a builder of corridor.traffic.network.BUILDERS
-    params: dict[str, Any] = Field(default_factory=dict)
-
-
-class VehicleTypeSpec(Strict):
-    """A SUMO vehicle type; units SI.  ``lc`` holds lane-change model attributes (lcCooperative, ...)."""
-
-    car_following: Literal["Krauss", "IDM", "EIDM", "ACC", "CACC"] = "Krauss"
-    accel: float = Field(2.6, gt=0)  # [m/s²]
-    decel: float = Field(4.5, gt=0)  # [m/s²] comfortable
-    emergency_decel: float = Field(9.0, gt=0)  # [m/s²]
-    sigma: float = Field(0.5, ge=0, le=1)  # driver imperfection
-    tau: float = Field(1.0, gt=0)  # [s] desired headway
-    length: float = Field(5.0, gt=0)  # [m]
-    width: float = Field(1.8, gt=0)  # [m]
-    min_gap: float = Field(2.5, ge=0)  # [m]
-    max_speed: float = Field(50.0, gt=0)  # [m/s]
-    speed_factor: float = Field(1.0, gt=0)
-    speed_dev: float = Field(0.1, ge=0)
-    lc: dict[str, float] = Field(default_factory=dict)
-    extra: dict[str, str | float] = Field(default_factory=dict)  # any other SUMO vType attribute
-
-
-class FlowSpec(Strict):
-    route: str  # a route name of the network (e.g. main, ramp)
-    vtype: str = "car"
-    flow_vph: float | None = Field(None, ge=0, le=MAX_FLOW_VPH, json_schema_extra={"unit": "veh/h"})  # constant rate
-    profile: list[tuple[float, float]] | None = None  # [(t_s, veh/h)], piecewise linear
-    arrivals: Literal["poisson", "uniform"] = "poisson"
-    connected_share: float = Field(0.0, ge=0, le=1)  # share of connected/automated vehicles
-    depart_lane: str = "best"
-    depart_speed: str = "max"
-
-    @model_validator(mode="after")
-    def _one_rate(self) -> FlowSpec:
-        if (self.flow_vph is None) == (self.profile is None):
-            raise ValueError("give exactly one of flow_vph or profile")
-        if self.profile is not None:
-            ts = [p[0] for p in self.profile]
-            if any(b < a for a, b in zip(ts, ts[1:])) or any(p[1] < 0 for p in self.profile):
-                raise ValueError("profile times must increase and rates be >= 0")
-            if any(p[1] > MAX_FLOW_VPH for p in self.profile):
-                raise ValueError(f"profile rates must be <= {MAX_FLOW_VPH:.0f} veh/h")
-        return self
-
-    def max_rate(self) -> float:
-        return self.flow_vph if self.profile is None else max((r for _, r in self.profile), default=0.0)
-
-    def rate_profile(self, duration_s: float, scale: float) -> list[tuple[float, float]]:
-        if self.profile is None:
-            return [(0.0, self.flow_vph * scale), (duration_s, self.flow_vph * scale)]
-        return [(t, r * scale) for t, r in self.profile]
-
-
-class DemandSpec(Strict):
-    vehicle_types: dict[str, VehicleTypeSpec] = Field(default_factory=lambda: {"car": VehicleTypeSpec()})
-    flows: dict[str, FlowSpec] = Field(default_factory=dict)
-    scale: float = Field(1.0, ge=0)  # multiplies every flow (handy for randomize)
-
-    @model_validator(mode="after")
-    def _types_exist(self) -> DemandSpec:
-        for name, fl in self.flows.items():
-            if "." in name:
-                raise ValueError(f"flows.{_key(name)}: flow names cannot contain '.'")
-            if fl.vtype not in self.vehicle_types:
-                raise ValueError(f"flows.{_key(name)}.vtype: unknown vehicle type {clip(fl.vtype)}")
-            if fl.max_rate() * self.scale > MAX_FLOW_VPH:
-                raise ValueError(f"flows.{_key(name)}: rate x scale = {fl.max_rate() * self.scale:.4g} veh/h, "
-                                 f"must be <= {MAX_FLOW_VPH:.0f} veh/h")
-        return self
-
-
-class SumoOptions(Strict):
-    step_length: float = Field(0.1, ge=MIN_DT_S, le=MAX_DT_S, json_schema_extra={"unit": "s"})
-    collision_action: Literal["warn", "teleport", "remove", "none"] = "warn"
-    collision_check_junctions: bool = True
-    time_to_teleport: float = 300.0  # [s]; < 0 disables
-    extra_args: list[str] = Field(default_factory=list)  # SUMO_ALLOWED_OPTIONS / _PREFIXES only
-
-    @field_validator("extra_args", mode="before")
-    @classmethod
-    def _numbers_as_text(cls, args: Any) -> Any:  # [--lateral-resolution, 0.8]: YAML reads 0.8 as a number
-        if isinstance(args, list):
-            return [str(a) if isinstance(a, int | float) and not isinstance(a, bool) else a for a in args]
-        return args
-
-    @field_validator("extra_args")
-    @classmethod
-    def _no_output_options(cls, args: list[str]) -> list[str]:
-        expect_value = False
-        for arg in args:
-            is_option = arg.startswith("-") and not _is_number(arg)
-            if not is_option:
-                if not expect_value:
-                    raise ValueError(f"{clip(arg)} is not an option (give ['--option', 'value', ...])")
-                expect_value = False
-                continue
-            name = arg.split("=", 1)[0]
-            ok = name in SUMO_ALLOWED_OPTIONS or (
-                name.startswith(SUMO_ALLOWED_PREFIXES) and not name.endswith(("-output", "-log", ".output")))
-            if not ok:
-                allowed = ", ".join((*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
-                raise ValueError(f"{clip(name, 30)} may write files; allowed: {allowed}")
-            expect_value = "=" not in arg
-        return args
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-class RoadSpec(Strict):
-    backend: Literal["sumo"] = "sumo"
-    network: NetworkSpec = Field(default_factory=NetworkSpec)
-    demand: DemandSpec = Field(default_factory=DemandSpec)
-    sumo: SumoOptions = Field(default_factory=SumoOptions)
 
 
 # ---------------------------------------------------------------- components, specs, batches
@@ -258,8 +144,7 @@ class Scenario(Strict):
     dt: float = Field(0.1, ge=MIN_DT_S, le=MAX_DT_S, json_schema_extra={"unit": "s"})  # base tick
     warmup: float = Field(0.0, ge=0)  # [s] metrics ignore vehicles departing before this
     origin: Origin = Field(default_factory=Origin)
-    road: RoadSpec | None = None
-    backends: dict[str, ComponentSpec] = Field(default_factory=dict)  # more dynamics (e.g. jsbsim_fleet)
+    backends: dict[str, ComponentSpec] = Field(default_factory=dict)  # dynamics (sumo, jsbsim_fleet, ...)
     controllers: dict[str, ComponentSpec] = Field(default_factory=dict)
     monitors: dict[str, ComponentSpec] = Field(default_factory=dict)
     channels: dict[str, ChannelConfig] = Field(default_factory=dict)
@@ -430,7 +315,7 @@ def read_yaml(path: Path) -> dict[str, Any]:
         raise ScenarioError(f"{_show(path)}: invalid YAML: {_yaml_problem(exc)}") from None
     if not isinstance(data, dict):
         raise ScenarioError(f"{_show(path)}: a scenario must be a YAML mapping, got {type(data).__name__}")
-    fields = [*Scenario.model_fields, "extends"]
+    fields = [*Scenario.model_fields, *SHORTHANDS, "extends"]
     for key in data:  # a mapping of other keys is some other file (/etc/shadow is one): do not echo it
         if key in fields or isinstance(key, str) and difflib.get_close_matches(key[:80], fields, n=1, cutoff=0.75):
             continue  # a field, or a typo of one that validation names with a hint
@@ -490,7 +375,7 @@ def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
     Below ``randomize`` and ``sweep.<variant>`` the keys are dotted paths themselves: the rest of the
     path is matched against them (``sweep.v2x_cps.controllers.merge.params.policy`` sets ``policy`` in
     the variant's ``controllers.merge`` entry) or becomes a new key (``sweep.v2x_cps.duration``)."""
-    keys = dotted.split(".")
+    keys = respell(data, dotted.split("."))
     if len(keys) > MAX_YAML_DEPTH:
         raise ScenarioError(f"{clip(dotted)}: more than {MAX_YAML_DEPTH} levels")
     node: Any = data
@@ -526,6 +411,53 @@ def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
                 node[key] = {}
             node = node[key]
         i += 1
+
+
+def respell(data: Any, keys: list[str]) -> list[str]:
+    """A path through a shorthand reaches the same field whichever spelling ``data`` uses:
+    ``road.demand.scale`` is ``backends.road.params.demand.scale`` when the data has no ``road:``
+    key but a ``backends.road`` entry, and the other way round."""
+    if not isinstance(data, dict):
+        return keys
+    if keys[:1] and keys[0] in SHORTHANDS and keys[0] not in data:
+        backends = data.get("backends")
+        if isinstance(backends, dict) and keys[0] in backends:
+            return ["backends", keys[0], "params", *keys[1:]]
+    if len(keys) >= 3 and keys[0] == "backends" and keys[1] in SHORTHANDS and keys[2] == "params" \
+            and isinstance(data.get(keys[1]), dict):
+        return [keys[1], *keys[3:]]
+    return keys
+
+
+def canonical_path(dotted: str) -> str:
+    """The full spelling of an override path (``road.x`` -> ``backends.road.params.x``)."""
+    keys = dotted.split(".")
+    return ".".join(["backends", keys[0], "params", *keys[1:]]) if keys[0] in SHORTHANDS else dotted
+
+
+def expand_shorthands(data: dict[str, Any], source: str) -> tuple[dict[str, Any], set[str]]:
+    """``road: X`` -> ``backends.road = {type: sumo, params: X}``, placed first among the backends
+    (the order components are built and stepped in).  Returns the data and the names of the
+    backend entries that came from a shorthand (their errors are reported in the shorthand)."""
+    if not any(k in data for k in SHORTHANDS):
+        return data, set()
+    data = dict(data)
+    front: dict[str, Any] = {}
+    for key, kind in SHORTHANDS.items():
+        if key not in data:
+            continue
+        value = data.pop(key)
+        if value is None:  # `road: null` (e.g. a variant removing the road): no such backend
+            continue
+        backends = data.get("backends")
+        if isinstance(backends, dict) and key in backends:
+            raise ScenarioError(f"{source}: {key}: is the shorthand of backends.{key}, which is given too; "
+                                "use one of them")
+        front[key] = {"type": kind, "params": value}
+    backends = data.get("backends")
+    data["backends"] = {**front, **backends} if isinstance(backends, dict) else (front if backends is None
+                                                                                  else backends)
+    return data, set(front)
 
 
 def apply_overrides(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
@@ -573,15 +505,28 @@ def _unit(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
     return f" {extra['unit']}" if isinstance(extra, dict) and "unit" in extra else ""
 
 
-def format_error(source: str, exc: ValidationError, model: type[BaseModel], prefix: str = "") -> str:
-    """The first validation error as ``FILE: field.path: message (did you mean 'x'?)``."""
+def format_error(source: str, exc: ValidationError, model: type[BaseModel], prefix: str = "",
+                 shorthands: set[str] | frozenset[str] = frozenset()) -> str:
+    """The first validation error as ``FILE: field.path: message (did you mean 'x'?)``.  Paths into
+    backend entries named in ``shorthands`` are shown as the shorthand spelled them (``road.x``)."""
     err = exc.errors()[0]
     loc = tuple(err["loc"])
+    nested = (err.get("ctx") or {}).get("error")
+    if err["type"] == "value_error" and isinstance(nested, NestedParamsError):
+        inner = ".".join(_key(p) for p in (*loc, nested.where))
+        return format_error(source, nested.error, nested.model, f"{prefix}.{inner}" if prefix else inner,
+                            shorthands)
     path = ".".join(_key(p) for p in loc)
     path = f"{prefix}.{path}" if prefix and path else (prefix or path)
+    for name in shorthands:
+        full = f"backends.{name}.params"
+        if path == full or path.startswith(full + "."):
+            path = name + path[len(full):]
     msg = err["msg"]
     if err["type"] == "extra_forbidden":
         allowed = _field_names(model, _model_path(model, loc[:-1]))
+        if model is Scenario and len(loc) == 1:
+            allowed += list(SHORTHANDS)
         close = difflib.get_close_matches(str(loc[-1])[:80], allowed, n=1)
         listed = ", ".join(allowed)
         listed = listed if len(listed) <= 120 else listed[:listed.rfind(", ", 0, 118)] + ", …"
@@ -628,17 +573,18 @@ def validate(data: dict[str, Any], source: str) -> Scenario:
     bad = _non_finite(data)
     if bad is not None:
         raise ScenarioError(f"{source}: {'.'.join(bad)}: must be a finite number")
+    data, shorthands = expand_shorthands(data, source)
     try:
         sc = Scenario.model_validate(data)
     except ValidationError as exc:
-        raise ScenarioError(format_error(source, exc, Scenario)) from None
+        raise ScenarioError(format_error(source, exc, Scenario, shorthands=shorthands)) from None
     except RecursionError:
         raise ScenarioError(f"{source}: nested too deeply") from None
-    _validate_component_params(sc, source)
+    _validate_component_params(sc, source, shorthands)
     return sc
 
 
-def _validate_component_params(sc: Scenario, source: str) -> None:
+def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] = frozenset()) -> None:
     from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 
     for table, registry in (("backends", BACKENDS), ("controllers", CONTROLLERS), ("monitors", MONITORS)):
@@ -653,18 +599,8 @@ def _validate_component_params(sc: Scenario, source: str) -> None:
                 try:
                     params_model.model_validate(spec.params)
                 except ValidationError as exc:
-                    raise ScenarioError(format_error(source, exc, params_model, f"{where}.params")) from None
-    if sc.road is not None:
-        from corridor.traffic.network import params_model
-
-        try:
-            model = params_model(sc.road.network.type)
-        except KeyError as exc:
-            raise ScenarioError(f"{source}: road.network.type: {clip(exc.args[0], 200)[1:-1]}") from None
-        try:
-            model.model_validate(sc.road.network.params)
-        except ValidationError as exc:
-            raise ScenarioError(format_error(source, exc, model, "road.network.params")) from None
+                    raise ScenarioError(format_error(source, exc, params_model, f"{where}.params",
+                                                     shorthands if table == "backends" else frozenset())) from None
 
 
 def check_randomize(sc: Scenario, data: dict[str, Any], source: str) -> None:
@@ -714,7 +650,8 @@ def _unrandomize(data: dict[str, Any], key: str) -> None:
     rnd = data.get("randomize")
     if key.startswith("randomize.") or not isinstance(rnd, dict):
         return
-    for path in [p for p in rnd if p == key or p.startswith(key + ".")]:
+    key = canonical_path(key)  # road.x and backends.road.params.x are one field
+    for path in [p for p in rnd if canonical_path(p) == key or canonical_path(p).startswith(key + ".")]:
         del rnd[path]
 
 

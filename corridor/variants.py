@@ -51,7 +51,7 @@ def component_class(table: str, spec: Any) -> Any:
 def has_entities(vsc: Any) -> bool:
     """Whether a variant's scenario has anything a collision monitor can see: a backend whose class
     contributes entities to the world snapshot (unknown classes count as having some)."""
-    if vsc is None or getattr(vsc, "road", None) is not None:
+    if vsc is None:
         return True
     from corridor.engine import Backend
 

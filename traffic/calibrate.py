@@ -125,12 +125,15 @@ def collect(scenario_path: Path, seed: int, scale: float, duration_s: float | No
 def calibrate(scenario_path: Path, seed: int = 0, scale: float = 1.0, duration_s: float | None = None,
               out: Path | None = None) -> Path:
     """Collect detector points, fit the diagram, write ``<scenario>.calibration.json``; returns its path."""
+    from corridor.traffic.road_spec import road_spec
+
     sc, det = collect(scenario_path, seed, scale, duration_s)
-    lanes = int(sc.road.network.params.get("lanes", 2))
-    veh_len = float(next(iter(sc.road.demand.vehicle_types.values())).length)
+    road = road_spec(sc)
+    lanes = int(road.network.params.get("lanes", 2))
+    veh_len = float(next(iter(road.demand.vehicle_types.values())).length)
     pts = detector_points(det.history, lanes, veh_len)
     fit = fit_fundamental_diagram(pts["rho"], pts["v_kmh"],
-                                  sc.road.network.params.get("mainline_speed_mps", 27.8) * 3.6, q_vph=pts["q"])
+                                  road.network.params.get("mainline_speed_mps", 27.8) * 3.6, q_vph=pts["q"])
     down = detector_points(det.history, lanes, veh_len, side="down")
     fit_down = fit_fundamental_diagram(down["rho"], down["v_kmh"], fit.v_free_kmh, q_vph=down["q"])
     out = out or scenario_path.with_suffix("").with_suffix(".calibration.json")

@@ -87,7 +87,7 @@ class RampDetectors(Component):
         if "interchanges" not in lm:
             raise ValueError(f"{self.name}: ramp detectors need the beltway network (no interchanges)")
         self.interchanges = lm["interchanges"]
-        net_params = ctx.scenario.road.network.params if ctx.scenario else {}
+        net_params = self.road.road.network.params
         self.aggregate_s = self.p.aggregate_s or float(net_params.get("detector_period_s", 60.0))
         self._next_aggregate_s = self.aggregate_s
         for ic in self.interchanges:

@@ -13,6 +13,7 @@ from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import Role
+from corridor.traffic.road_spec import road_spec
 from corridor.traffic.sumo_backend import SumoBackend
 
 
@@ -36,7 +37,8 @@ class SurrogateSafety(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.period = scenario.road.sumo.step_length if scenario.road else scenario.dt
+        road = road_spec(scenario)
+        self.period = road.sumo.step_length if road else scenario.dt
         self.warmup = scenario.warmup
         self.min_ttc, self.max_drac, self.tet = np.inf, 0.0, 0.0
         self.hard_brakes = 0
@@ -103,7 +105,7 @@ class TrafficKpis(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.period = scenario.road.sumo.step_length
+        self.period = road_spec(scenario).sumo.step_length
         self.warmup = scenario.warmup
         self.passed = np.zeros(0, dtype=bool)  # per uid
         self.energy = np.zeros(0)  # per uid: ∫ a² dt [m²/s³] after warm-up

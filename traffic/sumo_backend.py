@@ -20,6 +20,7 @@ from corridor.snapshot import Kind, Role, WorldSnapshot
 from corridor.traffic import commands as cmd
 from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
 from corridor.traffic.network import BuiltNetwork, build_network
+from corridor.traffic.road_spec import RoadSpec
 
 _VARS: tuple[int, ...] = ()  # filled at first start (libsumo constants)
 
@@ -73,11 +74,13 @@ class SumoBackend(Backend):
     SUMO-side modules (detectors, ramp meters) may use ``libsumo`` (the module, valid between setup
     and close) for reads, and send writes as commands with an ``apply_to_sumo(libsumo)`` method."""
 
-    def __init__(self, name: str, scenario: Any, network: BuiltNetwork | None = None,
+    Params = RoadSpec  # ``backends.road.params`` (or the ``road:`` shorthand)
+
+    def __init__(self, name: str, params: RoadSpec, scenario: Any, network: BuiltNetwork | None = None,
                  cache_dir: Path | None = None) -> None:
         super().__init__(name)
         self.scenario = scenario
-        self.road = scenario.road
+        self.road = params
         self.period = self.road.sumo.step_length
         self.net = network or build_network(self.road.network.type, self.road.network.params, cache_dir)
         self.info: dict[str, VehicleInfo] = {}
@@ -110,7 +113,7 @@ class SumoBackend(Backend):
         import libsumo
 
         self._ls = self.libsumo = libsumo
-        self._rng = ctx.rng(f"{self.name}.demand")
+        self._rng = ctx.rng("sumo.demand")  # the stream's name predates the backend entry's name (road)
         self._flow_of = {fid: fl for fid, fl in self.road.demand.flows.items()}
         routes_file = self._write_demand(ctx)
         seed = int(np.random.SeedSequence(ctx.run_seed, spawn_key=(7,)).generate_state(1)[0] % 2**31)

@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.bicycle import BicycleParams, clip_input, rk4_step
 from corridor.engine import Backend, RunContext
+from corridor.traffic.road_spec import road_spec
 from corridor.traffic.sumo_backend import SumoBackend
 
 SPEED_MODE_NONE = 0  # SUMO speed mode without any safety check (corridor owns the dynamics)
@@ -79,7 +80,8 @@ class EgoBicycle(Backend):
         super().__init__(name)
         self.p = params
         self.vid = params.vid
-        self.period = scenario.road.sumo.step_length if scenario.road else scenario.dt
+        road = road_spec(scenario)
+        self.period = road.sumo.step_length if road else scenario.dt
         self.state = np.zeros(4)
         self.active = False
         self.departed_s = math.nan

@@ -103,7 +103,7 @@ def test_steering_moves_ego_into_the_opposite_lane(tmp_path: Path, close_after: 
     sim = started(scenario({}), tmp_path)
     close_after.append(sim)
     ego: EgoBicycle = sim.ctx.get("ego")  # type: ignore[assignment]
-    sumo: SumoBackend = sim.ctx.get("sumo")  # type: ignore[assignment]
+    sumo: SumoBackend = sim.ctx.get("road")  # type: ignore[assignment]
     run_ticks(sim, 2)
     y0 = float(ego.state[1])
     run_ticks(sim, 10, u=(0.0, 0.03))  # steer left ...
@@ -133,7 +133,7 @@ def test_rear_end_collision_seen_by_sumo_and_by_box_overlap(tmp_path: Path,
     # far enough ahead that SUMO's insertion check lets the slow car in at t = 0
     sim = started(scenario({"lead": {"offset_m": 60.0, "speed_mps": 3.0, "max_speed_mps": 3.0}}), tmp_path)
     close_after.append(sim)
-    sumo: SumoBackend = sim.ctx.get("sumo")  # type: ignore[assignment]
+    sumo: SumoBackend = sim.ctx.get("road")  # type: ignore[assignment]
     seen_box = False
     for _ in range(70):
         run_ticks(sim, 1, u=(0.0, 0.0))  # the ego keeps 15 m/s into a 3 m/s car 55 m ahead

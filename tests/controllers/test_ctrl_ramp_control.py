@@ -24,6 +24,7 @@ from corridor.controllers.ramp_control import (
 )
 from corridor.scenario import load
 from corridor.traffic.detectors import RampMeasurement
+from corridor.traffic.road_spec import road_spec
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
 
@@ -121,15 +122,15 @@ def test_missing_speed_takes_the_equilibrium_speed() -> None:
 
 def test_od_matrix_and_forecast_from_the_scenario() -> None:
     sc, _ = load(SCENARIO)
-    n = sc.road.network.params["interchanges"]
-    od = od_matrix(sc.road.demand.flows, n)
+    n = road_spec(sc).network.params["interchanges"]
+    od = od_matrix(road_spec(sc).demand.flows, n)
     assert np.all(np.diag(od) == 0) and np.all(od >= 0)
-    mean_rate = {f.route: float(np.mean(np.asarray(f.profile, float)[:, 1])) for f in sc.road.demand.flows.values()}
+    mean_rate = {f.route: float(np.mean(np.asarray(f.profile, float)[:, 1])) for f in road_spec(sc).demand.flows.values()}
     assert od.sum() == pytest.approx(sum(mean_rate.values()))
     assert od[0, n // 2] == pytest.approx(mean_rate[f"od_0_{n // 2}_ccw"] + mean_rate[f"od_0_{n // 2}_cw"])
     fc = DemandForecast(sc, n)
     peak_t = 900.0
-    expected = sum(np.interp(peak_t, *np.asarray(f.profile, float).T) for f in sc.road.demand.flows.values()
+    expected = sum(np.interp(peak_t, *np.asarray(f.profile, float).T) for f in road_spec(sc).demand.flows.values()
                    if f.route.startswith("od_0_"))
     assert fc(np.array([peak_t]))[0, 0] == pytest.approx(expected)
 

@@ -49,6 +49,7 @@ import pytest  # noqa: E402
 
 from corridor.errors import ScenarioError  # noqa: E402
 from corridor.scenario import load  # noqa: E402
+from corridor.traffic.road_spec import road_spec  # noqa: E402
 
 
 def write(tmp_path: Path, text: str | bytes, name: str = "s.yaml") -> Path:
@@ -281,7 +282,7 @@ def test_sumo_extra_args_that_write_files_are_refused(capsys, args):
 def test_sumo_extra_args_allow_list_accepted():
     sc, _ = load(MERGING, ["road.sumo.extra_args=[--lateral-resolution, 0.8, --time-to-teleport.highways, 10, "
                            "--collision.stoptime, 1, --step-method.ballistic, 'true']"])
-    assert sc.road.sumo.extra_args[:2] == ["--lateral-resolution", "0.8"]
+    assert road_spec(sc).sumo.extra_args[:2] == ["--lateral-resolution", "0.8"]
 
 
 # ---------------------------------------------------------------- item 9: echoed values are clipped

@@ -9,6 +9,7 @@ from pydantic import ValidationError
 
 from corridor.cli import main
 from corridor.scenario import load
+from corridor.traffic.road_spec import road_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 MERGING = ROOT / "scenarios" / "merging.yaml"
@@ -80,8 +81,8 @@ def test_set_syntax(capsys):
 def test_extends_and_set_merge(tmp_path):
     p = write(tmp_path, f"extends: {MERGING}\nname: child\nduration: 30\nwarmup: 0\n")
     sc, _ = load(p, ["road.demand.scale=1.5", "metrics=[a, b]"])
-    assert (sc.name, sc.duration, sc.road.demand.scale, sc.metrics) == ("child", 30, 1.5, ["a", "b"])
-    assert sc.road.network.params["mainline_lanes"] == 2  # inherited
+    assert (sc.name, sc.duration, road_spec(sc).demand.scale, sc.metrics) == ("child", 30, 1.5, ["a", "b"])
+    assert road_spec(sc).network.params["mainline_lanes"] == 2  # inherited
 
 
 def test_extends_cycle(capsys, tmp_path):
@@ -104,6 +105,6 @@ def test_set_value_wins_over_the_randomized_draw_of_that_field():
     for s in specs:  # neither the scale nor anything beneath the loss is drawn any more
         assert "road.demand.scale" not in s.overrides and "channels.v2x.loss.p" not in s.overrides
         assert "road.demand.flows.main_car.connected_share" in s.draws  # the fields not set still are
-    assert sc.road.demand.scale == 1.2 and sc.channels["v2x"].loss.p == 0.3
+    assert road_spec(sc).demand.scale == 1.2 and sc.channels["v2x"].loss.p == 0.3
     full, _ = load(MERGING)
     assert "road.demand.scale" in expand(full, _, "merging.yaml", runs=1)[0].draws

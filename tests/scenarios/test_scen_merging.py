@@ -36,7 +36,7 @@ def _lane_changes(variant: str, duration_s: float, seed: int, params: dict | Non
     ctx = sim.ctx
     for c in ctx.components.values():
         c.setup(ctx)
-    road, ctl = ctx.components["sumo"], ctx.components["merge"]
+    road, ctl = ctx.components["road"], ctx.components["merge"]
     held_modes, released_modes = set(), set()
     x_nose = float(road.net.landmarks["merge_start_x"])
     last_lane: dict[str, str] = {}

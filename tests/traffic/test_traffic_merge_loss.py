@@ -27,7 +27,7 @@ def _area_loss_against_sumo(before_m: float, after_m: float) -> dict[str, object
     try:
         for _ in range(round(sc.duration / sc.dt)):
             sim.step()
-        road, kpis = ctx.components["sumo"], ctx.components["kpis"]
+        road, kpis = ctx.components["road"], ctx.components["kpis"]
         ids = list(road.active)
         ours = kpis.area_loss[road.uid]
         sumo = np.array([road.libsumo.vehicle.getTimeLoss(v) for v in ids])

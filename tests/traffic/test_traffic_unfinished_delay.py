@@ -24,7 +24,7 @@ def _delays_at_double_demand() -> dict[str, object]:
     try:
         for _ in range(round(sc.duration / sc.dt)):
             sim.step()
-        road = ctx.components["sumo"]
+        road = ctx.components["road"]
         done = road.delays(0.0)
         allv = road.delays(0.0, unfinished=True)
         n_arrived = sum(1 for i in road.info.values() if not np.isnan(i.arrive_s))
