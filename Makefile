@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine:
 #   make run    creates .venv, installs corridor, runs the default batch (scenarios/merging.yaml)
-#   make test   creates .venv, installs corridor[dev], runs the test suite
+#   make test   creates .venv, installs corridor[dev], runs ruff, the import contracts and the test suite
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -27,6 +27,7 @@ run: $(STAMP)
 
 test: $(DEV_STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/python tools/lint_imports.py
 	$(BIN)/pytest -q -n 2
 
 test-all: $(DEV_STAMP)
@@ -34,6 +35,7 @@ test-all: $(DEV_STAMP)
 
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/python tools/lint_imports.py
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/kernel_overhead.py
