@@ -1,0 +1,1 @@
+"""An example corridor plug-in (see its pyproject.toml)."""
