@@ -58,6 +58,7 @@ CONTROLLERS.register("v2x_merging", "corridor.controllers.v2x_merging:V2XMerging
 MONITORS.register("collisions", "corridor.analysis.monitors:CollisionMonitor")
 MONITORS.register("surrogate_safety", "corridor.traffic.monitors:SurrogateSafety")
 MONITORS.register("traffic_kpis", "corridor.traffic.monitors:TrafficKpis")
+MONITORS.register("trips", "corridor.traffic.trips:Trips")
 
 BACKENDS.register("jsbsim_fleet", "corridor.vehicles.air_backend:AirBackend")
 BACKENDS.register("mavlink_link", "corridor.vehicles.air_link:AirLink")

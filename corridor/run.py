@@ -22,6 +22,8 @@ from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
+# added when the scenario has a road: trip bookkeeping (vehicles departed / arrived, delays, teleports)
+ROAD_MONITORS: dict[str, ComponentSpec] = {"trips": ComponentSpec(type="trips")}
 
 
 @dataclass(frozen=True)
@@ -61,7 +63,8 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None)
     for name, spec in sc.controllers.items():
         if spec.type != "none":
             comps.append(make_component("controllers", name, spec, sc))
-    for name, spec in {**DEFAULT_MONITORS, **sc.monitors}.items():
+    defaults = {**DEFAULT_MONITORS, **(ROAD_MONITORS if sc.road is not None else {})}
+    for name, spec in {**defaults, **sc.monitors}.items():
         comps.append(make_component("monitors", name, spec, sc))
     if rerun_path:
         from corridor.analysis.rerun_log import RerunRecorder
