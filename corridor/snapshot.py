@@ -166,7 +166,8 @@ class RoadFrame:
 
     ``t`` is the road backend's own clock [s] (its reports carry it); ``uid`` indexes ``tables``;
     ``lane`` is a lane code; ``lane_pos`` [m] along the lane (front bumper); ``accel`` [m/s²];
-    ``distance`` [m] driven since departure.
+    ``distance`` [m] driven since departure (a backend may fill it on the run's last step only, nan
+    before: it is needed for the unfinished vehicles' delay at the end).
     """
 
     source: str

@@ -201,10 +201,10 @@ def test_v2x_coordinator_commands_the_scripted_connected_ramp_vehicle() -> None:
 
 def test_road_consumers_run_without_libsumo() -> None:
     """All three in a fresh interpreter: libsumo is never imported."""
-    code = ("import sys; sys.path.insert(0, %r); import test_traffic_road_frame as t; "
+    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).parent)!r}); import test_traffic_road_frame as t; "
             "t.surrogate_safety_on_a_scripted_follower(); t.trips_closed_form_delay(); "
             "t.v2x_commands_the_connected_ramp_vehicle(); "
-            "assert 'libsumo' not in sys.modules, 'libsumo was imported'; print('ok')") % str(Path(__file__).parent)
+            "assert 'libsumo' not in sys.modules, 'libsumo was imported'; print('ok')")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().endswith("ok")
