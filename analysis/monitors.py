@@ -1,4 +1,4 @@
-"""Monitors that read only the world snapshot (and backends' own collision reports)."""
+"""Monitors that read only the world snapshot (including the road backend's own collision report)."""
 
 from __future__ import annotations
 
@@ -33,11 +33,11 @@ class CollisionMonitor(Component):
         self._prev: Poses | None = None  # geometry of the previous tick's snapshot
 
     def tick(self, ctx: RunContext) -> None:
-        for b in ctx.backends():
-            for t, a, v, kind in getattr(b, "new_collisions", ()):
-                self._add(ctx, t, a, v, f"{b.name} ({kind})")
         s = ctx.snapshot
         prev, self._prev = self._prev, None
+        if s.road is not None:
+            for t, a, v, kind in s.road.events.collisions:
+                self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
         if len(s) < 2 or (s.role.max() < Role.CONTROLLED and s.kind.max() <= Kind.TRUCK):
             return  # only backend-driven road vehicles: their backend reports collisions
         special = (s.role == Role.CONTROLLED) | ((s.kind != Kind.CAR) & (s.kind != Kind.TRUCK))

@@ -35,7 +35,8 @@ from corridor.controllers.overtaking import (
 from corridor.controllers.overtaking_mpc import FAR_M, body_centre
 from corridor.engine import Controller, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.traffic.sumo_backend import SumoBackend
+from corridor.traffic.landmarks import RuralLandmarks
+from corridor.traffic.trips import road_frame
 from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
 
 PASSED_FORGET_M = 150.0  # [m] a passed lead this far behind is no longer "the lead" of the signals
@@ -68,11 +69,12 @@ class OvertakingSumo(Controller):
         ego = ctx.get(self.p.ego)
         if not isinstance(ego, EgoBicycle):
             raise ValueError(f"{self.name}: component {self.p.ego!r} is not an ego bicycle backend")
-        sumo = next(b for b in ctx.backends() if isinstance(b, SumoBackend))
-        marks = sumo.net.landmarks
+        marks = road_frame(ctx).tables.landmarks
+        if not isinstance(marks, RuralLandmarks):
+            raise ValueError(f"{self.name}: overtaking needs the rural two-lane road, not {marks.kind!r}")
         self.ego, self.vid = ego, ego.vid
-        self.lane_y = float(marks["east_lane_y"])  # [m] ENU y of the own lane centre
-        road = self.cparams.road.model_copy(update={"lane_width_m": abs(float(marks["opposite_lane_offset_m"]))})
+        self.lane_y = float(marks.east_lane_y)  # [m] ENU y of the own lane centre
+        road = self.cparams.road.model_copy(update={"lane_width_m": abs(float(marks.opposite_lane_offset_m))})
         self.cparams = self.cparams.model_copy(update={"ego": ego.p.bicycle, "road": road})
         self.ctrl = OvertakingController(self.cparams, ctx.events, name=self.vid)
         super().setup(ctx)

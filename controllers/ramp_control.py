@@ -39,9 +39,9 @@ from corridor.traffic.meters import (
     guidance_assignments,
     parse_od_route,
 )
-from corridor.traffic.monitors import road_backend
 from corridor.traffic.ramp_monitors import find_detectors
 from corridor.traffic.road_spec import road_spec
+from corridor.traffic.trips import road_frame
 
 
 class RampParams(BaseModel):
@@ -100,8 +100,9 @@ class RampControl(Controller):
         super().setup(ctx)
 
     def observe(self, ctx: RunContext) -> RampObservation:
-        info = self.det.road.info
-        fresh = {k: [(v, info[v].route if v in info else "") for v in vids]
+        tb = road_frame(ctx).tables
+        uid_of, route, names = tb.uid_of, tb.route, tb.route_names
+        fresh = {k: [(v, names[route[uid_of[v]]] if v in uid_of else "") for v in vids]
                  for k, vids in self.det.new_on_origin.items()}
         return RampObservation(t=ctx.t, ramps=self.det.latest, new_on_origin=fresh)
 
@@ -364,13 +365,13 @@ class RampMpc(RampControl):
         from corridor.controllers.metanet_networks import BeltwayLayout, beltway
         from corridor.controllers.ramp_mpc import MPCConfig, RampMeteringMPC
 
-        p, lm = self.p, road_backend(ctx).net.landmarks  # peers' setup may not have run yet
-        self.n = n = len(lm["interchanges"])
+        p, lm = self.p, road_frame(ctx).tables.landmarks
+        self.n = n = len(lm.interchanges)
         fd = self.fd = load_calibration(p.calibration_file)
-        ring_km = float(np.mean(list(lm["ring_length_m"].values()))) / 1000.0
-        storage = float(lm["interchanges"][0]["ccw"]["ramp_storage_veh"]) * p.storage_frac
+        ring_km = float(np.mean(list(lm.ring_length_m.values()))) / 1000.0
+        storage = float(lm.interchanges[0].ccw.ramp_storage_veh) * p.storage_frac
         layout = BeltwayLayout(n_interchanges=n, spacing_km=ring_km / n, seg_target_km=p.seg_target_km,
-                               lanes=int(lm["lanes"]), v_free_kmh=fd["v_free_kmh"], rho_crit=fd["rho_crit"],
+                               lanes=int(lm.lanes), v_free_kmh=fd["v_free_kmh"], rho_crit=fd["rho_crit"],
                                a=fd["a"], rho_max=fd["rho_max"], ramp_cap_vph=p.open_rate_vph,
                                ramp_storage_veh=storage, compliance=0.0)
         sc = ctx.scenario
@@ -379,7 +380,7 @@ class RampMpc(RampControl):
         net = beltway(layout, od_matrix(flows, n), MetanetParams(step_h=p.model_step_s / 3600.0))
         self.net = with_guidance_bounds(net, self.choices, p.compliance if p.guidance else 0.0)
         self.m_seg = self.net.n_seg // (2 * n)
-        self.lanes = int(lm["lanes"])
+        self.lanes = int(lm.lanes)
         cfg = MPCConfig(horizon_ctrl_steps=p.horizon_ctrl_steps, control_step_s=p.control_step_s,
                         weight_rate_change=p.weight_rate_change, weight_split_change=p.weight_split_change,
                         rate_min=p.rate_min_vph / p.open_rate_vph, rate_max=1.0,

@@ -49,8 +49,9 @@ from corridor.controllers.merging_coordinator import Coordinator, CoordinatorCon
 from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.controllers.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.engine import Controller, RunContext
+from corridor.snapshot import RoadTables, Role
 from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.monitors import road_backend
+from corridor.traffic.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracking import TrackTable
 
@@ -125,15 +126,19 @@ class V2XMerging(Controller):
     # ------------------------------------------------------------------ wiring
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
-        self.road = road_backend(ctx)
-        lm = self.road.net.landmarks
+        lm = self.landmarks = road_frame(ctx).tables.landmarks
+        if not hasattr(lm, "joins_mainline"):
+            raise ValueError(f"{self.name}: V2X merging needs an on-ramp network (highway_onramp), not {lm.kind!r}")
         # [m] the conflict point: part-way along the acceleration lane, where a ramp vehicle moves over
         # at the stream's speed (at the nose it is still ramp-slow, and a mainline follower would
         # have to brake to a ramp vehicle that is about to accelerate)
-        nose, end = float(lm["merge_start_x"]), float(lm["merge_end_x"])
+        nose, end = float(lm.merge_start_x), float(lm.merge_end_x)
         self.x_merge = nose + self.p.merge_point_frac * (end - nose)
-        self.y_rsu = -float(lm["lane_width_m"]) * float(lm["mainline_lanes"])
-        self.right_lanes = {"upstream_0", "merge_1"}  # the mainline lane that ramp vehicles join
+        self.y_rsu = -float(lm.lane_width_m) * float(lm.mainline_lanes)
+        self.cos_ramp = np.cos(np.radians(lm.ramp_angle_deg))
+        # per lane code: a ramp lane / the mainline lane that ramp vehicles join (filled as lanes appear)
+        self._on_ramp_lane = np.zeros(0, dtype=bool)
+        self._joins_lane = np.zeros(0, dtype=bool)
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self.channel.attach(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
@@ -156,22 +161,29 @@ class V2XMerging(Controller):
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
         """Own-vehicle facts each vehicle knows exactly (GNSS/odometry): distance to the merge, road."""
-        r = self.road
-        part = r.snapshot_part()
-        if len(part) == 0:
+        snap, r = ctx.snapshot, ctx.snapshot.road
+        if r is None or len(r) == 0:
             return None
-        ids = r.active
-        info = [r.info[v] for v in ids]
-        front_x = part.position[:, 0] + 0.5 * part.size[:, 0] * np.cos(part.heading)
-        ramp = np.array([i.route == "ramp" for i in info])
-        on_ramp_edge = np.array([lane.startswith("ramp") for lane in r.lane_id])
+        sl, tb = r.sl, r.tables
+        self._classify_lanes(tb)
+        ids = list(snap.ids[sl])
+        pos, size, heading = snap.position[sl], snap.size[sl], snap.heading[sl]
+        front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
+        ramp = tb.role[r.uid] == Role.RAMP  # on the ramp route
         dist = self.x_merge - front_x
-        dist[ramp & on_ramp_edge] /= np.cos(np.radians(5.0))  # along the inclined ramp
-        right = np.array([lane in self.right_lanes or lane.startswith(":n_merge") for lane in r.lane_id])
-        connected = np.array([i.connected for i in info])
-        return {"ids": ids, "dist": dist, "speed": part.speed, "accel": r.accel, "ramp": ramp,
-                "right": right, "connected": connected, "pos": part.position, "heading": part.heading,
-                "lane": r.lane_code, "length": part.size[:, 0]}
+        dist[ramp & self._on_ramp_lane[r.lane]] /= self.cos_ramp  # along the inclined ramp
+        return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
+                "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
+                "heading": heading, "lane": r.lane, "length": size[:, 0]}
+
+    def _classify_lanes(self, tb: RoadTables) -> None:
+        """Per lane code, once per lane: on the ramp edge; the mainline lane that ramp vehicles join."""
+        done = len(self._on_ramp_lane)
+        if done == tb.n_lanes:
+            return
+        new = tb.lane_names[done:]
+        self._on_ramp_lane = np.concatenate([self._on_ramp_lane, [self.landmarks.is_ramp_lane(n) for n in new]])
+        self._joins_lane = np.concatenate([self._joins_lane, [self.landmarks.joins_mainline(n) for n in new]])
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         zone_len = self.p.coordinator.control_zone_m

@@ -167,6 +167,11 @@ class Backend(Component):
     def snapshot_part(self) -> WorldSnapshot:
         return WorldSnapshot()
 
+    def static_part(self) -> WorldSnapshot:
+        """What is known before the first step, without rows (a road backend: its road frame with the
+        run's static tables and landmarks); the engine puts it in ``ctx.snapshot`` before ``setup``."""
+        return WorldSnapshot()
+
 
 class Controller(Component):
     """A controller: ``reset(rng)``, ``observe(ctx) -> obs``, ``step(obs) -> commands``.
@@ -216,6 +221,9 @@ class Simulation:
         for c in comps:
             self._by_phase[c.phase].append(c)
         self.wall_s = 0.0
+        # the world before the first step: no rows, but the road's static tables and landmarks
+        backends = [b for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
+        ctx.snapshot = WorldSnapshot.from_parts(ctx.t, [b.static_part() for b in backends])
 
     def _ticks_per_period(self, c: Component) -> int:
         n = round(c.period / self.ctx.dt)

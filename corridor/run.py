@@ -61,7 +61,10 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
     for name, spec in sc.controllers.items():
         if spec.type != "none":
             comps.append(make_component("controllers", name, spec, sc))
-    for name, spec in {**DEFAULT_MONITORS, **sc.monitors}.items():
+    # monitors a component cannot do without (the road backend's trip bookkeeping, say) come right
+    # after the defaults, unless the scenario declares a monitor of that name itself
+    required = {name: ComponentSpec(type=t) for c in comps for name, t in getattr(c, "required_monitors", {}).items()}
+    for name, spec in {**DEFAULT_MONITORS, **required, **sc.monitors}.items():
         comps.append(make_component("monitors", name, spec, sc))
     if rerun_path:
         comps.append(RECORDERS.get("rerun")("rerun", sc, rerun_path))

@@ -2,12 +2,15 @@
 
 Backends fill it each tick (``WorldSnapshot.from_parts`` concatenates their blocks); cross-domain
 logic (collision checks between anything, a UAV counting cars below it) reads only this, vectorised.
+A road backend adds a ``RoadFrame``: the lane frame of its rows, the run's growing static tables
+(vehicles, lanes, routes, typed landmarks), the step's road events and its detector readings.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import IntEnum
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +34,176 @@ class Role(IntEnum):
     OTHER = 3
 
 
+def _grow(a: np.ndarray, n: int, fill: float | int | bool = 0) -> np.ndarray:
+    """``a`` with room for at least ``n`` rows (geometric growth, new rows ``fill``)."""
+    if n <= len(a):
+        return a
+    extra = max(256, len(a), n - len(a))
+    return np.concatenate([a, np.full(extra, fill, dtype=a.dtype)])
+
+
+class RoadTables:
+    """Per-run static facts of a road backend; they grow as vehicles depart and lanes are entered.
+
+    * per vehicle, indexed by ``uid`` (the vehicle's index in departure order, 0, 1, ...): ``vehicle_ids``
+      and arrays ``length`` [m], ``width`` [m], ``route`` (route code), ``role``, ``connected``,
+      ``speed_factor`` (multiplier of the speed limit: the driver's desired speed), ``max_speed``
+      [m/s], ``depart_s`` [s] and ``depart_delay_s`` [s] (insertion delay); the arrays have spare
+      capacity, rows ``[:n_uids]`` are valid;
+    * per lane code: ``lane_names`` and ``lane_speed_limit`` [m/s];
+    * per route code: ``route_names`` and ``route_segments`` ((length [m], speed limit [m/s]) per
+      segment, for free-flow times);
+    * ``landmarks``: the network's typed landmarks (whatever model the road's builder returns).
+    """
+
+    def __init__(self, landmarks: Any = None) -> None:
+        self.landmarks = landmarks
+        self.vehicle_ids: list[str] = []
+        self.uid_of: dict[str, int] = {}
+        self.length, self.width = np.zeros(0), np.zeros(0)
+        self.speed_factor, self.max_speed = np.zeros(0), np.zeros(0)
+        self.depart_s, self.depart_delay_s = np.zeros(0), np.zeros(0)
+        self.route = np.zeros(0, dtype=np.int64)
+        self.role = np.zeros(0, dtype=np.int8)
+        self.connected = np.zeros(0, dtype=bool)
+        self.lane_names: list[str] = []
+        self.lane_code_of: dict[str, int] = {}
+        self.lane_speed_limit = np.zeros(0)
+        self.route_names: list[str] = []
+        self.route_code_of: dict[str, int] = {}
+        self.route_segments: list[tuple[tuple[float, float], ...]] = []
+
+    @property
+    def n_uids(self) -> int:
+        return len(self.vehicle_ids)
+
+    @property
+    def n_lanes(self) -> int:
+        return len(self.lane_names)
+
+    def add_route(self, name: str, segments: tuple[tuple[float, float], ...] = ()) -> int:
+        """Code of route ``name`` (added with its segments on first sight)."""
+        code = self.route_code_of.get(name)
+        if code is None:
+            code = self.route_code_of[name] = len(self.route_names)
+            self.route_names.append(name)
+            self.route_segments.append(tuple(segments))
+        return code
+
+    def add_lane(self, name: str, speed_limit_mps: float) -> int:
+        code = self.lane_code_of[name] = len(self.lane_names)
+        self.lane_names.append(name)
+        self.lane_speed_limit = _grow(self.lane_speed_limit, code + 1, np.nan)
+        self.lane_speed_limit[code] = speed_limit_mps
+        return code
+
+    def add_vehicle(self, vid: str, *, length: float, width: float, route: int, role: int, connected: bool,
+                    speed_factor: float, max_speed: float, depart_s: float, depart_delay_s: float) -> int:
+        """Append a departed vehicle; returns its uid."""
+        k = self.uid_of[vid] = len(self.vehicle_ids)
+        self.vehicle_ids.append(vid)
+        if k >= len(self.length):
+            n = k + 1
+            self.length, self.width = _grow(self.length, n), _grow(self.width, n)
+            self.speed_factor, self.max_speed = _grow(self.speed_factor, n), _grow(self.max_speed, n)
+            self.depart_s, self.depart_delay_s = _grow(self.depart_s, n), _grow(self.depart_delay_s, n)
+            self.route, self.role = _grow(self.route, n, -1), _grow(self.role, n)
+            self.connected = _grow(self.connected, n, False)
+        self.length[k], self.width[k], self.route[k], self.role[k] = length, width, route, role
+        self.connected[k], self.speed_factor[k], self.max_speed[k] = connected, speed_factor, max_speed
+        self.depart_s[k], self.depart_delay_s[k] = depart_s, depart_delay_s
+        return k
+
+
+@dataclass
+class RoadEvents:
+    """What happened on the road during the backend's last step.
+
+    ``departed`` / ``arrived`` / ``teleported``: uids; ``collisions``: the backend's own report,
+    (t [s], collider id, victim id, type); ``pending_*``: vehicles due to depart that could not be
+    inserted yet (the insertion backlog): ids, their wait so far [s], route code and role.
+    """
+
+    departed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    teleported: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    collisions: tuple[tuple[float, str, str, str], ...] = ()
+    pending_ids: tuple[str, ...] = ()
+    pending_wait_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    pending_route: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    pending_role: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+
+    @property
+    def backlog(self) -> int:
+        return len(self.pending_ids)
+
+
+@dataclass
+class DetectorFrame:
+    """Readings of the road's fixed detectors after the last step (the ones the network declares).
+
+    Loops (``loop_ids``): vehicles, occupancy [%] and mean speed [m/s] (-1: nobody) of the last
+    completed aggregation interval.  Lane areas (``area_ids``): vehicles and halting vehicles now.
+    Watched edges: the ids of the vehicles on each, in the backend's order.
+    """
+
+    loop_ids: tuple[str, ...] = ()
+    loop_count: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    loop_occupancy_pct: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    loop_speed_mps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    area_ids: tuple[str, ...] = ()
+    area_vehicles: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    area_halting: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    edge_vehicles: dict[str, tuple[str, ...]] = field(default_factory=dict)
+    loop_index: dict[str, int] = field(default_factory=dict)
+    area_index: dict[str, int] = field(default_factory=dict)
+
+
+@dataclass
+class RoadFrame:
+    """The lane frame of the road entities of a snapshot, aligned row by row with snapshot rows
+    ``offset .. offset + len(uid)`` (``rows`` / ``sl``).
+
+    ``t`` is the road backend's own clock [s] (its reports carry it); ``uid`` indexes ``tables``;
+    ``lane`` is a lane code; ``lane_pos`` [m] along the lane (front bumper); ``accel`` [m/s²];
+    ``distance`` [m] driven since departure (a backend may fill it on the run's last step only, nan
+    before: it is needed for the unfinished vehicles' delay at the end).
+    """
+
+    source: str
+    tables: RoadTables
+    t: float = 0.0
+    uid: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lane: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    lane_pos: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    accel: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    distance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    events: RoadEvents = field(default_factory=RoadEvents)
+    detectors: DetectorFrame | None = None
+    offset: int = 0  # snapshot row of the first road entity
+
+    def __len__(self) -> int:
+        return int(self.uid.shape[0])
+
+    @property
+    def sl(self) -> slice:
+        """The snapshot rows of the road entities (contiguous)."""
+        return slice(self.offset, self.offset + len(self))
+
+    @property
+    def rows(self) -> np.ndarray:
+        return np.arange(self.offset, self.offset + len(self))
+
+    @property
+    def route(self) -> np.ndarray:
+        """Route code per row."""
+        return self.tables.route[self.uid]
+
+    @property
+    def connected(self) -> np.ndarray:
+        return self.tables.connected[self.uid]
+
+
 @dataclass
 class WorldSnapshot:
     """Struct-of-arrays state of all entities at time ``t`` [s].
@@ -47,6 +220,7 @@ class WorldSnapshot:
     velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     heading: np.ndarray = field(default_factory=lambda: np.zeros(0))
     size: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    road: RoadFrame | None = None  # the road entities' lane frame (at most one road backend)
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
@@ -61,6 +235,7 @@ class WorldSnapshot:
         return {str(i): k for k, i in enumerate(self.ids)}
 
     def select(self, mask: np.ndarray) -> WorldSnapshot:
+        """The rows of ``mask`` (without the road frame, whose rows would no longer be contiguous)."""
         return WorldSnapshot(
             self.t, self.ids[mask], self.kind[mask], self.role[mask], self.position[mask],
             self.velocity[mask], self.heading[mask], self.size[mask],
@@ -68,13 +243,22 @@ class WorldSnapshot:
 
     @staticmethod
     def from_parts(t: float, parts: list[WorldSnapshot]) -> WorldSnapshot:
-        parts = [p for p in parts if len(p)]
+        """Concatenate the backends' parts; the road frame (of at most one part) keeps pointing at
+        its own rows (its ``offset`` moves by the rows of the parts before it)."""
+        parts = [p for p in parts if len(p) or p.road is not None]
         if not parts:
             return WorldSnapshot(t=t)
         if len(parts) == 1:
             p = parts[0]
             p.t = t
             return p
+        road, offset = None, 0
+        for p in parts:
+            if p.road is not None:
+                if road is not None:
+                    raise ValueError("at most one road backend per run: two snapshot parts carry a road frame")
+                road = replace(p.road, offset=offset + p.road.offset)
+            offset += len(p)
         return WorldSnapshot(
             t=t,
             ids=np.concatenate([p.ids for p in parts]),
@@ -84,4 +268,5 @@ class WorldSnapshot:
             velocity=np.concatenate([p.velocity for p in parts]),
             heading=np.concatenate([p.heading for p in parts]),
             size=np.concatenate([p.size for p in parts]),
+            road=road,
         )

@@ -5,7 +5,9 @@ vehicles on the ramp and halting ones); every ``aggregate_s`` (the loops' own ag
 the network, ``detector_period_s``) it reads the last completed interval of every E1 loop: occupancy
 [%], flow [veh/h] and mean speed [m/s] up- and downstream of each merge, and the vehicles that passed
 each meter.  The newest values are kept in ``latest`` (one ``RampMeasurement`` per ramp key
-``"{d}{k}"``), so controllers read them as ``ctx.components[...]`` peers, never libsumo.
+``"{d}{k}"``), so controllers read them as ``ctx.components[...]`` peers.  It reads only the
+snapshot's detector part (``RoadFrame.detectors``: the loops, lane areas and watched edges that the
+network's landmarks declare, read by the road backend after each step).
 
 It also lists vehicles newly seen on each origin arterial (``a{k}_in``), which route guidance may
 switch to the other loop while they are still there (``new_on_origin``, replaced every tick: a
@@ -22,7 +24,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Phase, RunContext
-from corridor.traffic.monitors import road_backend
+from corridor.snapshot import DetectorFrame
+from corridor.traffic.landmarks import BeltwayLandmarks, MeteredRamp
+from corridor.traffic.road_spec import road_spec
+from corridor.traffic.trips import road_frame
 
 DIRECTIONS = ("ccw", "cw")
 
@@ -82,62 +87,64 @@ class RampDetectors(Component):
         self._next_aggregate_s = 0.0
 
     def setup(self, ctx: RunContext) -> None:
-        self.road = road_backend(ctx)
-        lm = self.road.net.landmarks
-        if "interchanges" not in lm:
+        lm = road_frame(ctx).tables.landmarks
+        if not isinstance(lm, BeltwayLandmarks):
             raise ValueError(f"{self.name}: ramp detectors need the beltway network (no interchanges)")
-        self.interchanges = lm["interchanges"]
-        net_params = self.road.road.network.params
+        self.interchanges = lm.interchanges
+        spec = road_spec(ctx.scenario) if ctx.scenario else None
+        net_params = spec.network.params if spec is not None else {}
         self.aggregate_s = self.p.aggregate_s or float(net_params.get("detector_period_s", 60.0))
         self._next_aggregate_s = self.aggregate_s
         for ic in self.interchanges:
             for d in DIRECTIONS:
-                r = ic[d]
-                key = f"{d}{ic['index']}"
-                self.latest[key] = RampMeasurement(key=key, direction=d, interchange=int(ic["index"]),
-                                                   tls=r["meter_tls"], storage_veh=float(r["ramp_storage_veh"]))
+                r = ic.ramp(d)
+                key = f"{d}{ic.index}"
+                self.latest[key] = RampMeasurement(key=key, direction=d, interchange=int(ic.index),
+                                                   tls=r.meter_tls, storage_veh=float(r.ramp_storage_veh))
                 self.log.queue[key] = []
                 self._queue_at_interval[key] = 0.0
                 self.passed_total[key] = 0
 
-    def ramp(self, key: str) -> dict[str, Any]:
-        """Landmark entry (edges, detector ids) of ramp ``"{d}{k}"``."""
+    def ramp(self, key: str) -> MeteredRamp:
+        """Landmarks (edges, detector ids) of ramp ``"{d}{k}"``."""
         d = "ccw" if key.startswith("ccw") else "cw"
-        return self.interchanges[int(key[len(d):])][d]
+        return self.interchanges[int(key[len(d):])].ramp(d)
 
     def tick(self, ctx: RunContext) -> None:
-        ls = self.road.libsumo
-        self._sample_queues(ls, ctx.t)
-        self._sample_origins(ls)
+        det = road_frame(ctx).detectors
+        if det is None:  # before the road's first step
+            det = DetectorFrame()
+        self._sample_queues(det, ctx.t)
+        self._sample_origins(det)
         if ctx.t + 1e-9 >= self._next_aggregate_s:
-            self._read_loops(ls, ctx.t)
+            self._read_loops(det, ctx.t)
             self._next_aggregate_s += self.aggregate_s
 
-    def _sample_queues(self, ls: Any, t: float) -> None:
+    def _sample_queues(self, det: DetectorFrame, t: float) -> None:
         self.log.t.append(t)
         for key, m in self.latest.items():
-            e2 = self.ramp(key)["e2_ramp"]
-            m.queue_veh = float(ls.lanearea.getLastStepVehicleNumber(e2))
-            m.halting_veh = float(ls.lanearea.getLastStepHaltingNumber(e2))
+            k = det.area_index.get(self.ramp(key).e2_ramp)
+            m.queue_veh = float(det.area_vehicles[k]) if k is not None else 0.0
+            m.halting_veh = float(det.area_halting[k]) if k is not None else 0.0
             self.log.queue[key].append(m.queue_veh)
 
-    def _sample_origins(self, ls: Any) -> None:
+    def _sample_origins(self, det: DetectorFrame) -> None:
         """Vehicles on each origin arterial not seen before (candidates for route guidance)."""
         self.new_on_origin = {}
         for ic in self.interchanges:
-            fresh = [v for v in ls.edge.getLastStepVehicleIDs(ic["origin_edge"]) if v not in self._seen_origin]
+            fresh = [v for v in det.edge_vehicles.get(ic.origin_edge, ()) if v not in self._seen_origin]
             self._seen_origin.update(fresh)
-            self.new_on_origin[int(ic["index"])] = fresh
+            self.new_on_origin[int(ic.index)] = fresh
 
-    def _read_loops(self, ls: Any, t: float) -> None:
+    def _read_loops(self, det: DetectorFrame, t: float) -> None:
         """Last completed interval of every loop, aggregated per ramp; ramp demand by conservation."""
-        il = ls.inductionloop
         span_h = self.aggregate_s / 3600.0
         for key, m in self.latest.items():
             r = self.ramp(key)
-            m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps = _loop_group(il, r["e1_downstream"], span_h)
-            m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps = _loop_group(il, r["e1_upstream"], span_h)
-            passed = il.getLastIntervalVehicleNumber(r["e1_ramp"])
+            m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps = _loop_group(det, r.e1_downstream, span_h)
+            m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps = _loop_group(det, r.e1_upstream, span_h)
+            k = det.loop_index.get(r.e1_ramp)
+            passed = int(det.loop_count[k]) if k is not None else 0
             m.ramp_flow_vph = passed / span_h
             self.passed_total[key] += int(passed)
             growth = m.queue_veh - self._queue_at_interval[key]
@@ -148,11 +155,12 @@ class RampDetectors(Component):
             self.history.append((t, key, "up", m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
 
 
-def _loop_group(il: Any, ids: list[str], span_h: float) -> tuple[float, float, float]:
+def _loop_group(det: DetectorFrame, ids: tuple[str, ...], span_h: float) -> tuple[float, float, float]:
     """(mean occupancy [%], total flow [veh/h], flow-weighted speed [m/s]) of loops across lanes."""
-    n = np.array([il.getLastIntervalVehicleNumber(i) for i in ids], dtype=float)
-    occ = np.array([il.getLastIntervalOccupancy(i) for i in ids], dtype=float)
-    spd = np.array([il.getLastIntervalMeanSpeed(i) for i in ids], dtype=float)  # -1 when empty
+    k = [det.loop_index[i] for i in ids]
+    n = det.loop_count[k]
+    occ = det.loop_occupancy_pct[k]
+    spd = det.loop_speed_mps[k]  # -1 when empty
     ok = (n > 0) & (spd >= 0)
     speed = float(np.sum(spd[ok] * n[ok]) / np.sum(n[ok])) if ok.any() else math.nan
     return float(occ.mean()), float(n.sum() / span_h), speed

@@ -1,6 +1,6 @@
 """Road monitors: surrogate safety (TTC, DRAC, hard braking) and traffic KPIs (throughput past the
-merge, travel-time delay of mainline and ramp vehicles).  They read the SUMO backend's lane-frame
-arrays, aligned row by row with its snapshot part."""
+merge, travel-time delay of mainline and ramp vehicles).  They read only the snapshot's road frame
+(lane codes, positions along the lane, accelerations, the static tables) and the ``trips`` peer."""
 
 from __future__ import annotations
 
@@ -12,16 +12,9 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Phase, RunContext
-from corridor.snapshot import Role
+from corridor.snapshot import RoadFrame, Role
 from corridor.traffic.road_spec import road_spec
-from corridor.traffic.sumo_backend import SumoBackend
-
-
-def road_backend(ctx: RunContext) -> SumoBackend:
-    for b in ctx.backends():
-        if isinstance(b, SumoBackend):
-            return b
-    raise ValueError("this monitor needs a road (SUMO) backend: add `road:` to the scenario")
+from corridor.traffic.trips import road_frame, trips_monitor
 
 
 class SurrogateSafety(Component):
@@ -45,23 +38,25 @@ class SurrogateSafety(Component):
         self._braking = np.zeros(0, dtype=bool)  # per uid: was braking hard at the previous tick
 
     def setup(self, ctx: RunContext) -> None:
-        self.road = road_backend(ctx)
+        road_frame(ctx)  # fails early without a road
 
     def tick(self, ctx: RunContext) -> None:
-        r = self.road
-        if len(self._braking) < r.n_uids:
-            self._braking = np.concatenate([self._braking, np.zeros(r.n_uids + 256, dtype=bool)])
+        snap = ctx.snapshot
+        r = road_frame(ctx)
+        n_uids = r.tables.n_uids
+        if len(self._braking) < n_uids:
+            self._braking = np.concatenate([self._braking, np.zeros(n_uids + 256, dtype=bool)])
         braking = r.accel < self.p.hard_brake_mps2
         counting = ctx.t >= self.warmup
         if counting:
             self.hard_brakes += int(np.count_nonzero(braking & ~self._braking[r.uid]))
         self._braking[r.uid] = braking
-        f, lead = lane_leaders(r.lane_code, r.lane_pos)
+        f, lead = lane_leaders(r.lane, r.lane_pos)
         ttc_now = np.inf
         if len(f):
-            s = r.snapshot_part()
-            speed = s.speed
-            gap = r.lane_pos[lead] - s.size[lead, 0] - r.lane_pos[f]
+            speed = snap.speed[r.sl]
+            length = snap.size[r.sl, 0]
+            gap = r.lane_pos[lead] - length[lead] - r.lane_pos[f]
             ttc, drac = ttc_drac(gap, speed[f], speed[lead])
             ttc_now = float(ttc.min())
             if counting:
@@ -92,7 +87,7 @@ class TrafficKpis(Component):
     waiting to be inserted, integrated after the warm-up).
 
     Delay is taken over every vehicle that entered the demand after the warm-up: vehicles that had
-    not arrived when the run ended count with their delay so far (see ``SumoBackend.delays``), and
+    not arrived when the run ended count with their delay so far (see ``Trips.delays``), and
     ``insertion_backlog`` is the number still waiting to enter the network at the end."""
 
     phase = Phase.DETECT
@@ -115,71 +110,57 @@ class TrafficKpis(Component):
         self.tts_vh = 0.0
 
     def setup(self, ctx: RunContext) -> None:
-        self.road = road_backend(ctx)
-        lm = self.road.net.landmarks
-        self.line_x = float(lm[self.p.count_landmark])
+        self.trips = trips_monitor(ctx)
+        lm = road_frame(ctx).tables.landmarks
+        self.line_x = lm.x(self.p.count_landmark)
         a = self.p.merge_area
-        self.area_x = (float(lm[a.start_landmark]) - a.before_m, float(lm[a.end_landmark]) + a.after_m) if a else None
-        self._lane_vmax = np.zeros(0)  # per lane code [m/s]
-        self._v_top, self._factor = np.zeros(0), np.zeros(0)  # per uid
+        self.area_x = (lm.x(a.start_landmark) - a.before_m, lm.x(a.end_landmark) + a.after_m) if a else None
 
     def tick(self, ctx: RunContext) -> None:
-        r = self.road
-        n = len(r.active)
+        snap = ctx.snapshot
+        r = road_frame(ctx)
+        n = len(r)
         if ctx.t >= self.warmup:
-            self.tts_vh += (n + r.backlog()) * self.period / 3600.0
+            self.tts_vh += (n + r.events.backlog) * self.period / 3600.0
         if n == 0:
             return
-        if len(self.passed) < r.n_uids:
-            grow = r.n_uids + 256
+        if len(self.passed) < r.tables.n_uids:
+            grow = r.tables.n_uids + 256
             self.passed = np.concatenate([self.passed, np.zeros(grow, dtype=bool)])
             self.energy = np.concatenate([self.energy, np.zeros(grow)])
             self.area_loss = np.concatenate([self.area_loss, np.zeros(grow)])
             self.in_area = np.concatenate([self.in_area, np.zeros(grow, dtype=bool)])
-        part = r.snapshot_part()
+        x = snap.position[r.sl, 0]
+        speed = snap.speed[r.sl]
         if ctx.t >= self.warmup:
             self.energy[r.uid] += r.accel**2 * self.period
         if self.area_x is not None:
-            self._merge_area_loss(part)
-        new = (part.position[:, 0] > self.line_x) & ~self.passed[r.uid]
+            self._merge_area_loss(r, x, speed)
+        new = (x > self.line_x) & ~self.passed[r.uid]
         self.passed[r.uid[new]] = True
         if ctx.t >= self.warmup:
             self.count += int(np.count_nonzero(new))
         ctx.signals.record("vehicles", ctx.t, n)
-        ctx.signals.record("mean_speed", ctx.t, float(part.speed.mean()))
+        ctx.signals.record("mean_speed", ctx.t, float(speed.mean()))
 
-    def _merge_area_loss(self, part: Any) -> None:
+    def _merge_area_loss(self, r: RoadFrame, x: np.ndarray, speed: np.ndarray) -> None:
         """SUMO's time loss, dt·(1 − v / v_desired), of every vehicle inside the merge area; v_desired
         is its own desired speed on its lane, min(top speed, limit · speed factor)."""
-        r = self.road
-        x = part.position[:, 0]
         inside = np.flatnonzero((x >= self.area_x[0]) & (x <= self.area_x[1]))
         if not len(inside):
             return
-        uid, code = r.uid[inside], r.lane_code[inside]
-        if len(self._v_top) < len(self.in_area):  # per-uid driver facts, filled on first sight
-            grow = len(self.in_area) - len(self._v_top)
-            self._v_top = np.concatenate([self._v_top, np.full(grow, np.nan)])
-            self._factor = np.concatenate([self._factor, np.full(grow, np.nan)])
-        for k in inside[np.isnan(self._v_top[uid])]:
-            i = r.info[r.active[k]]
-            self._v_top[r.uid[k]], self._factor[r.uid[k]] = i.max_speed, i.speed_factor
-        if code.max() >= len(self._lane_vmax):  # speed limit per lane code, read once per lane
-            grow = code.max() + 1 - len(self._lane_vmax)
-            self._lane_vmax = np.concatenate([self._lane_vmax, np.full(grow, np.nan)])
-        for k in inside[np.isnan(self._lane_vmax[code])]:
-            self._lane_vmax[r.lane_code[k]] = r.libsumo.lane.getMaxSpeed(r.lane_id[k])
-        v_des = np.minimum(self._v_top[uid], self._lane_vmax[code] * self._factor[uid])
-        self.area_loss[uid] += self.period * np.clip(1.0 - part.speed[inside] / v_des, 0.0, 1.0)
+        tb = r.tables
+        uid, code = r.uid[inside], r.lane[inside]
+        v_des = np.minimum(tb.max_speed[uid], tb.lane_speed_limit[code] * tb.speed_factor[uid])
+        self.area_loss[uid] += self.period * np.clip(1.0 - speed[inside] / v_des, 0.0, 1.0)
         self.in_area[uid] = True
 
     def _area_metrics(self) -> dict[str, float]:
         """Mean time lost inside the merge area per measured vehicle (departed after the warm-up,
         seen in the area), by role: the part of the delay that the merge itself causes."""
-        r = self.road
         out, both = {}, []
         for role, code in (("mainline", Role.MAINLINE), ("ramp", Role.RAMP)):
-            uids = r.departed_uids(self.warmup, code)
+            uids = self.trips.departed_uids(self.warmup, code)
             uids = uids[uids < len(self.in_area)]
             lost = self.area_loss[uids[self.in_area[uids]]]
             out[f"merge_loss_{role}_s"] = float(lost.mean()) if len(lost) else np.nan
@@ -191,8 +172,8 @@ class TrafficKpis(Component):
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
         out: dict[str, Any] = {"throughput_vph": self.count / span_h, "tts_vh": self.tts_vh}
-        delays = self.road.delays(self.warmup, unfinished=True)
-        out["insertion_backlog"] = self.road.backlog()
+        delays = self.trips.delays(self.warmup, unfinished=True)
+        out["insertion_backlog"] = self.trips.backlog()
         for role, d in delays.items():
             out[f"delay_{role}_mean_s"] = float(d.mean()) if len(d) else np.nan
             out[f"delay_{role}_p95_s"] = float(np.percentile(d, 95)) if len(d) else np.nan
@@ -200,7 +181,7 @@ class TrafficKpis(Component):
         both = np.concatenate(list(delays.values()))
         means = [out["delay_mainline_mean_s"], out["delay_ramp_mean_s"]]
         out["delay_jain_index"] = jain_index(np.maximum(means, 0.0)) if all(np.isfinite(means)) else np.nan
-        measured = self.road.measured_uids(self.warmup)
+        measured = self.trips.measured_uids(self.warmup)
         out["energy_proxy_mean"] = float(self.energy[measured].mean()) if len(measured) else np.nan
         out["delay_mean_s"] = float(both.mean()) if len(both) else np.nan
         out["delay_total_vh"] = float(both.sum() / 3600.0)

@@ -40,6 +40,7 @@ import numpy as np
 import sumolib
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from corridor.traffic.landmarks import BeltwayLandmarks
 from corridor.traffic.network import (
     BuildOutput,
     PlainNet,
@@ -416,7 +417,7 @@ def _junction_length(net: sumolib.net.Net, edge: sumolib.net.edge.Edge, nxt: sum
 
 def _landmarks(
     p: BeltwayParams, net: sumolib.net.Net, detectors: dict[str, dict[str, Any]]
-) -> dict[str, Any]:
+) -> BeltwayLandmarks:
     """Per-interchange ramps, meters and detectors, and the ring segments for METANET."""
     storage = int(p.ramp_length_m // VEHICLE_SPACING_M)
     interchanges = []
@@ -441,7 +442,8 @@ def _landmarks(
             }
         interchanges.append(entry)
     ring = {d: _ring_segments(p, net, d) for d in DIRECTIONS}
-    return {
+    return BeltwayLandmarks.model_validate({
+        "lane_width_m": p.lane_width_m,
         "directions": {"ccw": "outer carriageway, counter-clockwise", "cw": "inner carriageway, clockwise"},
         "interchanges": interchanges,
         "ring": ring,
@@ -457,7 +459,7 @@ def _landmarks(
             "off_program": "off",
         },
         "vehicle_spacing_m": VEHICLE_SPACING_M,
-    }
+    })
 
 
 @register_builder("beltway", BeltwayParams)

@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import sumolib
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from corridor.traffic.landmarks import OnrampLandmarks
 from corridor.traffic.network import BuildOutput, PlainNet, register_builder, run_netconvert
 
 MIN_RUNOUT_M = 50.0  # [m] mainline needed after the acceleration lane ends
@@ -91,25 +91,23 @@ def _plain(p: HighwayOnrampParams) -> PlainNet:
     return plain
 
 
-def _landmarks(p: HighwayOnrampParams, net_file: Path) -> dict[str, Any]:
+def _landmarks(p: HighwayOnrampParams, net_file: Path) -> OnrampLandmarks:
     """Named facts measured on the built network (netconvert trims edges at junctions)."""
     net = sumolib.net.readNet(str(net_file))
     accel = np.asarray(net.getLane("merge_0").getShape())
     merge_start_x, merge_end_x = float(accel[0, 0]), float(accel[-1, 0])
-    return {
-        "upstream_edge": "upstream",
-        "merge_edge": "merge",
-        "downstream_edge": "downstream",
-        "ramp_edge": "ramp",
-        "accel_lane": "merge_0",
-        "mainline_lanes": p.mainline_lanes,
-        "lane_width_m": p.lane_width_m,
-        "merge_start_x": merge_start_x,  # [m] start of the acceleration lane
-        "merge_end_x": merge_end_x,  # [m] end of the acceleration lane
-        "past_merge_x": merge_end_x,  # [m] a vehicle with x beyond this has merged (or failed to)
-        "mainline_end_x": float(net.getEdge("downstream").getShape()[-1][0]),  # [m]
-        "accel_lane_length_m": float(net.getLane("merge_0").getLength()),  # [m] as built
-    }
+    return OnrampLandmarks(
+        upstream_edge="upstream", merge_edge="merge", downstream_edge="downstream", ramp_edge="ramp",
+        accel_lane="merge_0",
+        join_lanes=("upstream_0", "merge_1"),  # lane 0 upstream, lane 1 beside the acceleration lane
+        merge_junction="n_merge", mainline_lanes=p.mainline_lanes, lane_width_m=p.lane_width_m,
+        ramp_angle_deg=p.ramp_angle_deg,
+        merge_start_x=merge_start_x,  # [m] start of the acceleration lane
+        merge_end_x=merge_end_x,  # [m] end of the acceleration lane
+        past_merge_x=merge_end_x,  # [m] a vehicle with x beyond this has merged (or failed to)
+        mainline_end_x=float(net.getEdge("downstream").getShape()[-1][0]),  # [m]
+        accel_lane_length_m=float(net.getLane("merge_0").getLength()),  # [m] as built
+    )
 
 
 @register_builder("highway_onramp", HighwayOnrampParams)

@@ -9,12 +9,12 @@ opposite lane with ``moveToXY`` therefore shifts by ``opposite_lane_offset_m`` =
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import sumolib
 from pydantic import BaseModel, ConfigDict, Field
 
+from corridor.traffic.landmarks import RuralLandmarks
 from corridor.traffic.network import BuildOutput, PlainNet, register_builder, run_netconvert
 
 
@@ -49,22 +49,18 @@ def _plain(p: RuralTwoLaneParams) -> PlainNet:
     )
 
 
-def _landmarks(p: RuralTwoLaneParams, net_file: Path) -> dict[str, Any]:
+def _landmarks(p: RuralTwoLaneParams, net_file: Path) -> RuralLandmarks:
     """Lane ids and lateral geometry measured on the built network."""
     net = sumolib.net.readNet(str(net_file))
     east_y = float(np.mean(np.asarray(net.getLane("east_0").getShape())[:, 1]))
     west_y = float(np.mean(np.asarray(net.getLane("west_0").getShape())[:, 1]))
-    return {
-        "east_edge": "east",
-        "west_edge": "west",
-        "east_lane": "east_0",
-        "west_lane": "west_0",
-        "east_lane_y": east_y,  # [m]
-        "west_lane_y": west_y,  # [m]
-        "opposite_lane_offset_m": west_y - east_y,  # [m] to the LEFT of an eastbound vehicle (+y)
-        "lane_width_m": p.lane_width_m,
-        "length_m": float(net.getLane("east_0").getLength()),  # [m] as built
-    }
+    return RuralLandmarks(
+        east_edge="east", west_edge="west", east_lane="east_0", west_lane="west_0",
+        east_lane_y=east_y, west_lane_y=west_y,  # [m]
+        opposite_lane_offset_m=west_y - east_y,  # [m] to the LEFT of an eastbound vehicle (+y)
+        lane_width_m=p.lane_width_m,
+        length_m=float(net.getLane("east_0").getLength()),  # [m] as built
+    )
 
 
 @register_builder("rural_two_lane", RuralTwoLaneParams)

@@ -2,7 +2,7 @@
 
 A builder turns a frozen pydantic params model into plain-XML nodes/edges/connections (plus traffic
 light programs and detector definitions), runs ``netconvert`` from the eclipse-sumo wheel, and reports
-routes and named landmarks.  ``build_network`` caches the result under a hash of (builder name,
+routes and typed landmarks (``corridor.traffic.landmarks``).  ``build_network`` caches the result under a hash of (builder name,
 params, SUMO version, builder source) so that the many processes of a Monte Carlo batch build each
 network once; entries are written into a temporary directory and renamed into place, which is atomic
 on one file system, so concurrent builders never see half-written files.
@@ -28,7 +28,9 @@ import numpy as np
 import sumolib
 from pydantic import BaseModel
 
-CACHE_FORMAT = 1  # bump when the on-disk layout or any builder's output changes
+from corridor.traffic.landmarks import Landmarks, parse_landmarks
+
+CACHE_FORMAT = 2  # bump when the on-disk layout or any builder's output changes
 META_FILE = "meta.json"
 NET_FILE = "network.net.xml"
 
@@ -45,7 +47,7 @@ class BuiltNetwork:
     additional_files: tuple[Path, ...]  # detectors, TLS programs (may be empty)
     routes: Mapping[str, tuple[str, ...]]  # route name -> edge ids
     lane_shapes: Mapping[str, np.ndarray]  # lane id -> (n, 2) polyline, SUMO x/y [m]
-    landmarks: Mapping[str, Any]  # builder-specific named facts (JSON-like values)
+    landmarks: Landmarks  # typed, frozen facts of the builder (merge point, lanes, detectors, ...)
     params_hash: str
 
 
@@ -55,7 +57,7 @@ class BuildOutput:
 
     additional_files: tuple[str, ...]
     routes: Mapping[str, Sequence[str]]
-    landmarks: Mapping[str, Any]
+    landmarks: Landmarks
 
 
 @dataclass
@@ -262,7 +264,7 @@ def _build_into_cache(kind: str, params: BaseModel, build_fn: BuildFn, entry: Pa
             "params": params.model_dump(mode="json"),
             "additional_files": list(out.additional_files),
             "routes": {k: list(v) for k, v in out.routes.items()},
-            "landmarks": out.landmarks,
+            "landmarks": out.landmarks.model_dump(mode="json"),
         }
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1, sort_keys=True), encoding="utf-8")
         try:
@@ -283,7 +285,7 @@ def _load_entry(entry: Path, digest: str) -> BuiltNetwork:
         additional_files=tuple(entry / name for name in meta["additional_files"]),
         routes={k: tuple(v) for k, v in meta["routes"].items()},
         lane_shapes=read_lane_shapes(net_file),
-        landmarks=meta["landmarks"],
+        landmarks=parse_landmarks(meta["landmarks"]),
         params_hash=digest,
     )
 

@@ -5,7 +5,7 @@ fairness across ramps and the MPC's solve times.
   dt.  Vehicles on arterials and ramps are in the network, so ramp queues are included; a queue that
   spills back past the arterial shows up as vehicles SUMO could not insert yet (pending).
 * Total delay [veh h]: sum over arrived vehicles (departing after warm-up) of travel time + insertion
-  delay - free-flow travel time (``SumoBackend.delays``).
+  delay - free-flow travel time (``Trips.delays`` of the ``trips`` peer).
 * Throughput [veh/h]: vehicles that arrived after the warm-up, per hour of the measured span.
 * Ramp queues from the ``ramp_detectors`` peer (E2 vehicles on each on-ramp storage): maximum and mean
   per ramp, the worst ramp's maximum relative to its storage, and spill-back events (the queue reaching
@@ -26,7 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Phase, RunContext
 from corridor.traffic.detectors import RampDetectors
-from corridor.traffic.monitors import road_backend
+from corridor.traffic.trips import road_frame, trips_monitor
 
 
 def find_detectors(ctx: RunContext) -> RampDetectors:
@@ -69,12 +69,13 @@ class RampKpis(Component):
         self._last_loop_t = -math.inf
 
     def setup(self, ctx: RunContext) -> None:
-        self.road = road_backend(ctx)
+        self.trips = trips_monitor(ctx)
         self.det = find_detectors(ctx)
 
     def tick(self, ctx: RunContext) -> None:
-        n_net = len(self.road.active)
-        n_pending = self.road.backlog()
+        road = road_frame(ctx)
+        n_net = len(road)
+        n_pending = road.events.backlog
         self.tts_vh += (n_net + n_pending) * self.period / 3600.0
         self.tts_pending_vh += n_pending * self.period / 3600.0
         ctx.signals.record("vehicles_in_network", ctx.t, n_net)
@@ -103,7 +104,7 @@ class RampKpis(Component):
 
     def _delay_throughput(self, ctx: RunContext) -> dict[str, Any]:
         warm = ctx.scenario.warmup if ctx.scenario is not None else 0.0
-        delays = np.concatenate(list(self.road.delays(warm).values()))
+        delays = np.concatenate(list(self.trips.delays(warm).values()))
         span_h = (ctx.duration - warm) / 3600.0
         return {"delay_total_vh": float(delays.sum() / 3600.0),
                 "delay_mean_s": float(delays.mean()) if len(delays) else math.nan,

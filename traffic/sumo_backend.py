@@ -9,14 +9,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from corridor.engine import Backend, RunContext
-from corridor.snapshot import Kind, Role, WorldSnapshot
+from corridor.snapshot import DetectorFrame, Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 from corridor.traffic import commands as cmd
 from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
 from corridor.traffic.network import BuiltNetwork, build_network
@@ -29,24 +28,6 @@ def sumo_binary() -> str:
     import sumo
 
     return str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
-
-
-@dataclass
-class VehicleInfo:
-    """Static facts of one vehicle, taken once when it departs."""
-
-    flow: str
-    route: str
-    role: int
-    connected: bool
-    length: float  # [m]
-    width: float  # [m]
-    depart_s: float
-    depart_delay_s: float
-    freeflow_s: float  # free-flow travel time of its route at its desired speed
-    speed_factor: float = 1.0  # its multiplier of the speed limit (the driver's desired speed)
-    max_speed: float = math.inf  # [m/s] its vehicle type's top speed
-    arrive_s: float = math.nan
 
 
 def vtype_attrs(vt: Any) -> dict[str, str | float]:
@@ -67,14 +48,21 @@ def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
 
 
 class SumoBackend(Backend):
-    """Road traffic in SUMO.  Exposes lane-frame arrays aligned with its snapshot rows for road
-    monitors (``uid``, ``lane_id``, ``lane_code``, ``lane_pos``, ``accel``) and per-vehicle facts in
-    ``info``; ``n_uids`` is the number of vehicles departed so far.
+    """Road traffic in SUMO.  Its snapshot part carries a ``RoadFrame``: the lane frame of its rows,
+    the run's static tables (vehicles by uid, lanes, routes, the network's typed landmarks), the
+    step's road events (departures, arrivals, teleports, SUMO's collision report, the insertion
+    backlog) and the readings of the detectors the network declares.  Consumers read only that;
+    writes are commands (those of other SUMO-side modules carry an ``apply_to_sumo(libsumo)`` method).
 
-    SUMO-side modules (detectors, ramp meters) may use ``libsumo`` (the module, valid between setup
-    and close) for reads, and send writes as commands with an ``apply_to_sumo(libsumo)`` method."""
+    Seam for backends that drive a SUMO vehicle themselves (the ego bicycle): ``pre_step`` hooks run
+    right before each SUMO step and may ``apply`` ``apply_to_sumo`` commands (insert, place);
+    ``vehicle_pose`` reads one vehicle's raw SUMO pose and ``mark_controlled`` makes its row
+    ``Role.CONTROLLED``.  ``libsumo`` (valid between setup and close) is for tests only."""
 
     Params = RoadSpec  # ``backends.road.params`` (or the ``road:`` shorthand)
+    # the engine adds these monitors (name: registered type) to every scenario with this backend:
+    # trip bookkeeping (departures, arrivals, delays, backlog, teleports) is measured, not simulated
+    required_monitors: ClassVar[dict[str, str]] = {"trips": "trips"}
 
     def __init__(self, name: str, params: RoadSpec, scenario: Any, network: BuiltNetwork | None = None,
                  cache_dir: Path | None = None) -> None:
@@ -83,29 +71,15 @@ class SumoBackend(Backend):
         self.road = params
         self.period = self.road.sumo.step_length
         self.net = network or build_network(self.road.network.type, self.road.network.params, cache_dir)
-        self.info: dict[str, VehicleInfo] = {}
-        self.active: list[str] = []
+        self.tables = RoadTables(self.net.landmarks)
         self.controlled: set[str] = set()
         self._lc_mode0: dict[str, int] = {}  # original lane-change modes of vehicles a controller changed
-        self.collisions: list[tuple[float, str, str, str]] = []  # (t, collider, victim, type)
-        self.new_collisions: list[tuple[float, str, str, str]] = []
-        self.teleports: list[tuple[float, str]] = []
+        self._ids: list[str] = []  # ids of the vehicles in the network after the last step
         self.commands_ignored = 0
         # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
         # place themselves here, so SUMO moves everyone to the same time instant
         self.pre_step: list[Callable[[RunContext], None]] = []
-        self._part = WorldSnapshot()
-        # per-vehicle integer ids (uid: order of departure) index static per-uid arrays, so monitors
-        # can keep vectorised per-vehicle state (np arrays indexed by uid) instead of Python sets
-        self._uid_of: dict[str, int] = {}
-        self._length, self._width = np.zeros(0), np.zeros(0)
-        self._role = np.zeros(0, dtype=np.int8)
-        self._lane_codes: dict[str, int] = {}
-        self.uid = np.zeros(0, dtype=np.int64)
-        self.lane_id = np.zeros(0, dtype=object)
-        self.lane_code = np.zeros(0, dtype=np.int64)  # small integer per lane id
-        self.lane_pos = np.zeros(0)
-        self.accel = np.zeros(0)
+        self._part = WorldSnapshot(road=RoadFrame(name, self.tables))
         self._started = False
 
     # ------------------------------------------------------------------ set-up
@@ -121,9 +95,30 @@ class SumoBackend(Backend):
         self._started = True
         self._vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE,
                       libsumo.VAR_ACCELERATION, libsumo.VAR_LANE_ID, libsumo.VAR_LANEPOSITION)
+        every = round(self.period / ctx.dt)
+        self._last_tick = ((round(ctx.duration / ctx.dt) - 1) // every) * every  # the run's last SUMO step
         libsumo.simulation.subscribe([libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
                                       libsumo.VAR_TELEPORT_STARTING_VEHICLES_IDS])
-        self._route_ff = {r: self._route_lanes(edges) for r, edges in self.net.routes.items()}
+        for r, edges in self.net.routes.items():
+            self.tables.add_route(r, tuple(self._route_lanes(edges)))
+        self._subscribe_detectors()
+
+    def _subscribe_detectors(self) -> None:
+        """Subscribe the loops, lane areas and watched edges that the network's landmarks declare."""
+        ls, lm = self._ls, self.tables.landmarks
+        loops, areas, edges = lm.declared_detectors() if hasattr(lm, "declared_detectors") else ((), (), ())
+        self._det = DetectorFrame(loop_ids=tuple(loops), area_ids=tuple(areas),
+                                  loop_index={i: k for k, i in enumerate(loops)},
+                                  area_index={i: k for k, i in enumerate(areas)})
+        self._det_edges = tuple(edges)
+        self._loop_vars = (ls.VAR_LAST_INTERVAL_NUMBER, ls.VAR_LAST_INTERVAL_OCCUPANCY, ls.VAR_LAST_INTERVAL_SPEED)
+        self._area_vars = (ls.LAST_STEP_VEHICLE_NUMBER, ls.LAST_STEP_VEHICLE_HALTING_NUMBER)
+        for i in loops:
+            ls.inductionloop.subscribe(i, self._loop_vars)
+        for i in areas:
+            ls.lanearea.subscribe(i, self._area_vars)
+        for e in edges:
+            ls.edge.subscribe(e, (ls.LAST_STEP_VEHICLE_ID_LIST,))
 
     def _write_demand(self, ctx: RunContext) -> Path:
         d = self.road.demand
@@ -162,20 +157,40 @@ class SumoBackend(Backend):
         ls.simulationStep()
         t = ls.simulation.getTime()
         sim = ls.simulation.getSubscriptionResults()
-        for vid in sim.get(ls.VAR_DEPARTED_VEHICLES_IDS, ()):
-            self._on_depart(vid, t)
+        uid_of = self.tables.uid_of
+        departed = [self._on_depart(vid, t) for vid in sim.get(ls.VAR_DEPARTED_VEHICLES_IDS, ())]
+        arrived = []
         for vid in sim.get(ls.VAR_ARRIVED_VEHICLES_IDS, ()):
-            if vid in self.info:
-                self.info[vid].arrive_s = t
+            if vid in uid_of:
+                arrived.append(uid_of[vid])
             self.controlled.discard(vid)
+        teleported = []
         for vid in sim.get(ls.VAR_TELEPORT_STARTING_VEHICLES_IDS, ()):
-            self.teleports.append((t, vid))
+            teleported.append(uid_of.get(vid, -1))
             ctx.events.emit(t, self.name, "teleport", f"{vid} teleported (jam or stuck merge)", vid=vid)
-        self.new_collisions = [(t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()]
-        self.collisions.extend(self.new_collisions)
-        self._read_state(ls.vehicle.getAllSubscriptionResults())
+        events = RoadEvents(
+            departed=np.asarray(departed, dtype=np.int64), arrived=np.asarray(arrived, dtype=np.int64),
+            teleported=np.asarray(teleported, dtype=np.int64),
+            collisions=tuple((t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()))
+        self._pending(events)
+        self._read_state(ls.vehicle.getAllSubscriptionResults(), t, events, final=ctx.tick == self._last_tick)
 
-    def _on_depart(self, vid: str, t: float) -> None:
+    def _pending(self, ev: RoadEvents) -> None:
+        """Vehicles due to depart that SUMO could not insert yet (the road at the origin is full)."""
+        ls = self._ls
+        ids = tuple(ls.simulation.getPendingVehicles())
+        if not ids:
+            return
+        n = len(ids)
+        specs = [self._flow_of.get(vid.split(".", 1)[0]) for vid in ids]
+        codes = self.tables.route_code_of
+        ev.pending_ids = ids
+        ev.pending_wait_s = np.fromiter((ls.vehicle.getDepartDelay(v) for v in ids), dtype=float, count=n)
+        ev.pending_route = np.fromiter((codes.get(s.route, -1) if s else -1 for s in specs), dtype=np.int64, count=n)
+        ev.pending_role = np.fromiter((Role.RAMP if s is not None and s.route == "ramp" else Role.MAINLINE
+                                       for s in specs), dtype=np.int8, count=n)
+
+    def _on_depart(self, vid: str, t: float) -> int:
         ls = self._ls
         ls.vehicle.subscribe(vid, self._vars)
         flow = vid.split(".", 1)[0]  # vehicle ids are <flow>.<step>.<n> (flow names have no dots)
@@ -184,72 +199,100 @@ class SumoBackend(Backend):
         vt = self.road.demand.vehicle_types[spec.vtype] if spec else None
         connected = bool(spec and self._rng.random() < spec.connected_share)
         desired = ls.vehicle.getSpeedFactor(vid)
-        vmax = vt.max_speed if vt else 50.0
-        ff = sum(length / min(vmax, lim * desired) for length, lim in self._route_ff.get(route, []))
-        info = VehicleInfo(
-            flow=flow, route=route, role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
-            connected=connected, length=vt.length if vt else ls.vehicle.getLength(vid),
+        return self.tables.add_vehicle(
+            vid, length=vt.length if vt else ls.vehicle.getLength(vid),
             width=vt.width if vt else ls.vehicle.getWidth(vid),  # vehicles added by id, not by a flow
-            depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid), freeflow_s=ff,
-            speed_factor=desired, max_speed=vmax)
-        self.info[vid] = info
-        k = self._uid_of[vid] = len(self._uid_of)
-        if k >= len(self._length):  # grow the per-uid static arrays geometrically
-            grow = max(256, len(self._length))
-            self._length = np.concatenate([self._length, np.zeros(grow)])
-            self._width = np.concatenate([self._width, np.zeros(grow)])
-            self._role = np.concatenate([self._role, np.zeros(grow, dtype=np.int8)])
-        self._length[k], self._width[k], self._role[k] = info.length, info.width, info.role
+            route=self.tables.add_route(route), role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
+            connected=connected, speed_factor=desired, max_speed=vt.max_speed if vt else 50.0,
+            depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid))
 
-    def _read_state(self, res: dict[str, dict[int, Any]]) -> None:
+    def _new_lane(self, lane_id: str) -> int:
+        return self.tables.add_lane(lane_id, self._ls.lane.getMaxSpeed(lane_id))
+
+    def _read_detectors(self) -> DetectorFrame | None:
+        d = self._det
+        if not (d.loop_ids or d.area_ids or self._det_edges):
+            return None
+        ls = self._ls
+        loops = ls.inductionloop.getAllSubscriptionResults()
+        n_, occ_, spd_ = self._loop_vars
+        lv = np.array([(loops[i][n_], loops[i][occ_], loops[i][spd_]) for i in d.loop_ids], dtype=float)
+        areas = ls.lanearea.getAllSubscriptionResults()
+        an, ah = self._area_vars
+        av = np.array([(areas[i][an], areas[i][ah]) for i in d.area_ids], dtype=float)
+        edges = ls.edge.getAllSubscriptionResults()
+        ids_var = ls.LAST_STEP_VEHICLE_ID_LIST
+        return DetectorFrame(
+            loop_ids=d.loop_ids, loop_count=lv[:, 0], loop_occupancy_pct=lv[:, 1], loop_speed_mps=lv[:, 2],
+            area_ids=d.area_ids, area_vehicles=av[:, 0], area_halting=av[:, 1],
+            edge_vehicles={e: tuple(edges[e][ids_var]) for e in self._det_edges},
+            loop_index=d.loop_index, area_index=d.area_index)
+
+    def _read_state(self, res: dict[str, dict[int, Any]], t: float, events: RoadEvents, final: bool) -> None:
         ls = self._ls
         ids = list(res)
         n = len(ids)
-        self.active = ids
+        self._ids = ids
+        detectors = self._read_detectors()
         if n == 0:
-            self._part = WorldSnapshot()
-            self.uid = np.zeros(0, dtype=np.int64)
-            self.lane_id, self.lane_pos, self.accel = np.zeros(0, dtype=object), np.zeros(0), np.zeros(0)
-            self.lane_code = np.zeros(0, dtype=np.int64)
+            self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
         rows = list(res.values())
         P, S, A, ACC, LP = ls.VAR_POSITION, ls.VAR_SPEED, ls.VAR_ANGLE, ls.VAR_ACCELERATION, ls.VAR_LANEPOSITION
         num = np.array([(*r[P], r[S], r[A], r[ACC], r[LP]) for r in rows], dtype=float)  # one pass
-        lanes = [r[ls.VAR_LANE_ID] for r in rows]
-        uidx = self._uid_of
-        uid = np.fromiter((uidx[v] for v in ids), dtype=np.int64, count=n)
+        # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
+        # subscribed variable every step would cost ~2 % of the kernel's throughput
+        distance = np.array([ls.vehicle.getDistance(v) for v in ids]) if final else np.full(n, np.nan)
+        uid = np.fromiter(map(self.tables.uid_of.__getitem__, ids), dtype=np.int64, count=n)
         speed, yaw = num[:, 2], yaw_from_sumo_angle(num[:, 3])
-        length, width = self._length[uid], self._width[uid]
+        length, width = self.tables.length[uid], self.tables.width[uid]
         cos, sin = np.cos(yaw), np.sin(yaw)
         pos = np.zeros((n, 3))
         pos[:, 0] = num[:, 0] - 0.5 * length * cos  # SUMO reports the front bumper; store the centre
         pos[:, 1] = num[:, 1] - 0.5 * length * sin
         vel = np.zeros((n, 3))
         vel[:, 0], vel[:, 1] = speed * cos, speed * sin
-        role = self._role[uid].copy()
+        role = self.tables.role[uid].copy()
         if self.controlled:
             role[[k for k, v in enumerate(ids) if v in self.controlled]] = Role.CONTROLLED
+        codes = self.tables.lane_code_of
+        lane_var = ls.VAR_LANE_ID
+        lanes = [r[lane_var] for r in rows]
+        try:
+            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
+        except KeyError:  # a lane entered for the first time: code it (in order of appearance)
+            for ln in lanes:
+                if ln not in codes:
+                    self._new_lane(ln)
+            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
+        road = RoadFrame(self.name, self.tables, t=t, uid=uid, lane=lane, lane_pos=num[:, 5], accel=num[:, 4],
+                         distance=distance, events=events, detectors=detectors)
         self._part = WorldSnapshot(
             t=0.0, ids=np.array(ids, dtype=object), kind=np.full(n, Kind.CAR, dtype=np.int8), role=role,
-            position=pos, velocity=vel, heading=yaw, size=np.column_stack([length, width, np.full(n, 1.5)]))
-        self.uid = uid
-        self.lane_id = np.array(lanes, dtype=object)
-        codes = self._lane_codes
-        self.lane_code = np.fromiter((codes.setdefault(ln, len(codes)) for ln in lanes), dtype=np.int64, count=n)
-        self.lane_pos = num[:, 5]
-        self.accel = num[:, 4]
+            position=pos, velocity=vel, heading=yaw, size=np.column_stack([length, width, np.full(n, 1.5)]),
+            road=road)
 
     def snapshot_part(self) -> WorldSnapshot:
         return self._part
 
-    @property
-    def n_uids(self) -> int:
-        return len(self._uid_of)
+    def static_part(self) -> WorldSnapshot:
+        return self._part
+
+    # ------------------------------------------------------------------ seam for vehicle backends
+    def vehicle_pose(self, vid: str) -> tuple[float, float, float, float]:
+        """SUMO's own pose of ``vid`` now: front bumper x, y [m], SUMO angle [deg], speed [m/s]."""
+        v = self._ls.vehicle
+        x, y = v.getPosition(vid)
+        return x, y, v.getAngle(vid), v.getSpeed(vid)
+
+    def mark_controlled(self, vid: str) -> None:
+        """Report ``vid`` as ``Role.CONTROLLED`` from the next snapshot on (an externally driven vehicle)."""
+        self.controlled.add(vid)
 
     # ------------------------------------------------------------------ commands
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
         v = self._ls.vehicle
-        live = set(self.active)
+        live = set(self._ids)
         for c in commands:
             if hasattr(c, "apply_to_sumo"):  # commands of other SUMO-side modules (ramp meters, ...)
                 c.apply_to_sumo(self._ls)
@@ -286,72 +329,6 @@ class SumoBackend(Backend):
             elif isinstance(c, cmd.MoveToXY):
                 v.setSpeed(vid, max(0.0, c.speed_mps))
                 v.moveToXY(vid, c.edge, c.lane, c.x, c.y, 90.0 - math.degrees(c.yaw_rad), c.keep_route)
-
-    # ------------------------------------------------------------------ metrics
-    def _measured(self, warmup_s: float) -> list[tuple[str, VehicleInfo]]:
-        """Vehicles that departed after the warm-up and arrived (the ones metrics are taken over)."""
-        return [(v, i) for v, i in self.info.items() if not math.isnan(i.arrive_s) and i.depart_s >= warmup_s]
-
-    def finish(self, ctx: RunContext) -> dict[str, Any]:
-        arrived = self._measured(ctx.scenario.warmup)
-        return {
-            "vehicles_departed": len(self.info),
-            "vehicles_arrived": len([i for i in self.info.values() if not math.isnan(i.arrive_s)]),
-            "vehicles_measured": len(arrived),
-            "teleports": len(self.teleports),
-            "merge_failures": sum(1 for _, vid in self.teleports
-                                  if vid in self.info and self.info[vid].role == Role.RAMP),
-        }
-
-    def departed_uids(self, warmup_s: float, role: int) -> np.ndarray:
-        """uids of the vehicles of ``role`` that departed after the warm-up (arrived or not)."""
-        return np.array([self._uid_of[v] for v, i in self.info.items()
-                         if i.depart_s >= warmup_s and i.role == role], dtype=np.int64)
-
-    def measured_uids(self, warmup_s: float) -> np.ndarray:
-        """uids of the vehicles that departed after the warm-up and arrived."""
-        return np.array([self._uid_of[v] for v, _ in self._measured(warmup_s)], dtype=np.int64)
-
-    def delays(self, warmup_s: float, unfinished: bool = False) -> dict[str, np.ndarray]:
-        """Travel-time delay [s] (incl. insertion delay) per arrived vehicle, by role.
-
-        ``unfinished``: also count, with their delay so far (a lower bound), the vehicles that
-        entered the demand after the warm-up but had not arrived when the run ended — those still
-        on the road (elapsed time minus the free-flow time of the distance covered) and those still
-        waiting to be inserted (their insertion delay).  Without them a control that jams the road
-        would look better the fewer vehicles it lets through.
-        """
-        out: dict[str, list[float]] = {"mainline": [], "ramp": []}
-        for _, i in self._measured(warmup_s):
-            d = (i.arrive_s - i.depart_s) + i.depart_delay_s - i.freeflow_s
-            out["ramp" if i.role == Role.RAMP else "mainline"].append(d)
-        if unfinished and self._started:
-            for role, d in self._unfinished_delays(warmup_s):
-                out[role].append(d)
-        return {k: np.asarray(v) for k, v in out.items()}
-
-    def _unfinished_delays(self, warmup_s: float) -> list[tuple[str, float]]:
-        ls = self._ls
-        t = ls.simulation.getTime()
-        out = []
-        for vid in self.active:
-            i = self.info.get(vid)
-            if i is None or i.depart_s < warmup_s or not math.isnan(i.arrive_s):
-                continue
-            route_len = sum(length for length, _ in self._route_ff.get(i.route, [])) or 1.0
-            done = min(ls.vehicle.getDistance(vid) / route_len, 1.0)
-            role = "ramp" if i.role == Role.RAMP else "mainline"
-            out.append((role, (t - i.depart_s) + i.depart_delay_s - i.freeflow_s * done))
-        for vid in ls.simulation.getPendingVehicles():
-            wait = ls.vehicle.getDepartDelay(vid)
-            if t - wait >= warmup_s:
-                spec = self._flow_of.get(vid.split(".", 1)[0])
-                out.append(("ramp" if spec is not None and spec.route == "ramp" else "mainline", wait))
-        return out
-
-    def backlog(self) -> int:
-        """Vehicles due to depart that SUMO could not insert yet (the road at the origin is full)."""
-        return len(self._ls.simulation.getPendingVehicles()) if self._started else 0
 
     def close(self) -> None:
         if self._started:

@@ -13,6 +13,14 @@ The snapshot holds the ego once: this backend emits no snapshot part; the SUMO r
 is marked ``Role.CONTROLLED``, which makes the kernel's collision monitor box-check it against every
 other entity in addition to SUMO's own collision report (collisions are checked in both directions).
 
+Coupling to SUMO goes only through the SUMO backend's documented seam (no libsumo, no backend
+state): its ``pre_step`` hook, ``apply`` with commands that carry ``apply_to_sumo`` (``InsertEgo``,
+``PlaceVehicle``), ``snapshot_part()`` (is the ego on the road yet / still), ``vehicle_pose`` (SUMO's
+insertion pose, read once: the snapshot holds the box centre, and re-deriving the front bumper from
+it would not be bit-identical) and ``mark_controlled``.  The ego is placed inside the SUMO step (not
+through the command bus of the *act* phase) because the bicycle is integrated there, after SUMO's
+previous step, with the input of this tick.
+
 Inputs arrive on the command bus as ``EgoInput`` (zero-order hold until the next one).  Other vehicles
 of the scenario that must start next to the ego (the slow lead, close followers) are inserted with it
 (``companions``), SUMO-driven, with an optional maximum speed (``vehicle.setMaxSpeed``).
@@ -43,6 +51,43 @@ class EgoInput:
     vid: str
     accel_mps2: float
     steer_rad: float
+
+
+@dataclass(frozen=True)
+class PlaceVehicle:
+    """Put ``vid``'s front bumper at (x, y) [m] with SUMO angle ``angle_deg`` (moveToXY, keepRoute=2)."""
+
+    vid: str
+    x: float
+    y: float
+    angle_deg: float
+
+    def apply_to_sumo(self, ls: Any) -> None:
+        ls.vehicle.moveToXY(self.vid, "", -1, self.x, self.y, self.angle_deg, 2)
+
+
+@dataclass(frozen=True)
+class InsertEgo:
+    """Queue the ego (SUMO box = the bicycle's, no SUMO safety checks or lane changes) and its
+    companions for insertion at ``depart_s``."""
+
+    p: Any  # EgoBicycle.Params
+
+    def apply_to_sumo(self, ls: Any) -> None:
+        p = self.p
+        depart = f"{p.depart_s:g}"
+        ls.vehicle.add(p.vid, p.route, typeID=p.vtype, depart=depart, departLane="0",
+                       departPos=f"{p.depart_pos_m:g}", departSpeed=f"{p.depart_speed_mps:g}")
+        ls.vehicle.setLength(p.vid, p.bicycle.length_m)  # SUMO's box = the bicycle's box
+        ls.vehicle.setWidth(p.vid, p.bicycle.width_m)
+        ls.vehicle.setSpeedMode(p.vid, SPEED_MODE_NONE)
+        ls.vehicle.setLaneChangeMode(p.vid, LANE_CHANGE_MODE_NONE)
+        for cid, c in p.companions.items():
+            speed = c.speed_mps if c.max_speed_mps is None else min(c.speed_mps, c.max_speed_mps)
+            ls.vehicle.add(cid, c.route, typeID=c.vtype, depart=depart, departLane="0",
+                           departPos=f"{max(p.depart_pos_m + c.offset_m, 0.0):g}", departSpeed=f"{speed:g}")
+            if c.max_speed_mps is not None:
+                ls.vehicle.setMaxSpeed(cid, c.max_speed_mps)
 
 
 class CompanionSpec(BaseModel):
@@ -97,24 +142,11 @@ class EgoBicycle(Backend):
             raise ValueError(f"{self.name}: period {self.period} s must equal SUMO's step {sumo.period} s")
         self.sumo = sumo
         sumo.pre_step.append(self._pre_step)
-        self._insert(sumo.libsumo)
+        sumo.apply([InsertEgo(self.p)], ctx)
 
-    def _insert(self, ls: Any) -> None:
-        """Queue the ego and its companions for insertion at ``depart_s``."""
-        p = self.p
-        depart = f"{p.depart_s:g}"
-        ls.vehicle.add(self.vid, p.route, typeID=p.vtype, depart=depart, departLane="0",
-                       departPos=f"{p.depart_pos_m:g}", departSpeed=f"{p.depart_speed_mps:g}")
-        ls.vehicle.setLength(self.vid, p.bicycle.length_m)  # SUMO's box = the bicycle's box
-        ls.vehicle.setWidth(self.vid, p.bicycle.width_m)
-        ls.vehicle.setSpeedMode(self.vid, SPEED_MODE_NONE)
-        ls.vehicle.setLaneChangeMode(self.vid, LANE_CHANGE_MODE_NONE)
-        for cid, c in p.companions.items():
-            speed = c.speed_mps if c.max_speed_mps is None else min(c.speed_mps, c.max_speed_mps)
-            ls.vehicle.add(cid, c.route, typeID=c.vtype, depart=depart, departLane="0",
-                           departPos=f"{max(p.depart_pos_m + c.offset_m, 0.0):g}", departSpeed=f"{speed:g}")
-            if c.max_speed_mps is not None:
-                ls.vehicle.setMaxSpeed(cid, c.max_speed_mps)
+    def _on_road(self) -> bool:
+        assert self.sumo is not None
+        return bool(np.any(self.sumo.snapshot_part().ids == self.vid))
 
     # ------------------------------------------------------------------ the step
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
@@ -127,22 +159,23 @@ class EgoBicycle(Backend):
         sumo = self.sumo
         assert sumo is not None
         if not self.active:
-            if self.vid not in sumo.active:
+            if not self._on_road():
                 return
-            self._start(sumo.libsumo, ctx.t)
+            self._start(ctx.t)
         self.state = rk4_step(self.state, clip_input(self._u, self.p.bicycle), self.period, self.p.bicycle)
         self.state[3] = max(float(self.state[3]), 0.0)  # brakes stop the car, never reverse it
-        self._place(sumo.libsumo)
+        fx, fy = self.front_bumper()
+        sumo.apply([PlaceVehicle(self.vid, fx, fy, 90.0 - math.degrees(float(self.state[2])))], ctx)
 
-    def _start(self, ls: Any, t_s: float) -> None:
+    def _start(self, t_s: float) -> None:
         """Take over the ego where SUMO inserted it (front bumper and angle -> rear axle)."""
-        fx, fy = ls.vehicle.getPosition(self.vid)
-        yaw = math.radians(90.0 - ls.vehicle.getAngle(self.vid))
+        assert self.sumo is not None
+        fx, fy, angle_deg, speed = self.sumo.vehicle_pose(self.vid)
+        yaw = math.radians(90.0 - angle_deg)
         back = 0.5 * self.p.bicycle.length_m + 0.5 * self.p.bicycle.wheelbase_m  # front bumper -> rear axle
-        self.state = np.array([fx - back * math.cos(yaw), fy - back * math.sin(yaw), yaw,
-                               ls.vehicle.getSpeed(self.vid)])
+        self.state = np.array([fx - back * math.cos(yaw), fy - back * math.sin(yaw), yaw, speed])
         self.active, self.departed_s = True, t_s
-        self.sumo.controlled.add(self.vid)  # SUMO row = the ego: role CONTROLLED, box-checked
+        self.sumo.mark_controlled(self.vid)  # SUMO row = the ego: role CONTROLLED, box-checked
 
     def front_bumper(self) -> tuple[float, float]:
         """ENU (x, y) [m] of the front bumper centre, the point SUMO positions vehicles by."""
@@ -150,14 +183,9 @@ class EgoBicycle(Backend):
         ahead = 0.5 * self.p.bicycle.wheelbase_m + 0.5 * self.p.bicycle.length_m
         return float(x + ahead * math.cos(yaw)), float(y + ahead * math.sin(yaw))
 
-    def _place(self, ls: Any) -> None:
-        fx, fy = self.front_bumper()
-        angle_deg = 90.0 - math.degrees(float(self.state[2]))
-        ls.vehicle.moveToXY(self.vid, "", -1, fx, fy, angle_deg, 2)
-
     def tick(self, ctx: RunContext) -> None:
         """After SUMO's step: notice when the ego left the network (end of its route)."""
-        if self.active and self.sumo is not None and self.vid not in self.sumo.active:
+        if self.active and self.sumo is not None and not self._on_road():
             self.active = False
             ctx.events.emit(ctx.t, self.name, "ego_left", f"{self.vid} left the network")
 

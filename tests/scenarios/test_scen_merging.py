@@ -36,22 +36,23 @@ def _lane_changes(variant: str, duration_s: float, seed: int, params: dict | Non
     ctx = sim.ctx
     for c in ctx.components.values():
         c.setup(ctx)
-    road, ctl = ctx.components["road"], ctx.components["merge"]
+    ls, ctl = ctx.components["road"].libsumo, ctx.components["merge"]  # the test reads SUMO's lane-change modes
     held_modes, released_modes = set(), set()
-    x_nose = float(road.net.landmarks["merge_start_x"])
+    x_nose = float(ctx.snapshot.road.tables.landmarks.merge_start_x)
     last_lane: dict[str, str] = {}
     xs, vs = [], []
     for _ in range(round(duration_s / ctx.dt)):
         sim.step()
-        part = road.snapshot_part()
-        for k, vid in enumerate(road.active):
-            lane = road.lane_id[k]
+        snap = ctx.snapshot
+        road = snap.road
+        for k, vid in enumerate(snap.ids[road.sl]):
+            lane = road.tables.lane_names[road.lane[k]]
             if last_lane.get(vid) == "merge_0" and lane != "merge_0":
-                xs.append(part.position[k, 0] - x_nose)
-                vs.append(part.speed[k])
+                xs.append(snap.position[road.offset + k, 0] - x_nose)
+                vs.append(snap.speed[road.offset + k])
             last_lane[vid] = lane
             if lane == "merge_0":  # a ramp vehicle on the acceleration lane
-                mode = road.libsumo.vehicle.getLaneChangeMode(vid)
+                mode = ls.vehicle.getLaneChangeMode(vid)
                 (held_modes if vid in ctl.controlled else released_modes).add(mode)
     metrics: dict = {}
     for c in ctx.components.values():

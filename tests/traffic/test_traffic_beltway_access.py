@@ -32,9 +32,9 @@ def test_arterials_have_the_requested_lanes_and_exits_merge_without_conflict(net
 
 def test_ramp_storage_is_the_full_length_while_the_weave_stays_short(net: tuple) -> None:
     built, sn = net
-    ic = built.landmarks["interchanges"][0]["ccw"]
+    ic = built.landmarks.interchanges[0].ccw
     assert sn.getLane("ccw0_on_0").getLength() == pytest.approx(900.0, abs=1.0)
-    assert ic["ramp_storage_veh"] == 120  # 900 m / 7.5 m per queued vehicle
+    assert ic.ramp_storage_veh == 120  # 900 m / 7.5 m per queued vehicle
     weave = sn.getEdge("ccw0_weave").getLength()
     assert weave < 150.0 + 200.0 + 120.0 + 30.0  # off-ramp lead + ramp span + connector (+ junctions)
 

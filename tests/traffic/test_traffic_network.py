@@ -99,9 +99,9 @@ def test_highway_geometry_and_landmarks(cache: Path) -> None:
         "ramp": ("ramp", "merge", "downstream"),
     }
     # netconvert trims edges at junctions by a few metres only
-    assert lm["merge_start_x"] == pytest.approx(1000.0, abs=8.0)
-    assert lm["merge_end_x"] == pytest.approx(1250.0, abs=8.0)
-    assert lm["past_merge_x"] == lm["merge_end_x"] and lm["mainline_end_x"] == pytest.approx(1800.0, abs=0.1)
+    assert lm.merge_start_x == pytest.approx(1000.0, abs=8.0)
+    assert lm.merge_end_x == pytest.approx(1250.0, abs=8.0)
+    assert lm.past_merge_x == lm.merge_end_x and lm.mainline_end_x == pytest.approx(1800.0, abs=0.1)
     sumo_net = sumolib.net.readNet(str(net.net_file))
     assert (
         sumo_net.getEdge("merge").getLaneNumber() == 4 and sumo_net.getEdge("upstream").getLaneNumber() == 3
@@ -117,8 +117,8 @@ def test_rural_lanes_share_the_centreline(cache: Path) -> None:
     net = build_network("rural_two_lane", {"lane_width_m": 3.25, "length_m": 2000.0}, cache)
     lm = net.landmarks
     # netconvert stores coordinates to the centimetre
-    assert lm["opposite_lane_offset_m"] == pytest.approx(3.25, abs=0.011)
-    assert lm["east_lane_y"] == pytest.approx(-1.625, abs=0.006) and lm["west_lane_y"] == pytest.approx(
+    assert lm.opposite_lane_offset_m == pytest.approx(3.25, abs=0.011)
+    assert lm.east_lane_y == pytest.approx(-1.625, abs=0.006) and lm.west_lane_y == pytest.approx(
         1.625, abs=0.006
     )
     east, west = net.lane_shapes["east_0"], net.lane_shapes["west_0"]
@@ -136,21 +136,21 @@ def test_beltway_routes_connected_and_ring_segments_consistent(cache: Path) -> N
             assert sumo_net.getEdge(b) in sumo_net.getEdge(a).getOutgoing(), f"{name}: {a} -> {b}"
     lm = net.landmarks
     for d, sign in (("ccw", 1.0), ("cw", -1.0)):
-        ring = lm["ring"][d]
+        ring = lm.ring[d]
         assert len(ring) == 3 * n_ic
         for seg, nxt in zip(ring, ring[1:] + ring[:1]):  # a closed chain in travel order
-            assert sumo_net.getEdge(nxt["edge"]) in sumo_net.getEdge(seg["edge"]).getOutgoing()
+            assert sumo_net.getEdge(nxt.edge) in sumo_net.getEdge(seg.edge).getOutgoing()
         radius = 9000.0 / (2 * math.pi) + sign * (10.0 / 2 + 3 * 3.5 / 2)  # SUMO measures the lane-set centre
         # segment lengths (edges + junction interiors) add up to the driven ring: the polygon of shape
         # points (50 m chords) is a hair shorter than the circle, junction corners cut a few metres
-        assert lm["ring_length_m"][d] == pytest.approx(2 * math.pi * radius, rel=0.002)
-        assert sum(s["edge_length_m"] for s in ring) < lm["ring_length_m"][d]
-        assert [s["lanes"] for s in ring[:3]] == [3, 4, 3]
-        assert [lm["interchanges"][s["interchange"]]["index"] for s in ring[::3]] == (
+        assert lm.ring_length_m[d] == pytest.approx(2 * math.pi * radius, rel=0.002)
+        assert sum(s.edge_length_m for s in ring) < lm.ring_length_m[d]
+        assert [s.lanes for s in ring[:3]] == [3, 4, 3]
+        assert [lm.interchanges[s.interchange].index for s in ring[::3]] == (
             list(range(n_ic)) if d == "ccw" else [0, *range(n_ic - 1, 0, -1)]
         )
         # counter-clockwise: the angle of successive edge midpoints increases
-        mids = [np.mean(net.lane_shapes[f"{s['edge']}_0"], axis=0) for s in ring]
+        mids = [np.mean(net.lane_shapes[f"{s.edge}_0"], axis=0) for s in ring]
         turns = np.diff(np.unwrap([math.atan2(y, x) for x, y in mids]))
         assert np.all(np.sign(turns) == sign)
 
@@ -161,13 +161,13 @@ def test_beltway_detectors_file_matches_landmarks(cache: Path) -> None:
     root = ET.parse(add_file).getroot()
     loops = {e.get("id"): e.get("lane") for e in root.iter("inductionLoop")}
     areas = {e.get("id"): e for e in root.iter("laneAreaDetector")}
-    for ic in net.landmarks["interchanges"]:
+    for ic in net.landmarks.interchanges:
         for d in ("ccw", "cw"):
-            facts = ic[d]
-            assert len(facts["e1_upstream"]) == len(facts["e1_downstream"]) == 2
-            assert all(loops[i].startswith(f"{d}{ic['index']}_weave_") for i in facts["e1_upstream"])
-            assert all(loops[i].startswith(f"{d}{ic['index']}_link_") for i in facts["e1_downstream"])
-            e2 = areas[facts["e2_ramp"]]
-            assert e2.get("lane") == f"{facts['onramp_edge']}_0"
+            facts = ic.ramp(d)
+            assert len(facts.e1_upstream) == len(facts.e1_downstream) == 2
+            assert all(loops[i].startswith(f"{d}{ic.index}_weave_") for i in facts.e1_upstream)
+            assert all(loops[i].startswith(f"{d}{ic.index}_link_") for i in facts.e1_downstream)
+            e2 = areas[facts.e2_ramp]
+            assert e2.get("lane") == f"{facts.onramp_edge}_0"
             assert float(e2.get("endPos")) - float(e2.get("pos")) == pytest.approx(300.0, abs=0.01)
-            assert facts["ramp_storage_veh"] == 40 and facts["meter_tls"] == f"meter_{d}{ic['index']}"
+            assert facts.ramp_storage_veh == 40 and facts.meter_tls == f"meter_{d}{ic.index}"

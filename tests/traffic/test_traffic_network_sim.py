@@ -43,7 +43,7 @@ def _highway_merge(cache: str, work: str) -> dict[str, Any]:
     net = build_network("highway_onramp", {}, Path(cache))
     flows = [FlowDef("m", "main", "car", [(0.0, 2400.0)]), FlowDef("r", "ramp", "car", [(0.0, 500.0)])]
     routes = write_routes(Path(work) / "h.rou.xml", net.routes, [CAR], flows, end_s=300.0)
-    end_x = net.landmarks["merge_end_x"]
+    end_x = net.landmarks.merge_end_x
     traci = _start(net, routes)
     ramp, arrived, merged, beyond, teleports, collisions = set(), set(), set(), set(), 0, 0
     try:
@@ -80,7 +80,7 @@ def _beltway_trips(cache: str, work: str) -> dict[str, Any]:
     try:
         out: dict[str, Any] = {"loops": set(traci.inductionloop.getIDList()),
                                "areas": set(traci.lanearea.getIDList()), "tls": set(traci.trafficlight.getIDList())}  # fmt: skip
-        traci.trafficlight.setRedYellowGreenState("meter_ccw0", lm["meter"]["red_state"])
+        traci.trafficlight.setRedYellowGreenState("meter_ccw0", lm.meter.red_state)
         for i, name in enumerate(net.routes):
             traci.vehicle.add(f"v:{name}", name, typeID="car", depart=str(2.0 * i))
         seen_at_meter, arrived, teleports = set(), set(), 0
@@ -90,7 +90,7 @@ def _beltway_trips(cache: str, work: str) -> dict[str, Any]:
         out["queued_on_red"] = traci.lanearea.getLastStepVehicleNumber("e2_ramp_ccw0")
         out["halting_on_red"] = traci.lanearea.getLastStepHaltingNumber("e2_ramp_ccw0")
         out["passed_on_red"] = set(seen_at_meter)
-        traci.trafficlight.setProgram("meter_ccw0", lm["meter"]["off_program"])
+        traci.trafficlight.setProgram("meter_ccw0", lm.meter.off_program)
         while traci.simulation.getMinExpectedNumber() > 0 and traci.simulation.getTime() < 1500.0:
             traci.simulationStep()
             seen_at_meter.update(traci.inductionloop.getLastStepVehicleIDs("e1_ramp_ccw0"))
@@ -107,11 +107,11 @@ def test_beltway_every_od_route_is_driven_and_detectors_and_meters_work(tmp_path
     out = _in_spawn(_beltway_trips, str(tmp_path), str(tmp_path))
     assert out["arrived"] == {f"v:{name}" for name in net.routes}  # both directions, every OD pair
     assert out["teleports"] == 0
-    ics = net.landmarks["interchanges"]
-    loops = {i for ic in ics for d in ("ccw", "cw") for i in ic[d]["e1_upstream"] + ic[d]["e1_downstream"]}
+    ics = net.landmarks.interchanges
+    loops = {i for ic in ics for d in ("ccw", "cw") for i in ic.ramp(d).e1_upstream + ic.ramp(d).e1_downstream}
     assert loops <= out["loops"] and len(out["loops"]) == len(loops) + 4 * len(ics)
-    assert out["areas"] == {ic[d]["e2_ramp"] for ic in ics for d in ("ccw", "cw")}
-    assert out["tls"] == {ic[d]["meter_tls"] for ic in ics for d in ("ccw", "cw")}
+    assert out["areas"] == {ic.ramp(d).e2_ramp for ic in ics for d in ("ccw", "cw")}
+    assert out["tls"] == {ic.ramp(d).meter_tls for ic in ics for d in ("ccw", "cw")}
     from_0_ccw = {f"v:od_0_{j}_ccw" for j in range(1, len(ics))}
     assert out["passed_on_red"] == set() and out["queued_on_red"] == out["halting_on_red"] == len(from_0_ccw)
     assert out["seen_at_meter"] == from_0_ccw  # after switching the meter off, exactly they passed it
@@ -142,6 +142,6 @@ def test_rural_flows_run_in_both_directions_on_their_lanes(tmp_path: Path) -> No
     east = [v for v in out["arrived"] if v.startswith("e.")]
     west = [v for v in out["arrived"] if v.startswith("w.")]
     assert len(east) >= 15 and len(west) >= 8  # 600 and 400 veh/h for 200 s: ~33 and ~22
-    assert max(out["ys"]["e"]) == pytest.approx(net.landmarks["east_lane_y"], abs=0.01)
-    assert min(out["ys"]["w"]) == pytest.approx(net.landmarks["west_lane_y"], abs=0.01)
+    assert max(out["ys"]["e"]) == pytest.approx(net.landmarks.east_lane_y, abs=0.01)
+    assert min(out["ys"]["w"]) == pytest.approx(net.landmarks.west_lane_y, abs=0.01)
     assert out["collisions"] == 0

@@ -24,13 +24,13 @@ def _delays_at_double_demand() -> dict[str, object]:
     try:
         for _ in range(round(sc.duration / sc.dt)):
             sim.step()
-        road = ctx.components["road"]
-        done = road.delays(0.0)
-        allv = road.delays(0.0, unfinished=True)
-        n_arrived = sum(1 for i in road.info.values() if not np.isnan(i.arrive_s))
+        trips = ctx.components["trips"]
+        done = trips.delays(0.0)
+        allv = trips.delays(0.0, unfinished=True)
+        n_arrived = int(np.count_nonzero(~np.isnan(trips.arrive_s[:trips.n_departed])))
         _, on_road = ctx.signals.get("vehicles")
         return {"tts_vh": ctx.components["kpis"].tts_vh, "on_road_vh": float(np.sum(on_road)) * sc.dt / 3600.0,
-                "duration_h": sc.duration / 3600.0,"done": done, "all": allv, "backlog": road.backlog(), "n_active": len(road.active),
+                "duration_h": sc.duration / 3600.0,"done": done, "all": allv, "backlog": trips.backlog(), "n_active": len(ctx.snapshot.road),
                 "n_arrived": n_arrived, "t": ctx.t}
     finally:
         for c in ctx.components.values():
