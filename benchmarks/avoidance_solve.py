@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from corridor.controllers.control_tube import ControlTubeAvoidance, ControlTubeParams
-from corridor.controllers.uav_models import AvoidanceObservation, PointMassParams, encounter, fly
+from corridor.controllers.uav.control_tube import ControlTubeAvoidance, ControlTubeParams
+from corridor.controllers.uav.models import AvoidanceObservation, PointMassParams, encounter, fly
 
 
 class _Timed(ControlTubeAvoidance):

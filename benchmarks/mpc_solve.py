@@ -16,14 +16,14 @@ import time
 
 import numpy as np
 
-from corridor.controllers.metanet import steady_state
-from corridor.controllers.metanet_networks import (
+from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC, closed_loop, mpc_policy
+from corridor.traffic.metanet import steady_state
+from corridor.traffic.metanet_networks import (
     BeltwayLayout,
     beltway,
     beltway_demand_for_load,
     beltway_demands,
 )
-from corridor.controllers.ramp_mpc import MPCConfig, RampMeteringMPC, closed_loop, mpc_policy
 
 
 def run_case(n: int, steps: int, load: float, cfg: MPCConfig) -> dict[str, float]:

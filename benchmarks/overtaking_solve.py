@@ -18,8 +18,8 @@ import time
 
 import numpy as np
 
-from corridor.controllers.overtaking import OvertakingParams
-from corridor.controllers.overtaking_mpc import (
+from corridor.controllers.overtaking.controller import OvertakingParams
+from corridor.controllers.overtaking.mpc import (
     FAR_M,
     MpcProblem,
     OvertakingMilp,
@@ -27,7 +27,7 @@ from corridor.controllers.overtaking_mpc import (
     cached_mpc,
     pass_guess,
 )
-from corridor.controllers.overtaking_sim import OvertakingRun, OvertakingWorldParams, run_overtaking
+from corridor.controllers.overtaking.sim import OvertakingRun, OvertakingWorldParams, run_overtaking
 
 
 def _batch(params: OvertakingParams, world: OvertakingWorldParams, seeds: range) -> list[OvertakingRun]:

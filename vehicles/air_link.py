@@ -47,7 +47,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from corridor.channel import Channel, ChannelConfig
-from corridor.controllers.uav_models import TrackedAgent
+from corridor.controllers.uav.models import TrackedAgent
 from corridor.engine import Component, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
 

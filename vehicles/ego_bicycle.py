@@ -35,10 +35,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.bicycle import BicycleParams, clip_input, rk4_step
 from corridor.engine import Backend, RunContext
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.sumo_backend import SumoBackend
+from corridor.vehicles.bicycle import BicycleParams, clip_input, rk4_step
 
 SPEED_MODE_NONE = 0  # SUMO speed mode without any safety check (corridor owns the dynamics)
 LANE_CHANGE_MODE_NONE = 0  # no autonomous lane changes by SUMO

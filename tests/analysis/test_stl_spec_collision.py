@@ -20,12 +20,12 @@ import pytest
 
 from corridor.analysis.spec_monitor import evaluate_specs
 from corridor.analysis.stl import STLSignalError
-from corridor.controllers.bicycle import BicycleParams
-from corridor.controllers.overtaking import box_clearance
-from corridor.controllers.overtaking_mpc import OvertakingMpc
+from corridor.controllers.overtaking.controller import box_clearance
+from corridor.controllers.overtaking.mpc import OvertakingMpc
 from corridor.engine import Signals
 from corridor.run import simulate
 from corridor.scenario import load
+from corridor.vehicles.bicycle import BicycleParams
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "overtaking.yaml"
 CLEARANCE_SPEC = "G(clearance > 0)"

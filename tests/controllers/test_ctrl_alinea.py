@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from corridor.controllers.alinea import Alinea, AlineaConfig, occupancy_from_density
+from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
 
 CFG = AlineaConfig(gain_vph_per_pct=70.0, setpoint_pct=20.0, rate_min_vph=200.0, rate_max_vph=1800.0)
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.control_tube import ControlTubeAvoidance, ControlTubeParams
-from corridor.controllers.uav_models import (
+from corridor.controllers.uav.control_tube import ControlTubeAvoidance, ControlTubeParams
+from corridor.controllers.uav.models import (
     NMAC_HORIZONTAL_M,
     AvoidanceObservation,
     PointMassParams,
@@ -195,7 +195,7 @@ def test_ct_zero_copy_solver_call_equals_the_plain_casadi_call() -> None:
 def test_ct_fleet_step_equals_uav_by_uav_steps() -> None:
     """step_many (the tube rows of every UAV's intruders built in one pass) returns exactly the commands
     of each UAV's own step, over a converging swarm where the number of intruders varies."""
-    from corridor.controllers.control_tube import step_many
+    from corridor.controllers.uav.control_tube import step_many
 
     n, params = 6, ControlTubeParams(period_s=0.2, uav_accel_mps2=1.0)
     ang = 2.0 * np.pi * np.arange(n) / n

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.hegyi import SYM_METANET_NO_CONTROL_TTS, format_table, run_benchmark
-from corridor.controllers.metanet import simulate
-from corridor.controllers.metanet_networks import (
+from corridor.controllers.ramp_metering.hegyi import SYM_METANET_NO_CONTROL_TTS, format_table, run_benchmark
+from corridor.traffic.metanet import simulate
+from corridor.traffic.metanet_networks import (
     HEGYI_RAMP_STORAGE_VEH,
     hegyi_demands,
     hegyi_freeway,

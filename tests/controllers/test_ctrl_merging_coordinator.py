@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.merging_coordinator import Coordinator, CoordinatorConfig, ZoneVehicle, jain_index
+from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle, jain_index
 
 V_FREE_MPS = 20.0
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from corridor.controllers.merging_trajectory import (
+from corridor.controllers.merging.trajectory import (
     MotionLimits,
     boundary_system,
     cubic_coefficients,

@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.overtaking import OvertakingParams, _transitions
-from corridor.controllers.overtaking_sim import OvertakingRun, OvertakingWorldParams, run_overtaking
+from corridor.controllers.overtaking.controller import OvertakingParams, _transitions
+from corridor.controllers.overtaking.sim import OvertakingRun, OvertakingWorldParams, run_overtaking
 
 PARAMS = OvertakingParams()
 WORLD = OvertakingWorldParams(duration_s=25.0)

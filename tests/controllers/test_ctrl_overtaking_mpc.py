@@ -7,9 +7,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from corridor.controllers.bicycle import rk4_step
-from corridor.controllers.overtaking import OvertakingParams
-from corridor.controllers.overtaking_mpc import (
+from corridor.controllers.overtaking.controller import OvertakingParams
+from corridor.controllers.overtaking.mpc import (
     FAR_M,
     MpcProblem,
     OvertakingMilp,
@@ -20,6 +19,7 @@ from corridor.controllers.overtaking_mpc import (
     rollout_guess,
     spec_margins,
 )
+from corridor.vehicles.bicycle import rk4_step
 
 P = OvertakingParams()
 MPC = cached_mpc(P.mpc, P.ego, P.road)

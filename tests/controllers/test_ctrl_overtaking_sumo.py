@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from corridor.analysis.safety import obb_overlap_pairs
-from corridor.controllers.overtaking_sumo import OvertakingSumo
+from corridor.controllers.overtaking.components import OvertakingSumo
 from corridor.engine import Simulation
 from corridor.run import build
 from corridor.scenario import validate

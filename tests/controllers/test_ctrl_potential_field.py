@@ -9,13 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.potential_field import (
-    PotentialFieldAvoidance,
-    PotentialFieldParams,
-    potential,
-    saturate,
-)
-from corridor.controllers.uav_models import (
+from corridor.controllers.uav.models import (
     NMAC_HORIZONTAL_M,
     AvoidanceObservation,
     PointMassParams,
@@ -25,6 +19,12 @@ from corridor.controllers.uav_models import (
     min_separation_m,
     nmac_count,
     time_to_goal_s,
+)
+from corridor.controllers.uav.potential_field import (
+    PotentialFieldAvoidance,
+    PotentialFieldParams,
+    potential,
+    saturate,
 )
 
 MODEL = PointMassParams()
@@ -170,7 +170,7 @@ def test_pf_vectorised_field_equals_the_per_agent_terms(uav_cutoff_m: float | No
     """field() computes every agent's term in one numpy pass; it must equal the sum of the per-agent
     gradients of J (``_agent_terms``, the terms ``potential`` adds up) and the vortex rule, including
     piloted aircraft, the soft floor and agents beyond the influence radius."""
-    from corridor.controllers.potential_field import _agent_terms, _goal_terms, _rotate_ccw
+    from corridor.controllers.uav.potential_field import _agent_terms, _goal_terms, _rotate_ccw
 
     rng = np.random.default_rng(4)
     p = PotentialFieldParams(uav_cutoff_m=uav_cutoff_m, piloted_cutoff_m=60.0)

@@ -9,9 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corridor.controllers.metanet import MetanetParams
-from corridor.controllers.metanet_networks import BeltwayLayout, beltway
-from corridor.controllers.ramp_control import (
+from corridor.controllers.ramp_metering.components import (
     DemandForecast,
     RampAlinea,
     RampObservation,
@@ -24,6 +22,8 @@ from corridor.controllers.ramp_control import (
 )
 from corridor.scenario import load
 from corridor.traffic.detectors import RampMeasurement
+from corridor.traffic.metanet import MetanetParams
+from corridor.traffic.metanet_networks import BeltwayLayout, beltway
 from corridor.traffic.road_spec import road_spec
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"

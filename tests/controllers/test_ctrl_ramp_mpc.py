@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.alinea import occupancy_from_density
-from corridor.controllers.metanet import steady_state
-from corridor.controllers.metanet_networks import BeltwayLayout, beltway
-from corridor.controllers.ramp_mpc import MPCConfig, RampMeteringMPC
+from corridor.controllers.ramp_metering.alinea import occupancy_from_density
+from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
+from corridor.traffic.metanet import steady_state
+from corridor.traffic.metanet_networks import BeltwayLayout, beltway
 
 LAYOUT = BeltwayLayout(n_interchanges=3, lanes=2, ramp_storage_veh=40.0)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from corridor.channel import BernoulliLoss, Channel, ChannelConfig
-from corridor.controllers.safety_layer import (
+from corridor.controllers.merging.safety_layer import (
     IdmParams,
     SafetyParams,
     idm_accel,

@@ -84,7 +84,7 @@ def test_control_tube_turns_away_within_its_speed_limit(tmp_path: Path) -> None:
 
 
 def test_vertical_geofence_clamps_descent_near_the_floor() -> None:
-    from corridor.controllers.uav_avoidance import UavNone
+    from corridor.controllers.uav.components import UavNone
 
     ctrl = UavNone("c", UavNone.Params(min_alt_m=15.0, max_alt_m=150.0, fence_gain_per_s=0.5), None)
     v = np.array([1.0, 0.0, -3.0])
@@ -122,7 +122,7 @@ def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_pilot
 def _at_relevance_edge(ctrl: Any, speed_mps: float, extra_m: float) -> Any:
     """An observation with one UAV head-on (closing at the worst case) just outside / inside the
     controller's relevance range, its track uncertainty within the margin."""
-    from corridor.controllers.uav_models import AvoidanceObservation, TrackedAgent
+    from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent
 
     own_v = np.array([ctrl.cruise["a"], 0.0, 0.0])
     rel = ctrl.relevance("a", own_v)

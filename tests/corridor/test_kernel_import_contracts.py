@@ -28,12 +28,12 @@ def test_a_kernel_module_importing_a_domain_package_breaks_the_contracts():
         tree = lint_imports.mirror(Path(tmp))
         with open(tree / "corridor" / "events.py", "a") as f:  # the kernel reaching into traffic
             f.write("\nfrom corridor.traffic import commands  # noqa: E402,F401\n")
-        with open(tree / "corridor" / "controllers" / "alinea.py", "a") as f:  # an algorithm using SUMO
+        with open(tree / "corridor" / "controllers" / "ramp_metering" / "alinea.py", "a") as f:  # an algorithm using SUMO
             f.write("\nimport libsumo  # noqa: E402,F401\n")
         proc = lint_imports.lint(tree, CONFIG)
     assert proc.returncode != 0
     out = proc.stdout
     assert "imports no domain package; components are found through" in out and "BROKEN" in out
     assert "corridor.events -> corridor.traffic.commands" in out
-    assert "corridor.controllers.alinea -> libsumo" in out
+    assert "corridor.controllers.ramp_metering.alinea -> libsumo" in out
     assert "1 kept, 3 broken" in out, out[-3000:]  # kernel layers, algorithms, libsumo; jsbsim kept

@@ -369,9 +369,9 @@ def test_nested_avoidance_param_bounds_checked_at_load(capsys):
 
 
 def test_avoidance_methods_get_the_same_params_as_before():
-    from corridor.controllers.control_tube import ControlTubeParams
-    from corridor.controllers.potential_field import PotentialFieldParams
-    from corridor.controllers.uav_avoidance import UavAvoidanceParams
+    from corridor.controllers.uav.components import UavAvoidanceParams
+    from corridor.controllers.uav.control_tube import ControlTubeParams
+    from corridor.controllers.uav.potential_field import PotentialFieldParams
 
     p = UavAvoidanceParams.model_validate({"potential_field": {"vortex_gain": 2}, "control_tube": {"step_s": 0.4}})
     assert p.potential_field == PotentialFieldParams(vortex_gain=2)

@@ -81,7 +81,7 @@ def test_load_raises_scenario_error():
 def test_control_tube_bounds():
     from pydantic import ValidationError
 
-    from corridor.controllers.control_tube import ControlTubeParams
+    from corridor.controllers.uav.control_tube import ControlTubeParams
 
     with pytest.raises(ValidationError):
         ControlTubeParams(n_steps=100000)

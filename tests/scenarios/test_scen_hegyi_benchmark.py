@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corridor.controllers.hegyi import SYM_METANET_NO_CONTROL_TTS
+from corridor.controllers.ramp_metering.hegyi import SYM_METANET_NO_CONTROL_TTS
 from corridor.run import simulate
 from corridor.scenario import load
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corridor.controllers.v2x_merging import V2XMerging
+from corridor.controllers.merging.components import V2XMerging
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
 

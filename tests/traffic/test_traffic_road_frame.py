@@ -173,7 +173,7 @@ def trips_closed_form_delay() -> None:
 
 
 def v2x_commands_the_connected_ramp_vehicle() -> None:
-    from corridor.controllers.v2x_merging import V2XMerging
+    from corridor.controllers.merging.components import V2XMerging
     from corridor.traffic.commands import SetSpeed
 
     script = [Scripted("m0", MAIN, 850.0, 22.0), Scripted("m1", MAIN, 810.0, 22.0),

@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.metanet_backend import SetMetanetInput, find_metanet
 from corridor.engine import Controller, RunContext
+from corridor.traffic.metanet_backend import SetMetanetInput, find_metanet
 
 
 class FixedMeter(Controller):

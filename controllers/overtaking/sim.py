@@ -16,8 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.stl import evaluate_spec
-from corridor.controllers.bicycle import rk4_step
-from corridor.controllers.overtaking import (
+from corridor.controllers.overtaking.controller import (
     OvertakingController,
     OvertakingObservation,
     OvertakingParams,
@@ -26,6 +25,7 @@ from corridor.controllers.overtaking import (
     safety_spec,
 )
 from corridor.events import EventLog
+from corridor.vehicles.bicycle import rk4_step
 
 
 class OvertakingWorldParams(BaseModel):

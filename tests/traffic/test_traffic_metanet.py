@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from corridor.controllers.metanet import (
+from corridor.traffic.metanet import (
     MetanetNetwork,
     MetanetParams,
     equilibrium_speed,
@@ -17,7 +17,7 @@ from corridor.controllers.metanet import (
     step,
     step_with_flows,
 )
-from corridor.controllers.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.metanet_networks import BeltwayLayout, beltway
 
 T_H = 10.0 / 3600.0  # [h]
 

@@ -28,8 +28,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.analysis.stl import as_formula, evaluate_spec
-from corridor.controllers.bicycle import BicycleParams, clip_input
-from corridor.controllers.overtaking_mpc import (
+from corridor.controllers.overtaking.mpc import (
     FAR_M,
     MpcProblem,
     MpcSolution,
@@ -43,6 +42,7 @@ from corridor.controllers.overtaking_mpc import (
 )
 from corridor.events import EventLog
 from corridor.modes import HybridAutomaton, Transition
+from corridor.vehicles.bicycle import BicycleParams, clip_input
 from corridor.vehicles.predictor import PredictorParams, RoadVehiclePredictor
 
 MODES = ("follow", "decide", "pass", "return", "abort")

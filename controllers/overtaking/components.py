@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.overtaking import (
+from corridor.controllers.overtaking.controller import (
     OvertakingController,
     OvertakingObservation,
     OvertakingParams,
@@ -32,7 +32,7 @@ from corridor.controllers.overtaking import (
     box_clearance,
     safety_signals,
 )
-from corridor.controllers.overtaking_mpc import FAR_M, body_centre
+from corridor.controllers.overtaking.mpc import FAR_M, body_centre
 from corridor.engine import Controller, RunContext
 from corridor.snapshot import WorldSnapshot
 from corridor.traffic.landmarks import RuralLandmarks

@@ -45,9 +45,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.channel import Channel, ChannelConfig
-from corridor.controllers.merging_coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
-from corridor.controllers.merging_trajectory import MotionLimits, merge_accel, time_to_go
-from corridor.controllers.safety_layer import SafetyParams, safe_accel, worst_case_leader
+from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
+from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
+from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, RunContext
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed

@@ -64,7 +64,7 @@ import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.controllers.uav_models import (
+from corridor.controllers.uav.models import (
     AvoidanceObservation,
     PointMassParams,
     TrackedAgent,

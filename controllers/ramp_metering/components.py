@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.controllers.alinea import Alinea, AlineaConfig
+from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, RunContext
 from corridor.traffic.detectors import RampDetectors, RampMeasurement
 from corridor.traffic.meters import (
@@ -328,7 +328,7 @@ def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
     Queues are the vehicles on each on-ramp storage (E2).  Densities are floored at ``RHO_FLOOR``: at
     rho = 0 the derivative of (rho/rho_crit)^a is NaN in CasADi and IPOPT stops at once.
     """
-    from corridor.controllers.metanet import equilibrium_speed
+    from corridor.traffic.metanet import equilibrium_speed
 
     rho, v = np.zeros(net.n_seg), np.zeros(net.n_seg)
     for dirn, d in enumerate(SUMO_DIR_OF_MODEL):
@@ -361,9 +361,9 @@ class RampMpc(RampControl):
         self._build(ctx)
 
     def _build(self, ctx: RunContext) -> None:
-        from corridor.controllers.metanet import MetanetParams
-        from corridor.controllers.metanet_networks import BeltwayLayout, beltway
-        from corridor.controllers.ramp_mpc import MPCConfig, RampMeteringMPC
+        from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
+        from corridor.traffic.metanet import MetanetParams
+        from corridor.traffic.metanet_networks import BeltwayLayout, beltway
 
         p, lm = self.p, road_frame(ctx).tables.landmarks
         self.n = n = len(lm.interchanges)

@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.control_tube import ControlTubeParams
-from corridor.controllers.potential_field import PotentialFieldParams
-from corridor.controllers.uav_models import AvoidanceObservation
-from corridor.controllers.uav_models import VelocityCommand as MethodCommand
+from corridor.controllers.uav.control_tube import ControlTubeParams
+from corridor.controllers.uav.models import AvoidanceObservation
+from corridor.controllers.uav.models import VelocityCommand as MethodCommand
+from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.engine import Controller, RunContext
 from corridor.vehicles.air_backend import AircraftCommand
 from corridor.vehicles.air_link import Relevance
@@ -184,7 +184,7 @@ class PotentialFieldController(_UavController):
     """``controllers.potential_field.PotentialFieldAvoidance`` per UAV (speed limit = its cruise)."""
 
     def build_methods(self) -> None:
-        from corridor.controllers.potential_field import PotentialFieldAvoidance
+        from corridor.controllers.uav.potential_field import PotentialFieldAvoidance
 
         base = self.params.potential_field
         self.methods = {uid: PotentialFieldAvoidance(base.model_copy(update={"max_speed_h_mps": self.cruise[uid]}))
@@ -211,7 +211,7 @@ class ControlTubeController(_UavController):
     """``controllers.control_tube.ControlTubeAvoidance`` per UAV (one CasADi QP each, warm plans)."""
 
     def build_methods(self) -> None:
-        from corridor.controllers.control_tube import ControlTubeAvoidance
+        from corridor.controllers.uav.control_tube import ControlTubeAvoidance
         from corridor.vehicles.jsbsim_fleet import quiet_fds
 
         base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube.model_dump(exclude_unset=True)})
@@ -239,7 +239,7 @@ class ControlTubeController(_UavController):
     def decide_all(self, obs: dict[str, AvoidanceObservation]) -> dict[str, MethodCommand]:
         """One ``step_many`` over the fleet: each UAV keeps its own plan and QP, the tube rows of all
         of them are built in one vectorised pass."""
-        from corridor.controllers.control_tube import step_many
+        from corridor.controllers.uav.control_tube import step_many
 
         uids = list(obs)
         methods, observations = [self.methods[u] for u in uids], [obs[u] for u in uids]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corridor.controllers.metanet import MetanetNetwork, MetanetParams
+from corridor.traffic.metanet import MetanetNetwork, MetanetParams
 
 # Hegyi, A., De Schutter, B., Hellendoorn, J. (2005). Model predictive control for optimal
 # coordination of ramp metering and variable speed limits. Transp. Res. C 13(3), 185-209; and

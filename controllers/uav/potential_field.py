@@ -38,7 +38,7 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.uav_models import AvoidanceObservation, TrackedAgent, VelocityCommand
+from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent, VelocityCommand
 
 
 class PotentialFieldParams(BaseModel):

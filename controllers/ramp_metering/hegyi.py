@@ -14,7 +14,7 @@ Reference values:
     sym-metanet 1.1.2 (FilippoAiraldi/sym-metanet) for exactly this network, demand and initial
     state (ramp merge term on, free-outflow destination); our model reproduces it to 1e-6.
 
-Run ``python -m corridor.controllers.hegyi`` to print the table.
+Run ``python -m corridor.controllers.ramp_metering.hegyi`` to print the table.
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import math
 
 import numpy as np
 
-from corridor.controllers.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
-from corridor.controllers.ramp_mpc import (
+from corridor.controllers.ramp_metering.mpc import (
     MPCConfig,
     MPCResult,
     RampMeteringMPC,
@@ -32,6 +31,7 @@ from corridor.controllers.ramp_mpc import (
     closed_loop,
     mpc_policy,
 )
+from corridor.traffic.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
 
 DURATION_H = 2.5
 PUBLISHED_TTS = {"no_control": 1554.0, "mpc": 1521.0}  # [veh h], from memory, unverified

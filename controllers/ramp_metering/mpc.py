@@ -28,8 +28,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from corridor.controllers.alinea import Alinea, AlineaConfig, occupancy_from_density
-from corridor.controllers.metanet import MetanetNetwork, SimResult, total_time_spent_step
+from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
+from corridor.traffic.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 _LIMIT_STATUS = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded")
