@@ -293,9 +293,9 @@ def ramp_storage_veh(scenario: Any) -> float | None:
     road = road_spec(scenario)
     if road is None or road.network.type != "beltway":
         return None
-    from corridor.traffic.net_beltway import VEHICLE_SPACING_M, BeltwayParams
+    from corridor.traffic.net_beltway import VEHICLE_SPACING_M
 
-    return float(int(BeltwayParams.model_validate(road.network.params).ramp_length_m // VEHICLE_SPACING_M))
+    return float(int(road.network.params.ramp_length_m // VEHICLE_SPACING_M))
 
 
 def calibration_path(scenario_path: Path | str | None) -> Path | None:

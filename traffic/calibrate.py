@@ -129,11 +129,11 @@ def calibrate(scenario_path: Path, seed: int = 0, scale: float = 1.0, duration_s
 
     sc, det = collect(scenario_path, seed, scale, duration_s)
     road = road_spec(sc)
-    lanes = int(road.network.params.get("lanes", 2))
+    lanes = int(road.network.params.lanes)
     veh_len = float(next(iter(road.demand.vehicle_types.values())).length)
     pts = detector_points(det.history, lanes, veh_len)
     fit = fit_fundamental_diagram(pts["rho"], pts["v_kmh"],
-                                  road.network.params.get("mainline_speed_mps", 27.8) * 3.6, q_vph=pts["q"])
+                                  road.network.params.mainline_speed_mps * 3.6, q_vph=pts["q"])
     down = detector_points(det.history, lanes, veh_len, side="down")
     fit_down = fit_fundamental_diagram(down["rho"], down["v_kmh"], fit.v_free_kmh, q_vph=down["q"])
     out = out or scenario_path.with_suffix("").with_suffix(".calibration.json")

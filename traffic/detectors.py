@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import DetectorFrame
 from corridor.traffic.landmarks import BeltwayLandmarks, MeteredRamp
+from corridor.traffic.net_beltway import BeltwayParams
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.trips import road_frame
 
@@ -92,8 +93,8 @@ class RampDetectors(Component):
             raise ValueError(f"{self.name}: ramp detectors need the beltway network (no interchanges)")
         self.interchanges = lm.interchanges
         spec = road_spec(ctx.scenario) if ctx.scenario else None
-        net_params = spec.network.params if spec is not None else {}
-        self.aggregate_s = self.p.aggregate_s or float(net_params.get("detector_period_s", 60.0))
+        net = spec.network.params if spec is not None else BeltwayParams()  # the builder's typed params
+        self.aggregate_s = self.p.aggregate_s or float(net.detector_period_s)
         self._next_aggregate_s = self.aggregate_s
         for ic in self.interchanges:
             for d in DIRECTIONS:

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 
 from corridor.errors import clip
 from corridor.scenario import MAX_DT_S, MIN_DT_S, NestedParamsError, Strict, key_text
@@ -24,11 +24,11 @@ SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
 
 
 class NetworkSpec(Strict):
-    """A generated network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, checked
-    against that builder's own params model (errors name ``network.params.<field>``)."""
+    """A generated network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, validated
+    into that builder's own typed params model (errors name ``network.params.<field>``)."""
 
     type: str = "highway_onramp"
-    params: dict[str, Any] = Field(default_factory=dict)
+    params: SerializeAsAny[BaseModel] = Field(default=None, validate_default=True)  # the builder's model
 
     @field_validator("type")
     @classmethod
@@ -41,16 +41,30 @@ class NetworkSpec(Strict):
             raise ValueError(clip(exc.args[0], 200)[1:-1]) from None
         return kind
 
-    @model_validator(mode="after")
-    def _builder_params(self) -> NetworkSpec:
+    @model_validator(mode="before")
+    @classmethod
+    def _builder_params(cls, data: Any) -> Any:
+        """``params`` (a mapping in the YAML) becomes the builder's typed params model."""
         from corridor.traffic.network import params_model
 
-        model = params_model(self.type)
+        if not isinstance(data, dict):
+            return data
+        kind = data.get("type", "highway_onramp")
         try:
-            model.model_validate(self.params)
+            model = params_model(kind) if isinstance(kind, str) else None
+        except KeyError:
+            return data  # the type's own validator reports it
+        raw = data.get("params")
+        if model is None or isinstance(raw, model):
+            return data
+        if raw is None:
+            raw = {}
+        if not isinstance(raw, dict):
+            raise ValueError(f"params: must be a mapping of {kind} network parameters")
+        try:
+            return {**data, "params": model.model_validate(raw)}
         except ValidationError as exc:
             raise NestedParamsError("params", exc, model) from None
-        return self
 
 
 class VehicleTypeSpec(Strict):

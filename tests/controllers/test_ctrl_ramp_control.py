@@ -122,7 +122,7 @@ def test_missing_speed_takes_the_equilibrium_speed() -> None:
 
 def test_od_matrix_and_forecast_from_the_scenario() -> None:
     sc, _ = load(SCENARIO)
-    n = road_spec(sc).network.params["interchanges"]
+    n = road_spec(sc).network.params.interchanges
     od = od_matrix(road_spec(sc).demand.flows, n)
     assert np.all(np.diag(od) == 0) and np.all(od >= 0)
     mean_rate = {f.route: float(np.mean(np.asarray(f.profile, float)[:, 1])) for f in road_spec(sc).demand.flows.values()}

@@ -72,3 +72,15 @@ def test_both_spellings_at_once_is_an_error(tmp_path):
     p.write_text(f"extends: {MERGING}\nbackends: {{road: {{type: sumo}}}}\n")
     with pytest.raises(ScenarioError, match="road: is the shorthand of backends.road, which is given too"):
         load(p)
+
+
+def test_network_params_are_the_builders_typed_model_and_unknown_nested_keys_exit_2(capsys):
+    from corridor.cli import main
+    from corridor.traffic.net_beltway import BeltwayParams
+
+    sc, _ = load(ROOT / "scenarios" / "ramp_metering.yaml")
+    params = road_spec(sc).network.params
+    assert isinstance(params, BeltwayParams) and params.lanes == 2
+    assert main([str(ROOT / "scenarios" / "ramp_metering.yaml"), "--set", "road.network.params.bogus=1"]) == 2
+    err = capsys.readouterr().err
+    assert "road.network.params.bogus: unknown key" in err and err.count("\n") == 1

@@ -82,7 +82,7 @@ def test_extends_and_set_merge(tmp_path):
     p = write(tmp_path, f"extends: {MERGING}\nname: child\nduration: 30\nwarmup: 0\n")
     sc, _ = load(p, ["road.demand.scale=1.5", "metrics=[a, b]"])
     assert (sc.name, sc.duration, road_spec(sc).demand.scale, sc.metrics) == ("child", 30, 1.5, ["a", "b"])
-    assert road_spec(sc).network.params["mainline_lanes"] == 2  # inherited
+    assert road_spec(sc).network.params.mainline_lanes == 2  # inherited
 
 
 def test_extends_cycle(capsys, tmp_path):
