@@ -212,8 +212,14 @@ def load_calibration(name: str | None) -> dict[str, float]:
     out = dict(DEFAULT_FD)
     if not name:
         return out
-    repo = Path(__file__).resolve().parents[1]
-    for cand in (Path(name), Path("scenarios") / name, repo / "scenarios" / name):
+    packaged = [Path(__file__).resolve().parents[2] / "scenarios"]  # a checkout: <repo>/scenarios
+    try:
+        import corridor.scenarios as pkg  # an installed wheel: scenarios ship as package data
+
+        packaged += [Path(p) for p in pkg.__path__]
+    except ImportError:
+        pass
+    for cand in (Path(name), Path("scenarios") / name, *(d / name for d in packaged)):
         if cand.is_file():
             fit = json.loads(cand.read_text())
             out.update({k: float(fit[k]) for k in (*DEFAULT_FD, "alinea_setpoint_pct") if k in fit})

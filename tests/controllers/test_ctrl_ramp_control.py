@@ -152,3 +152,11 @@ def test_mpc_solver_failure_falls_back_to_alinea_and_is_logged() -> None:
     assert metrics["mpc_fallbacks"] == steps
     assert metrics["events_fallback"] == steps
     assert all(e.source == "ramps" for e in ctx.events.of_kind("fallback"))
+
+
+def test_calibration_is_found_from_any_working_directory(tmp_path, monkeypatch) -> None:
+    from corridor.controllers.ramp_metering.components import load_calibration
+
+    monkeypatch.chdir(tmp_path)  # not the repository: the packaged scenarios folder must still be found
+    fd = load_calibration("ramp_metering.calibration.json")
+    assert str(fd.get("source", "")).endswith("scenarios/ramp_metering.calibration.json")
