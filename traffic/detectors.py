@@ -5,7 +5,8 @@ vehicles on the ramp and halting ones); every ``aggregate_s`` (the loops' own ag
 the network, ``detector_period_s``) it reads the last completed interval of every E1 loop: occupancy
 [%], flow [veh/h] and mean speed [m/s] up- and downstream of each merge, and the vehicles that passed
 each meter.  The newest values are kept in ``latest`` (one ``RampMeasurement`` per ramp key
-``"{d}{k}"``), so controllers read them as ``ctx.components[...]`` peers.  It reads only the
+``"{d}{k}"``), which controllers and KPIs read through their peer of role ``ramp_detectors``
+(``NEEDS_DETECTORS``).  It reads only the
 snapshot's detector part (``RoadFrame.detectors``: the loops, lane areas and watched edges that the
 network's landmarks declare, read by the road backend after each step).
 
