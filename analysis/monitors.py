@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -22,13 +22,13 @@ class CollisionMonitor(Component):
     with the contact time inside the interval; a pair that overlaps at the tick keeps the tick's time."""
 
     phase = Phase.DETECT
+    period_source: ClassVar[str | None] = "dt"
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
-        self.period = scenario.dt
         self.pairs: dict[tuple[str, str], float] = {}  # unordered pair -> first contact time [s]
         self._prev: Poses | None = None  # geometry of the previous tick's snapshot
 

@@ -8,7 +8,7 @@ A recorder only reads the snapshot, signals and events: recording never changes 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -40,10 +40,12 @@ def blueprint() -> Any:
 
 class RerunRecorder(Component):
     phase = Phase.RECORD
+    period_source: ClassVar[str | None] = "rerun_period_s"
 
     def __init__(self, name: str, scenario: Any, path: str | Path) -> None:
         super().__init__(name)
-        self.period = max(scenario.dt, round(scenario.outputs.rerun_period / scenario.dt) * scenario.dt)
+        # [s] the scenario's outputs.rerun_period on the dt grid (at least one tick)
+        self.rerun_period_s = max(scenario.dt, round(scenario.outputs.rerun_period / scenario.dt) * scenario.dt)
         self.path = Path(path)
         self._events_seen = 0
         self._signals_seen: dict[str, int] = {}

@@ -35,13 +35,13 @@ within ``goal_radius_m``) and the ratio of flown path length to the straight sta
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.ccd import MAX_STEP_M, closest_approach, interval_below
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import Kind
 
 
@@ -49,6 +49,10 @@ class SeparationMonitor(Component):
     """DETECT-phase monitor of aircraft separation (registered as ``uav_separation``)."""
 
     phase = Phase.DETECT
+    # the air backend holding the goals (none: no goal metrics)
+    needs: ClassVar[dict[str, Need]] = {"air": Need(role="air", name_at="params.backend", optional=True)}
+    air: Any = None  # that peer (set by the engine at build)
+    period_source: ClassVar[str | None] = "dt"
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -68,7 +72,6 @@ class SeparationMonitor(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.params = params
-        self.period = float(scenario.dt)
         self.ids: np.ndarray | None = None
         self.min_h = self.min_3d = np.inf
         self.min_v_close = np.inf  # [m] min vertical separation among pairs closer than nmac_h_m
@@ -95,8 +98,8 @@ class SeparationMonitor(Component):
 
     def setup(self, ctx: RunContext) -> None:
         self.goals: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        if self.params.backend is not None and self.params.backend in ctx.components:
-            self.goals = ctx.get(self.params.backend).goals()
+        if self.air is not None:
+            self.goals = self.air.goals()
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot

@@ -7,7 +7,7 @@ scenario declares ``specs``, so its ``finish`` sees every signal the other compo
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
@@ -20,6 +20,7 @@ class SpecMonitor(Component):
     """Evaluates ``scenario.specs`` at the end of the run (it measures nothing per tick)."""
 
     phase = Phase.RECORD
+    period_source: ClassVar[str | None] = "run"  # one no-op tick at t = 0
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -27,7 +28,6 @@ class SpecMonitor(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.scenario = scenario
-        self.period = scenario.dt * max(1, round(scenario.duration / scenario.dt))  # [s] one no-op tick
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         return evaluate_specs(self.scenario, ctx)

@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path, PurePath
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -133,17 +133,56 @@ class RunContext:
         return [c for c in self.components.values() if isinstance(c, Backend)]
 
 
+@dataclass(frozen=True)
+class Need:
+    """A peer a component needs, resolved by the engine at build (``Simulation.__init__``).
+
+    ``role``: the peer must provide it (``Component.provides``). Without ``name_at`` the run must hold
+    exactly one provider of the role; with ``name_at`` (an attribute path on the needing component,
+    e.g. ``"p.ego"``, normally one of its params) the peer is the component of that name, and must
+    provide the role.  ``optional``: no peer (the attribute is None) when the name is None or names no
+    component, or when no component provides the role.  ``hint`` ends the error message of a missing
+    peer (what to add to the scenario)."""
+
+    role: str
+    name_at: str | None = None
+    optional: bool = False
+    hint: str = ""
+
+
+def attr_path(obj: Any, path: str) -> Any:
+    """``obj.a.b`` for ``path = "a.b"``."""
+    for part in path.split("."):
+        obj = getattr(obj, part)
+    return obj
+
+
 class Component:
-    """Base of everything the engine schedules."""
+    """Base of everything the engine schedules.
+
+    Peers and the period are declared, and resolved by the engine at build, before any ``setup``:
+
+    * ``needs``: ``{attribute: Need(...)}``; the engine sets each resolved peer as that attribute and
+      sets up providers before the components that need them;
+    * ``provides``: the roles this component plays for others (``"road"``, ``"trips"``, ...);
+    * ``period_source``: where the period comes from: ``"dt"`` (the base tick), ``"run"`` (one tick
+      per run, at t = 0), ``"peer:<need>"`` (the period of that peer), an attribute path on the
+      component (``"p.tick_s"``: a params field), or None (the ``period`` declared on the class).  The
+      scenario's ``period:`` (``period_override``) takes precedence; the result must be a whole
+      multiple of ``dt``."""
 
     phase: Phase = Phase.DECIDE
     period: float = 0.1  # [s]
+    needs: ClassVar[dict[str, Need]] = {}
+    provides: ClassVar[frozenset[str]] = frozenset()
+    period_source: ClassVar[str | None] = None
+    period_override: float | None = None  # [s] the scenario's ``period:`` of this component
 
     def __init__(self, name: str) -> None:
         self.name = name
 
     def setup(self, ctx: RunContext) -> None:
-        """Called once, after every component exists (wire peers, draw generators)."""
+        """Called once, after every component exists and its peers are set (draw generators, ...)."""
 
     def tick(self, ctx: RunContext) -> None:
         """Called on every tick where the period is due."""
@@ -207,7 +246,10 @@ class NoController(Controller):
 
 
 class Simulation:
-    """A base tick and a list of components; ``run`` steps until ``duration``."""
+    """A base tick and a list of components; ``run`` steps until ``duration``.
+
+    At build it resolves every component's ``needs`` (peers set as attributes), orders ``setup`` so
+    that providers come first (otherwise the given order), then resolves every period in that order."""
 
     def __init__(self, ctx: RunContext, components: Iterable[Component]) -> None:
         self.ctx = ctx
@@ -216,6 +258,12 @@ class Simulation:
         if len(set(names)) != len(names):
             raise ValueError(f"component names must be unique: {names}")
         ctx.components = {c.name: c for c in comps}
+        self._peers = {c.name: self._resolve_needs(c) for c in comps}
+        self.setup_order = self._setup_order(comps)
+        for c in self.setup_order:
+            for attr, peer in self._peers[c.name].items():
+                setattr(c, attr, peer)
+            c.period = self._resolve_period(c)
         self._every: dict[str, int] = {c.name: self._ticks_per_period(c) for c in comps}
         self._by_phase: dict[Phase, list[Component]] = {p: [] for p in Phase}
         for c in comps:
@@ -224,6 +272,90 @@ class Simulation:
         # the world before the first step: no rows, but the road's static tables and landmarks
         backends = [b for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
         ctx.snapshot = WorldSnapshot.from_parts(ctx.t, [b.static_part() for b in backends])
+
+    def providers(self, role: str) -> list[Component]:
+        """The components that provide ``role``, in build order."""
+        return [c for c in self.ctx.components.values() if role in c.provides]
+
+    def provider(self, role: str) -> Component:
+        """The one component that provides ``role`` (ValueError if none or several)."""
+        found = self.providers(role)
+        if len(found) != 1:
+            raise ValueError(f"expected one component with role {role!r}, found {[c.name for c in found]}")
+        return found[0]
+
+    def _resolve_needs(self, c: Component) -> dict[str, Component | None]:
+        out: dict[str, Component | None] = {}
+        for attr, need in c.needs.items():
+            cands = [p for p in self.providers(need.role) if p is not c]
+            cand_names = ", ".join(p.name for p in cands) or "none"
+            what = f"{c.name}: need {attr!r} (role {need.role!r})"
+            if need.name_at is not None:
+                name = attr_path(c, need.name_at)
+                peer = self.ctx.components.get(name) if name is not None else None
+                if peer is None:
+                    if need.optional:
+                        out[attr] = None
+                        continue
+                    raise ValueError(f"{what}: no component named {name!r} ({need.name_at}); "
+                                     f"components with that role: {cand_names}")
+                if need.role not in peer.provides:
+                    roles = ", ".join(sorted(peer.provides)) or "none"
+                    raise ValueError(f"{what}: component {name!r} ({need.name_at}) does not provide it "
+                                     f"(its roles: {roles}); components with that role: {cand_names}")
+                out[attr] = peer
+            elif len(cands) == 1:
+                out[attr] = cands[0]
+            elif not cands:
+                if not need.optional:
+                    raise ValueError(f"{what}: no component provides it" + (f"; {need.hint}" if need.hint else ""))
+                out[attr] = None
+            else:
+                raise ValueError(f"{what} is ambiguous: candidates {cand_names}")
+        return out
+
+    def _setup_order(self, comps: list[Component]) -> list[Component]:
+        """Depth first in build order: a component's peers before it; a cycle is an error."""
+        order: list[Component] = []
+        state: dict[str, int] = {}  # 1: on the path, 2: placed
+
+        def visit(c: Component, path: list[str]) -> None:
+            if state.get(c.name) == 2:
+                return
+            if state.get(c.name) == 1:
+                cycle = path[path.index(c.name):] + [c.name]
+                raise ValueError(f"component needs form a cycle: {' -> '.join(cycle)}")
+            state[c.name] = 1
+            for peer in self._peers[c.name].values():
+                if peer is not None:
+                    visit(peer, [*path, c.name])
+            state[c.name] = 2
+            order.append(c)
+
+        for c in comps:
+            visit(c, [])
+        return order
+
+    def _resolve_period(self, c: Component) -> float:
+        """The period of ``c`` [s]: the scenario's override, else its ``period_source``."""
+        if c.period_override is not None:
+            return float(c.period_override)
+        src, dt = c.period_source, self.ctx.dt
+        if src is None:
+            return c.period
+        if src == "dt":
+            return dt
+        if src == "run":
+            return dt * max(1, round(self.ctx.duration / dt))
+        if src.startswith("peer:"):
+            attr = src[len("peer:"):]
+            if attr not in c.needs:
+                raise ValueError(f"{c.name}: period_source {src!r} names no need (needs: {', '.join(c.needs) or 'none'})")
+            peer = getattr(c, attr)
+            if peer is None:
+                raise ValueError(f"{c.name}: period_source {src!r}: no such peer in this run")
+            return peer.period
+        return float(attr_path(c, src))
 
     def _ticks_per_period(self, c: Component) -> int:
         n = round(c.period / self.ctx.dt)
@@ -266,7 +398,7 @@ class Simulation:
         t0 = time.perf_counter()
         n_ticks = round(self.ctx.duration / self.ctx.dt)
         try:
-            for c in self.ctx.components.values():
+            for c in self.setup_order:
                 c.setup(self.ctx)
             for _ in range(n_ticks):
                 self.step()

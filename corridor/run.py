@@ -46,8 +46,7 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
     params_model = getattr(cls, "Params", None)
     params = params_model.model_validate(spec.params) if params_model else spec.params
     comp = cls(name, params, sc)
-    if spec.period is not None:
-        comp.period = spec.period
+    comp.period_override = spec.period  # resolved by the engine at build, before period_source
     return comp
 
 

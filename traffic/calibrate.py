@@ -109,7 +109,6 @@ def collect(scenario_path: Path, seed: int, scale: float, duration_s: float | No
     """Run the scenario once without metering; return (scenario, detectors component)."""
     from corridor.run import build
     from corridor.scenario import load
-    from corridor.traffic.detectors import RampDetectors
 
     sets = ["controllers={ramps: {type: ramp_none}}", f"road.demand.scale={scale}"]
     if duration_s is not None:
@@ -118,7 +117,7 @@ def collect(scenario_path: Path, seed: int, scale: float, duration_s: float | No
     with tempfile.TemporaryDirectory(prefix="corridor-cal-") as tmp:
         sim = build(sc, seed, Path(tmp))
         sim.run()
-    det = next(c for c in sim.ctx.components.values() if isinstance(c, RampDetectors))
+    det = sim.provider("ramp_detectors")
     return sc, det
 
 

@@ -5,7 +5,8 @@ vehicles on the ramp and halting ones); every ``aggregate_s`` (the loops' own ag
 the network, ``detector_period_s``) it reads the last completed interval of every E1 loop: occupancy
 [%], flow [veh/h] and mean speed [m/s] up- and downstream of each merge, and the vehicles that passed
 each meter.  The newest values are kept in ``latest`` (one ``RampMeasurement`` per ramp key
-``"{d}{k}"``), so controllers read them as ``ctx.components[...]`` peers.  It reads only the
+``"{d}{k}"``), which controllers and KPIs read through their peer of role ``ramp_detectors``
+(``NEEDS_DETECTORS``).  It reads only the
 snapshot's detector part (``RoadFrame.detectors``: the loops, lane areas and watched edges that the
 network's landmarks declare, read by the road backend after each step).
 
@@ -18,12 +19,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import DetectorFrame
 from corridor.traffic.landmarks import BeltwayLandmarks, MeteredRamp
 from corridor.traffic.net_beltway import BeltwayParams
@@ -31,6 +32,8 @@ from corridor.traffic.road_spec import road_spec
 from corridor.traffic.trips import road_frame
 
 DIRECTIONS = ("ccw", "cw")
+# how ramp controllers and KPIs name their detectors peer (exactly one in the run)
+NEEDS_DETECTORS = Need(role="ramp_detectors", hint="add a `ramp_detectors` monitor to the scenario (monitors: ...)")
 
 
 @dataclass
@@ -67,7 +70,8 @@ class RampDetectors(Component):
     """Reads the beltway's E1/E2 detectors into ``latest`` (per ramp) and ``log`` (queue samples)."""
 
     phase = Phase.SENSE
-    period = 5.0  # [s] queue sampling
+    provides: ClassVar[frozenset[str]] = frozenset({"ramp_detectors"})
+    period_source: ClassVar[str | None] = "p.period_s"  # [s] queue sampling
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -77,7 +81,6 @@ class RampDetectors(Component):
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
         self.p = params or self.Params()
-        self.period = self.p.period_s
         self.latest: dict[str, RampMeasurement] = {}
         self.log = DetectorLog()
         self.new_on_origin: dict[int, list[str]] = {}

@@ -10,12 +10,12 @@ agree.  Its controllers live in ``corridor.controllers.ramp_metering.metanet_com
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Backend, RunContext
+from corridor.engine import Backend, Need, RunContext
 from corridor.traffic.metanet import MetanetNetwork, MetanetParams, total_time_spent_step
 from corridor.traffic.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
 
@@ -27,11 +27,17 @@ class SetMetanetInput:
     u: np.ndarray
 
 
+# how METANET controllers name their backend peer (exactly one in the run)
+NEEDS_METANET = Need(role="metanet", hint="add a `metanet` backend to the scenario (backends: ...)")
+
 NETWORKS = {"hegyi2005": (hegyi_freeway, hegyi_demands, hegyi_initial_state)}
 
 
 class MetanetBackend(Backend):
     """One METANET network stepped at its model step; TTS and queues as metrics."""
+
+    provides: ClassVar[frozenset[str]] = frozenset({"metanet"})
+    period_source: ClassVar[str | None] = "p.step_s"  # [s] the model step
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -41,7 +47,6 @@ class MetanetBackend(Backend):
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
         self.p = params or self.Params()
-        self.period = self.p.step_s
         make_net, self.demands, make_x0 = NETWORKS[self.p.network]
         self.net: MetanetNetwork = make_net(MetanetParams(step_h=self.p.step_s / 3600.0))
         self.x = np.asarray(make_x0(), dtype=float)
@@ -79,11 +84,5 @@ class MetanetBackend(Backend):
         out["queue_max_over_storage"] = float(np.max(self.max_queue_veh[metered] / store)) if len(metered) else 0.0
         return out
 
-
-def find_metanet(ctx: RunContext) -> MetanetBackend:
-    for c in ctx.components.values():
-        if isinstance(c, MetanetBackend):
-            return c
-    raise ValueError("metanet controllers need a `metanet` backend in the scenario (backends: ...)")
 
 

@@ -4,23 +4,24 @@ merge, travel-time delay of mainline and ramp vehicles).  They read only the sna
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import RoadFrame, Role
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.trips import road_frame, trips_monitor
+from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
 
 class SurrogateSafety(Component):
     """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events."""
 
     phase = Phase.DETECT
+    needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
+    period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -30,8 +31,6 @@ class SurrogateSafety(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        road = road_spec(scenario)
-        self.period = road.sumo.step_length if road else scenario.dt
         self.warmup = scenario.warmup
         self.min_ttc, self.max_drac, self.tet = np.inf, 0.0, 0.0
         self.hard_brakes = 0
@@ -91,6 +90,8 @@ class TrafficKpis(Component):
     ``insertion_backlog`` is the number still waiting to enter the network at the end."""
 
     phase = Phase.DETECT
+    needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD, "trips": NEEDS_TRIPS}
+    period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -100,7 +101,6 @@ class TrafficKpis(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.period = road_spec(scenario).sumo.step_length
         self.warmup = scenario.warmup
         self.passed = np.zeros(0, dtype=bool)  # per uid
         self.energy = np.zeros(0)  # per uid: ∫ a² dt [m²/s³] after warm-up
@@ -110,7 +110,6 @@ class TrafficKpis(Component):
         self.tts_vh = 0.0
 
     def setup(self, ctx: RunContext) -> None:
-        self.trips = trips_monitor(ctx)
         lm = road_frame(ctx).tables.landmarks
         self.line_x = lm.x(self.p.count_landmark)
         a = self.p.merge_area

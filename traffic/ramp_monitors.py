@@ -19,22 +19,14 @@ fairness across ramps and the MPC's solve times.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Phase, RunContext
-from corridor.traffic.detectors import RampDetectors
-from corridor.traffic.trips import road_frame, trips_monitor
-
-
-def find_detectors(ctx: RunContext) -> RampDetectors:
-    """The run's ramp detector component (any name)."""
-    for c in ctx.components.values():
-        if isinstance(c, RampDetectors):
-            return c
-    raise ValueError("ramp metering needs a `ramp_detectors` monitor in the scenario (monitors: ...)")
+from corridor.engine import Component, Need, Phase, RunContext
+from corridor.traffic.detectors import NEEDS_DETECTORS
+from corridor.traffic.trips import NEEDS_TRIPS, road_frame
 
 
 def spillback_events(queue_veh: np.ndarray, storage_veh: float) -> int:
@@ -54,7 +46,8 @@ class RampKpis(Component):
     """TTS, delay, throughput, ramp queues, spill-back, fairness and MPC solve times."""
 
     phase = Phase.DETECT
-    period = 1.0  # [s]
+    needs: ClassVar[dict[str, Need]] = {"trips": NEEDS_TRIPS, "det": NEEDS_DETECTORS}
+    period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -63,14 +56,9 @@ class RampKpis(Component):
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
         self.p = params or self.Params()
-        self.period = self.p.period_s
         self.tts_vh = 0.0
         self.tts_pending_vh = 0.0
         self._last_loop_t = -math.inf
-
-    def setup(self, ctx: RunContext) -> None:
-        self.trips = trips_monitor(ctx)
-        self.det = find_detectors(ctx)
 
     def tick(self, ctx: RunContext) -> None:
         road = road_frame(ctx)

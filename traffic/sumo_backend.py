@@ -63,13 +63,14 @@ class SumoBackend(Backend):
     # the engine adds these monitors (name: registered type) to every scenario with this backend:
     # trip bookkeeping (departures, arrivals, delays, backlog, teleports) is measured, not simulated
     required_monitors: ClassVar[dict[str, str]] = {"trips": "trips"}
+    provides: ClassVar[frozenset[str]] = frozenset({"road"})
+    period_source: ClassVar[str | None] = "road.sumo.step_length"  # [s] SUMO's step
 
     def __init__(self, name: str, params: RoadSpec, scenario: Any, network: BuiltNetwork | None = None,
                  cache_dir: Path | None = None) -> None:
         super().__init__(name)
         self.scenario = scenario
         self.road = params
-        self.period = self.road.sumo.step_length
         self.net = network or build_network(self.road.network.type, self.road.network.params, cache_dir)
         self.tables = RoadTables(self.net.landmarks)
         self.controlled: set[str] = set()

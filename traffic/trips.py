@@ -3,8 +3,8 @@
 A DETECT-phase monitor (registered as ``trips``, added to every road scenario by default) that reads
 only the snapshot's road frame: its per-step events (departed / arrived / teleported uids, the
 insertion backlog) and the run's static tables (depart time and insertion delay, route segments,
-speed factor and top speed per uid).  ``traffic_kpis`` and ``ramp_kpis`` take delays from it (the
-peer named ``trips``, see ``trips_monitor``).
+speed factor and top speed per uid).  ``traffic_kpis`` and ``ramp_kpis`` take delays from it (their
+peer of role ``trips``, ``NEEDS_TRIPS``).
 
 Delay of a vehicle = travel time + insertion delay - free-flow time of its route at its own desired
 speed (``min(vmax, limit x speed factor)`` per segment).  Vehicles that had not arrived when the run
@@ -15,14 +15,13 @@ the distance covered, or, still waiting to be inserted, their insertion delay.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import RoadEvents, RoadFrame, RoadTables, Role
-from corridor.traffic.road_spec import road_spec
 
 TRIPS = "trips"  # the name the default trips monitor runs under
 
@@ -35,12 +34,8 @@ def road_frame(ctx: RunContext) -> RoadFrame:
     return road
 
 
-def trips_monitor(ctx: RunContext) -> Trips:
-    """The run's trips monitor (the peer named ``trips``)."""
-    c = ctx.components.get(TRIPS)
-    if not isinstance(c, Trips):
-        raise ValueError(f"this monitor needs the `{TRIPS}` monitor (added by default to road scenarios)")
-    return c
+NEEDS_ROAD = Need(role="road", hint="add `road:` to the scenario")
+NEEDS_TRIPS = Need(role=TRIPS, hint=f"add the `{TRIPS}` monitor (added by default to road scenarios)")
 
 
 def freeflow_s(segments: tuple[tuple[float, float], ...], speed_factor: float, max_speed: float) -> float:
@@ -52,14 +47,15 @@ class Trips(Component):
     """Per-uid trip records (depart, arrive, free-flow time) kept from the road frame's events."""
 
     phase = Phase.DETECT
+    needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
+    provides: ClassVar[frozenset[str]] = frozenset({TRIPS})
+    period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
-        road = road_spec(scenario)
-        self.period = road.sumo.step_length if road is not None else 0.1  # [s] the road's step
         self.arrive_s = np.zeros(0)  # per uid [s] (nan: not arrived)
         self.freeflow_s = np.zeros(0)  # per uid [s]
         self.n_departed = 0

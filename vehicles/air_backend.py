@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -164,6 +164,9 @@ class AircraftCommand:
 class AirBackend(Backend):
     """JSBSim fleet as an engine backend (registered as ``jsbsim_fleet``)."""
 
+    provides: ClassVar[frozenset[str]] = frozenset({"air"})
+    period_source: ClassVar[str | None] = "dt"  # [s] the base tick (JSBSim sub-steps at rate_hz inside)
+
     class Params(_Frozen):
         aircraft: list[AircraftSpec] = Field(default_factory=list)
         encounter: EncounterSpec | None = None
@@ -189,7 +192,6 @@ class AirBackend(Backend):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.params = params
-        self.period = float(scenario.dt)
         o = scenario.origin
         self.origin = (o.lat, o.lon, o.alt)
         self.aircraft = params.expanded()

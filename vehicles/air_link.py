@@ -41,14 +41,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.uav.models import TrackedAgent
-from corridor.engine import Component, Phase, RunContext, relative_output_path
+from corridor.engine import Component, Need, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
 
 from .mavlink_link import LinkRates, MavlinkLink, ReceivedReport
@@ -69,6 +69,9 @@ class AirLink(Component):
     """MAVLink link + per-UAV track tables (registered in BACKENDS as ``mavlink_link``)."""
 
     phase = Phase.COMMUNICATE
+    needs: ClassVar[dict[str, Need]] = {"backend": Need(role="air", name_at="params.backend")}
+    provides: ClassVar[frozenset[str]] = frozenset({"air_link"})
+    period_source: ClassVar[str | None] = "params.period_s"  # [s] 1 / position rate
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -98,6 +101,11 @@ class AirLink(Component):
         def _relative_log_path(cls, v: str | None) -> str | None:
             return None if v is None else relative_output_path(v)
 
+        @property
+        def period_s(self) -> float:
+            """The link's period [s]: one position report per aircraft per tick."""
+            return 1.0 / self.position_hz
+
         @model_validator(mode="after")
         def _pacing_needs_mirror(self) -> AirLink.Params:
             if self.realtime_factor is not None and self.udp_mirror is None:
@@ -107,7 +115,6 @@ class AirLink(Component):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.params = params
-        self.period = 1.0 / params.position_hz
         if params.channel is not None and params.channel not in scenario.channels:
             known = ", ".join(scenario.channels) or "none"
             raise ValueError(f"{name}.params.channel: no channel {params.channel!r} in the scenario (known: {known})")
@@ -124,8 +131,7 @@ class AirLink(Component):
         self.paced_sleep_s = 0.0
 
     def setup(self, ctx: RunContext) -> None:
-        p = self.params
-        backend = ctx.get(p.backend)
+        p, backend = self.params, self.backend
         channel = Channel(self.cfg, ctx.rng(f"{self.name}/channel"), t_end_s=ctx.duration)
         self.log_path = ctx.output_path(p.log_path) if p.log_path else None
         self.link = MavlinkLink(

@@ -30,13 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Backend, RunContext
-from corridor.traffic.road_spec import road_spec
+from corridor.engine import Backend, Need, RunContext
 from corridor.traffic.sumo_backend import SumoBackend
 from corridor.vehicles.bicycle import BicycleParams, clip_input, rk4_step
 
@@ -109,6 +108,12 @@ class EgoBicycle(Backend):
     ``active`` tells whether the ego is on the road (it departs at ``depart_s``).
     """
 
+    needs: ClassVar[dict[str, Need]] = {
+        "sumo": Need(role="road", hint="the ego bicycle needs a road (SUMO) backend: add `road:`")}
+    provides: ClassVar[frozenset[str]] = frozenset({"ego"})
+    period_source: ClassVar[str | None] = "peer:sumo"  # [s] SUMO's step (the ego is integrated inside it)
+    sumo: SumoBackend
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -125,27 +130,20 @@ class EgoBicycle(Backend):
         super().__init__(name)
         self.p = params
         self.vid = params.vid
-        road = road_spec(scenario)
-        self.period = road.sumo.step_length if road else scenario.dt
         self.state = np.zeros(4)
         self.active = False
         self.departed_s = math.nan
         self._u = np.zeros(2)
-        self.sumo: SumoBackend | None = None
 
     # ------------------------------------------------------------------ set-up
     def setup(self, ctx: RunContext) -> None:
-        sumo = next((b for b in ctx.backends() if isinstance(b, SumoBackend)), None)
-        if sumo is None:
-            raise ValueError(f"{self.name}: the ego bicycle needs a road (SUMO) backend: add `road:`")
-        if abs(sumo.period - self.period) > 1e-9:
+        sumo = self.sumo
+        if abs(sumo.period - self.period) > 1e-9:  # a scenario's period: override
             raise ValueError(f"{self.name}: period {self.period} s must equal SUMO's step {sumo.period} s")
-        self.sumo = sumo
         sumo.pre_step.append(self._pre_step)
         sumo.apply([InsertEgo(self.p)], ctx)
 
     def _on_road(self) -> bool:
-        assert self.sumo is not None
         return bool(np.any(self.sumo.snapshot_part().ids == self.vid))
 
     # ------------------------------------------------------------------ the step
@@ -157,7 +155,6 @@ class EgoBicycle(Backend):
     def _pre_step(self, ctx: RunContext) -> None:
         """Before SUMO's step: start from SUMO's insertion pose once, else integrate; then place."""
         sumo = self.sumo
-        assert sumo is not None
         if not self.active:
             if not self._on_road():
                 return
@@ -169,7 +166,6 @@ class EgoBicycle(Backend):
 
     def _start(self, t_s: float) -> None:
         """Take over the ego where SUMO inserted it (front bumper and angle -> rear axle)."""
-        assert self.sumo is not None
         fx, fy, angle_deg, speed = self.sumo.vehicle_pose(self.vid)
         yaw = math.radians(90.0 - angle_deg)
         back = 0.5 * self.p.bicycle.length_m + 0.5 * self.p.bicycle.wheelbase_m  # front bumper -> rear axle

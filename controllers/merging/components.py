@@ -71,6 +71,8 @@ class Assignment:
 
 
 class V2XMerging(Controller):
+    period = 0.1  # [s] a constant (period_source None), unless the scenario gives `period:`
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         policy: Literal["fifo", "cps"] = "cps"
@@ -108,7 +110,6 @@ class V2XMerging(Controller):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.period = 0.1
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
         self.coord = Coordinator(params.policy, params.coordinator)
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks

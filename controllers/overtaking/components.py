@@ -19,7 +19,7 @@ are returned by ``finish``. (These judged signals belong in a monitor, not in th
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -33,7 +33,7 @@ from corridor.controllers.overtaking.controller import (
     safety_signals,
 )
 from corridor.controllers.overtaking.mpc import FAR_M, body_centre
-from corridor.engine import Controller, RunContext
+from corridor.engine import Controller, Need, RunContext
 from corridor.snapshot import WorldSnapshot
 from corridor.traffic.landmarks import RuralLandmarks
 from corridor.traffic.trips import road_frame
@@ -44,6 +44,10 @@ PASSED_FORGET_M = 150.0  # [m] a passed lead this far behind is no longer "the l
 
 class OvertakingSumo(Controller):
     """Drives the ego bicycle of backend ``ego`` with the event-triggered STL overtaking MPC."""
+
+    needs: ClassVar[dict[str, Need]] = {"ego": Need(role="ego", name_at="p.ego")}
+    period_source: ClassVar[str | None] = "p.controller.period_s"
+    ego: EgoBicycle
 
     class Params(BaseModel):
         model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
@@ -58,7 +62,6 @@ class OvertakingSumo(Controller):
         super().__init__(name)
         self.p = params
         self.cparams = params.controller
-        self.period = self.cparams.period_s
         self.ctrl: OvertakingController | None = None
         self.spec_lead: str | None = None
         self.steps_active = 0  # controller periods with the ego on the road (= every-step re-plans)
@@ -66,13 +69,11 @@ class OvertakingSumo(Controller):
 
     # ------------------------------------------------------------------ set-up
     def setup(self, ctx: RunContext) -> None:
-        ego = ctx.get(self.p.ego)
-        if not isinstance(ego, EgoBicycle):
-            raise ValueError(f"{self.name}: component {self.p.ego!r} is not an ego bicycle backend")
+        ego = self.ego
         marks = road_frame(ctx).tables.landmarks
         if not isinstance(marks, RuralLandmarks):
             raise ValueError(f"{self.name}: overtaking needs the rural two-lane road, not {marks.kind!r}")
-        self.ego, self.vid = ego, ego.vid
+        self.vid = ego.vid
         self.lane_y = float(marks.east_lane_y)  # [m] ENU y of the own lane centre
         road = self.cparams.road.model_copy(update={"lane_width_m": abs(float(marks.opposite_lane_offset_m))})
         self.cparams = self.cparams.model_copy(update={"ego": ego.p.bicycle, "road": road})

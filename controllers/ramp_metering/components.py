@@ -21,14 +21,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig
-from corridor.engine import Controller, RunContext
-from corridor.traffic.detectors import RampDetectors, RampMeasurement
+from corridor.engine import Controller, Need, RunContext
+from corridor.traffic.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
 from corridor.traffic.meters import (
     ChoiceSet,
     MeterOff,
@@ -39,7 +39,6 @@ from corridor.traffic.meters import (
     guidance_assignments,
     parse_od_route,
 )
-from corridor.traffic.ramp_monitors import find_detectors
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.trips import road_frame
 
@@ -83,11 +82,13 @@ class RampControl(Controller):
     """Common engine glue: observe the detectors, decide every control step, record rates."""
 
     Params = RampParams
+    needs: ClassVar[dict[str, Need]] = {"det": NEEDS_DETECTORS}
+    period_source: ClassVar[str | None] = "p.tick_s"
+    det: RampDetectors
 
     def __init__(self, name: str, params: RampParams | None = None, scenario: Any = None) -> None:
         super().__init__(name)
         self.p = params or self.Params()
-        self.period = self.p.tick_s
         self.scenario = scenario
         self.timing = MeterTiming(self.p.green_s, self.p.min_red_s, self.p.open_rate_vph)
         self.rates_vph: dict[str, float] = {}
@@ -95,7 +96,6 @@ class RampControl(Controller):
         self._ctx: RunContext | None = None
 
     def setup(self, ctx: RunContext) -> None:
-        self.det: RampDetectors = find_detectors(ctx)
         self._ctx = ctx
         super().setup(ctx)
 

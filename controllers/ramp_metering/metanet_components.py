@@ -9,14 +9,14 @@ it then reports it beside the run's TTS with the relative difference.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC, alinea_policy
-from corridor.engine import Controller, RunContext
-from corridor.traffic.metanet_backend import SetMetanetInput, find_metanet
+from corridor.engine import Controller, Need, RunContext
+from corridor.traffic.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
 
 
 class MetanetControlParams(BaseModel):
@@ -32,15 +32,13 @@ class MetanetNone(Controller):
     """No control: the meters stay at their default (open) input."""
 
     Params = MetanetControlParams
+    needs: ClassVar[dict[str, Need]] = {"backend": NEEDS_METANET}
+    period_source: ClassVar[str | None] = "p.control_step_s"
+    backend: MetanetBackend
 
     def __init__(self, name: str, params: MetanetControlParams | None = None, scenario: Any = None) -> None:
         super().__init__(name)
         self.p = params or self.Params()
-        self.period = self.p.control_step_s
-
-    def setup(self, ctx: RunContext) -> None:
-        self.backend = find_metanet(ctx)
-        super().setup(ctx)
 
     def observe(self, ctx: RunContext) -> tuple[float, np.ndarray]:
         return ctx.t, self.backend.x.copy()

@@ -28,7 +28,7 @@ vertical geofence (``min_alt_m`` .. ``max_alt_m``) limits the climb/descent the 
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -37,9 +37,9 @@ from corridor.controllers.uav.control_tube import ControlTubeParams
 from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
-from corridor.engine import Controller, RunContext
-from corridor.vehicles.air_backend import AircraftCommand
-from corridor.vehicles.air_link import Relevance
+from corridor.engine import Controller, Need, RunContext
+from corridor.vehicles.air_backend import AirBackend, AircraftCommand
+from corridor.vehicles.air_link import AirLink, Relevance
 from corridor.vehicles.autopilot import VelocityCommand
 
 
@@ -68,7 +68,11 @@ class _UavController(Controller):
     """Engine glue common to the three methods: observe via the link, step per UAV, emit commands."""
 
     Params = UavAvoidanceParams
-    period = 0.2  # [s]
+    needs: ClassVar[dict[str, Need]] = {"backend": Need(role="air", name_at="params.backend"),
+                                        "link": Need(role="air_link", name_at="params.link")}
+    period = 0.2  # [s] (period_source None: this constant, unless the scenario gives `period:`)
+    backend: AirBackend
+    link: AirLink
     uses_link = True  # False: the method never looks at the others (uav_none)
 
     def __init__(self, name: str, params: UavAvoidanceParams, scenario: Any) -> None:
@@ -83,8 +87,7 @@ class _UavController(Controller):
         self.fallbacks = 0
 
     def setup(self, ctx: RunContext) -> None:
-        backend = ctx.get(self.params.backend)
-        self.link = ctx.get(self.params.link)
+        backend = self.backend
         specs = {a.id: a for a in backend.aircraft}
         ids = self.params.uavs or [a.id for a in backend.aircraft if a.goal_enu is not None and not a.is_piloted]
         for uid in ids:

@@ -50,6 +50,8 @@ class Scripted:
 class ScriptedRoad(Backend):
     """Fills a road frame from a script (front-bumper lane positions; x = lane position)."""
 
+    provides = frozenset({"road"})  # the monitors' road peer (their period: this one's)
+
     def __init__(self, script: list[Scripted], pending_wait_s: tuple[float, ...] = ()) -> None:
         super().__init__("road")
         self.period = DT

@@ -3,16 +3,20 @@ ramp capacity) from ``start_s`` on; reports ``example_meter.rate`` and ``example
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Controller, RunContext
-from corridor.traffic.metanet_backend import SetMetanetInput, find_metanet
+from corridor.engine import Controller, Need, RunContext
+from corridor.traffic.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
 
 
 class FixedMeter(Controller):
+    needs: ClassVar[dict[str, Need]] = {"backend": NEEDS_METANET}  # set by the engine before setup
+    period_source: ClassVar[str | None] = "p.control_step_s"
+    backend: MetanetBackend
+
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         rate: float = Field(0.5, ge=0, le=1)  # fraction of the ramp capacity
@@ -22,12 +26,7 @@ class FixedMeter(Controller):
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
-        self.period = params.control_step_s
         self.commands = 0
-
-    def setup(self, ctx: RunContext) -> None:
-        self.backend = find_metanet(ctx)
-        super().setup(ctx)
 
     def observe(self, ctx: RunContext) -> float:
         return ctx.t
