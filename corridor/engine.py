@@ -245,6 +245,17 @@ class NoController(Controller):
         super().__init__(name)
 
 
+def merge_metrics(metrics: dict[str, Any], owner: dict[str, str], new: dict[str, Any], source: str) -> None:
+    """Add ``source``'s metric columns to ``metrics``; a column another component already wrote
+    (``owner``: column -> component) is an error naming both, never silently overwritten."""
+    for key, value in new.items():
+        if key in owner:
+            raise ValueError(f"metric column {key!r} is written by both {owner[key]!r} and {source!r} "
+                             "(give one of them a namespaced name)")
+        owner[key] = source
+        metrics[key] = value
+
+
 class Simulation:
     """A base tick and a list of components; ``run`` steps until ``duration``.
 
@@ -403,8 +414,9 @@ class Simulation:
             for _ in range(n_ticks):
                 self.step()
             metrics: dict[str, Any] = {}
+            owner: dict[str, str] = {}
             for c in self.ctx.components.values():
-                metrics.update(c.finish(self.ctx))
+                merge_metrics(metrics, owner, c.finish(self.ctx), c.name)
         finally:
             for c in self.ctx.components.values():
                 c.close()

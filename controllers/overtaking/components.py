@@ -7,13 +7,11 @@ the nearest own-lane vehicle ahead (lead), the oncoming vehicles and the own-lan
 filterpy predictor tracks them.  The ego's own state comes from the ego backend (odometry, exact).  It
 puts an ``EgoInput`` on the bus for the ego backend.
 
-Every tick where it runs it records the signals of the STL specs of ``scenarios/overtaking.yaml`` from
-the TRUE (noise-free) snapshot: ``gap_lead`` / ``ahead_lead`` (bumper gap behind / ahead of the lead
-being overtaken), ``lat_lead`` / ``lat_onc`` (lateral clearance to the own / oncoming lane's vehicle
-box), ``gap_onc`` (longitudinal clearance to the oncoming vehicles), ``clearance`` (smallest hull gap
-to ANY other vehicle, followers included: <= 0 on every contact the collision monitor can report),
-``lane_offset`` (the ego's body centre y in the road frame) and ``ego_speed``; the metrics of issue 5
-are returned by ``finish``. (These judged signals belong in a monitor, not in the controller under test.)
+It records no signal: the ones the STL specs of ``scenarios/overtaking.yaml`` judge (``gap_lead``,
+``lane_offset``, ``clearance``, ...) and ``min_gap_lead_m`` / ``min_gap_oncoming_m`` are measured by the
+``overtaking_safety`` monitor (``corridor.traffic.overtaking_monitor``), so a baseline controller in its
+place is judged on the same signals.  ``finish`` returns the controller's own metrics (outcome, modes,
+re-plans, solve times).
 """
 
 from __future__ import annotations
@@ -29,17 +27,13 @@ from corridor.controllers.overtaking.controller import (
     OvertakingObservation,
     OvertakingParams,
     VehicleObs,
-    box_clearance,
-    safety_signals,
 )
-from corridor.controllers.overtaking.mpc import FAR_M, body_centre
+from corridor.controllers.overtaking.mpc import body_centre
 from corridor.engine import Controller, Need, RunContext
 from corridor.snapshot import WorldSnapshot
 from corridor.traffic.landmarks import RuralLandmarks
 from corridor.traffic.trips import road_frame
 from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
-
-PASSED_FORGET_M = 150.0  # [m] a passed lead this far behind is no longer "the lead" of the signals
 
 
 class OvertakingSumo(Controller):
@@ -63,9 +57,7 @@ class OvertakingSumo(Controller):
         self.p = params
         self.cparams = params.controller
         self.ctrl: OvertakingController | None = None
-        self.spec_lead: str | None = None
         self.steps_active = 0  # controller periods with the ego on the road (= every-step re-plans)
-        self.min_gap_lead_m, self.min_gap_onc_m = math.inf, math.inf
 
     # ------------------------------------------------------------------ set-up
     def setup(self, ctx: RunContext) -> None:
@@ -126,56 +118,7 @@ class OvertakingSumo(Controller):
         cmd = self.ctrl.step(obs)
         return [EgoInput(self.vid, cmd.accel_mps2, cmd.steer_rad)]
 
-    def tick(self, ctx: RunContext) -> None:
-        super().tick(ctx)
-        if self.ego.active:
-            self._record(ctx)
-
-    # ------------------------------------------------------------------ signals and metrics
-    def _signal_lead(self, ids: np.ndarray, x: np.ndarray, v: np.ndarray, xc: float) -> int | None:
-        """Row of the lead the safety signals refer to: the controller's target while passing, else the
-        lead last seen ahead (kept after it was passed, until far behind), else the nearest ahead."""
-        assert self.ctrl is not None
-        where = {str(i): k for k, i in enumerate(ids)}
-        target = self.ctrl.target_id
-        if target in where:
-            self.spec_lead = target
-        k = where.get(self.spec_lead) if self.spec_lead is not None else None
-        if k is not None and x[k] > xc - PASSED_FORGET_M:
-            return k
-        ahead = np.flatnonzero((v >= 0.0) & (x > xc))
-        if not len(ahead):
-            return None
-        k = int(ahead[np.argmin(x[ahead])])
-        self.spec_lead = str(ids[k])
-        return k
-
-    def _record(self, ctx: RunContext) -> None:
-        """True-state signals of the safety and completion specs (see the module docstring)."""
-        p = self.cparams
-        ego = self.ego_road_state()[None, :]
-        xc, yc = (float(z[0]) for z in body_centre(ego, p.ego.wheelbase_m))
-        ids, x, y, v = self._road_frame(ctx.snapshot)
-        own = (v >= 0.0) & (y < 0.5 * p.road.lane_width_m)
-        k = self._signal_lead(ids[own], x[own], v[own], xc)
-        lead_x = np.array([x[own][k] if k is not None else FAR_M])
-        onc = (v < 0.0) & (np.abs(x - xc) < self.p.sensor_range_m)
-        onc_x = x[onc][:, None] if onc.any() else np.full((1, 1), FAR_M)
-        onc_v = v[onc] if onc.any() else np.zeros(1)
-        sig = safety_signals(ego, lead_x, onc_x, onc_v, p.ego, p.road)
-        for name, val in sig.items():
-            ctx.signals.record(name, ctx.t, float(val[0]))
-        keep = ctx.snapshot.ids != self.vid  # everyone, not only the lead and oncoming cars the spec names
-        others = np.column_stack((ctx.snapshot.position[keep, 0], ctx.snapshot.position[keep, 1] - self.lane_y))
-        clearance = box_clearance(ego, p.ego, others, ctx.snapshot.heading[keep], ctx.snapshot.size[keep, :2])
-        ctx.signals.record("clearance", ctx.t, float(clearance[0]))
-        ctx.signals.record("lane_offset", ctx.t, yc)
-        ctx.signals.record("ego_speed", ctx.t, float(ego[0, 3]))
-        if sig["lat_lead"][0] <= 0.0 and k is not None:  # sharing the lead's lane
-            self.min_gap_lead_m = min(self.min_gap_lead_m, float(max(sig["gap_lead"][0], sig["ahead_lead"][0])))
-        if sig["lat_onc"][0] <= 0.0 and onc.any():  # sharing the oncoming lane
-            self.min_gap_onc_m = min(self.min_gap_onc_m, float(sig["gap_onc"][0]))
-
+    # ------------------------------------------------------------------ metrics
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         assert self.ctrl is not None
         c = self.ctrl
@@ -192,8 +135,6 @@ class OvertakingSumo(Controller):
             "final_mode": c.mode,
             "completion_time_s": done[0] - first_commit_before[-1] if first_commit_before else math.nan,
             "aborts": aborts,
-            "min_gap_lead_m": self.min_gap_lead_m if math.isfinite(self.min_gap_lead_m) else math.nan,
-            "min_gap_oncoming_m": self.min_gap_onc_m if math.isfinite(self.min_gap_onc_m) else math.nan,
             "replans": c.replans,
             "replans_every_step": self.steps_active,
             "replan_savings": 1.0 - c.replans / self.steps_active if self.steps_active else math.nan,

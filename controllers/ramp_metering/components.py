@@ -79,7 +79,8 @@ class RampObservation:
 
 
 class RampControl(Controller):
-    """Common engine glue: observe the detectors, decide every control step, record rates."""
+    """Common engine glue: observe the detectors, decide every control step (the ``ramp_meters``
+    monitor records the rates the meters run, from these commands)."""
 
     Params = RampParams
     needs: ClassVar[dict[str, Need]] = {"det": NEEDS_DETECTORS}
@@ -116,8 +117,6 @@ class RampControl(Controller):
             if key not in self.rates_vph or abs(self.rates_vph[key] - rate) > 1.0:
                 cmds.append(self.meter_command(obs.ramps[key].tls, rate))
             self.rates_vph[key] = rate
-            if self._ctx is not None:
-                self._ctx.signals.record(f"rate_{key}", obs.t, min(rate, self.p.open_rate_vph))
         return cmds
 
     def meter_command(self, tls: str, rate_vph: float) -> Any:

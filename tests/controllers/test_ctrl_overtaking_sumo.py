@@ -45,6 +45,7 @@ def scenario(companions: dict[str, Any], oncoming_vph: float = 0.0, controller: 
     if controller:
         data["controllers"] = {"overtaking": {"type": "overtaking", "params": {"sensor_pos_noise_m": 0.0,
                                                                                "sensor_speed_noise_mps": 0.0}}}
+        data["monitors"] = {"safety": {"type": "overtaking_safety"}}  # the spec signals (not the controller's)
     return validate(data, "test")
 
 

@@ -84,3 +84,19 @@ def test_mode_transitions_are_events():
     assert [e.message for e in ev.of_kind("mode")] == ["follow -> pass: gap found", "pass -> follow: done"]
     with pytest.raises(ValueError):
         HybridAutomaton("bad", ["a"], "a", [Transition("a", "b", guard=bool)])
+
+
+def test_duplicate_metric_column_is_an_error_naming_both():
+    class Kpi(Component):
+        def __init__(self, name: str, value: float) -> None:
+            super().__init__(name)
+            self.value = value
+
+        def finish(self, ctx):
+            return {"tts_vh": self.value, f"own_{self.name}": 1}
+
+    sim = make(0.2, 0.1, [Kpi("traffic", 1.0), Kpi("ramp", 2.0)])
+    with pytest.raises(ValueError, match="'tts_vh' is written by both 'traffic' and 'ramp'") as err:
+        sim.run()
+    assert "\n" not in str(err.value)
+    assert make(0.2, 0.1, [Kpi("traffic", 1.0)]).run() == {"tts_vh": 1.0, "own_traffic": 1}
