@@ -191,6 +191,12 @@ class Component:
         """Called once at the end; returns metric columns for the run's row."""
         return {}
 
+    def metric_columns(self) -> frozenset[str]:
+        """Columns ``finish`` always writes, declared so that two components claiming one column are
+        refused at build (naming both) rather than when the run ends; undeclared columns are still
+        checked when the metrics are merged."""
+        return frozenset()
+
     def close(self) -> None:
         """Release external resources; called even when the run failed."""
 
@@ -245,6 +251,18 @@ class NoController(Controller):
         super().__init__(name)
 
 
+def _column_owners(comps: list[Component]) -> dict[str, str]:
+    """Column -> the component that declares it; a column two components declare is a build error."""
+    owner: dict[str, str] = {}
+    for c in comps:
+        for col in sorted(c.metric_columns()):
+            if col in owner:
+                raise ValueError(f"metric column {col!r} is declared by both {owner[col]!r} and {c.name!r}: "
+                                 "give one of them a column prefix (e.g. params: {prefix: 'ramp.'})")
+            owner[col] = c.name
+    return owner
+
+
 def merge_metrics(metrics: dict[str, Any], owner: dict[str, str], new: dict[str, Any], source: str) -> None:
     """Add ``source``'s metric columns to ``metrics``; a column another component already wrote
     (``owner``: column -> component) is an error naming both, never silently overwritten."""
@@ -269,6 +287,7 @@ class Simulation:
         if len(set(names)) != len(names):
             raise ValueError(f"component names must be unique: {names}")
         ctx.components = {c.name: c for c in comps}
+        self._check_metric_columns(comps)
         self._peers = {c.name: self._resolve_needs(c) for c in comps}
         self.setup_order = self._setup_order(comps)
         for c in self.setup_order:
@@ -367,6 +386,10 @@ class Simulation:
                 raise ValueError(f"{c.name}: period_source {src!r}: no such peer in this run")
             return peer.period
         return float(attr_path(c, src))
+
+    @staticmethod
+    def _check_metric_columns(comps: list[Component]) -> None:
+        _column_owners(comps)
 
     def _ticks_per_period(self, c: Component) -> int:
         n = round(c.period / self.ctx.dt)

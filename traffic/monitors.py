@@ -97,6 +97,7 @@ class TrafficKpis(Component):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
         merge_area: MergeArea | None = None  # time loss inside this stretch, reported on its own
+        prefix: str = Field("", max_length=32, pattern=r"^[A-Za-z0-9_.]*$")  # column prefix, e.g. "traffic."
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -168,7 +169,17 @@ class TrafficKpis(Component):
         out["merge_loss_mean_s"] = float(lost.mean()) if len(lost) else np.nan
         return out
 
+    SHARED: ClassVar[tuple[str, ...]] = ("throughput_vph", "tts_vh", "insertion_backlog", "delay_mean_s",
+                                         "delay_total_vh")  # names other KPI monitors use too
+
+    def metric_columns(self) -> frozenset[str]:
+        return frozenset(self.p.prefix + c for c in self.SHARED)
+
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        out = self._finish(ctx)
+        return {self.p.prefix + k: v for k, v in out.items()} if self.p.prefix else out
+
+    def _finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
         out: dict[str, Any] = {"throughput_vph": self.count / span_h, "tts_vh": self.tts_vh}
         delays = self.trips.delays(self.warmup, unfinished=True)

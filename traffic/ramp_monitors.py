@@ -52,6 +52,7 @@ class RampKpis(Component):
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         period_s: float = Field(1.0, gt=0)  # [s] TTS sampling period
+        prefix: str = Field("", max_length=32, pattern=r"^[A-Za-z0-9_.]*$")  # column prefix, e.g. "ramp."
 
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
@@ -83,12 +84,17 @@ class RampKpis(Component):
         if new_loops:
             self._last_loop_t = max(m.t_loops for m in latest.values())
 
+    SHARED: ClassVar[tuple[str, ...]] = ("tts_vh", "delay_total_vh", "delay_mean_s", "throughput_vph")
+
+    def metric_columns(self) -> frozenset[str]:
+        return frozenset(self.p.prefix + c for c in self.SHARED)
+
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         out: dict[str, Any] = {"tts_vh": self.tts_vh, "tts_pending_vh": self.tts_pending_vh}
         out.update(self._delay_throughput(ctx))
         out.update(self._queues(ctx))
         out.update(self._solver(ctx))
-        return out
+        return {self.p.prefix + k: v for k, v in out.items()} if self.p.prefix else out
 
     def _delay_throughput(self, ctx: RunContext) -> dict[str, Any]:
         warm = ctx.scenario.warmup if ctx.scenario is not None else 0.0

@@ -100,3 +100,21 @@ def test_duplicate_metric_column_is_an_error_naming_both():
         sim.run()
     assert "\n" not in str(err.value)
     assert make(0.2, 0.1, [Kpi("traffic", 1.0)]).run() == {"tts_vh": 1.0, "own_traffic": 1}
+
+
+def test_declared_metric_columns_collide_at_build_and_the_kpi_prefix_namespaces_them():
+    from types import SimpleNamespace
+
+    from corridor.traffic.monitors import TrafficKpis
+    from corridor.traffic.ramp_monitors import RampKpis
+
+    sc = SimpleNamespace(warmup=0.0, dt=0.1)
+    traffic = TrafficKpis("traffic", TrafficKpis.Params(), sc)
+    ramp = RampKpis("ramp", RampKpis.Params(), sc)
+    assert traffic.metric_columns() & ramp.metric_columns() == {"tts_vh", "delay_mean_s", "delay_total_vh",
+                                                                 "throughput_vph"}
+    with pytest.raises(ValueError, match="'delay_mean_s' is declared by both 'traffic' and 'ramp'"):
+        Simulation(RunContext(run_seed=0, dt=0.1, duration=1.0), [traffic, ramp])
+    ramp = RampKpis("ramp", RampKpis.Params(prefix="ramp."), sc)
+    assert ramp.metric_columns() == {"ramp.tts_vh", "ramp.delay_mean_s", "ramp.delay_total_vh", "ramp.throughput_vph"}
+    assert not traffic.metric_columns() & ramp.metric_columns()
