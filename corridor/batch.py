@@ -185,8 +185,17 @@ def _local(specs: Iterable[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
                     continue
                 del running[fd]  # end of file: the worker is done (or dead)
                 yield _finish(w)
+    except KeyboardInterrupt:
+        _say_stopping(len(running))  # before the workers are stopped: say it at once
+        raise
     finally:
         _stop(running)
+
+
+def _say_stopping(n_running: int | None) -> None:
+    which = "the" if n_running is None else str(n_running)
+    print(f"\nrun_scenario: interrupted: stopping {which} runs in progress; finished runs are kept",
+          file=sys.stderr, flush=True)
 
 
 def _stop(running: dict[int, _Worker]) -> None:
@@ -265,9 +274,9 @@ def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str 
                 on_row(row)
     except KeyboardInterrupt:
         bar.close()
-        print(f"\nrun_scenario: interrupted: stopping the runs in progress; {written} runs finished in "
-              "this session are kept", file=sys.stderr, flush=True)
-        rows.close()  # terminates the workers
+        if executor == "ray":
+            _say_stopping(None)
+        rows.close()  # terminates the workers (a no-op once the local executor has stopped them)
         store.compact(order)
         raise BatchInterrupted(written, n_todo - written) from None
     finally:

@@ -183,7 +183,7 @@ def test_ctrl_c_stops_at_once_keeps_finished_rows_and_exits_130(tmp_path):
     os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends: the whole process group
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130
-    assert "stopping the runs in progress" in err and "--resume" in err
+    assert "runs in progress; finished runs are kept" in err and "--resume" in err
     kept = parts(out)
     assert 1 <= len(kept) < 8
     assert set(pd.read_parquet(out / "runs.parquet")["run_id"]) == kept
