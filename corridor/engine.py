@@ -252,7 +252,7 @@ class NoController(Controller):
 
 
 def _column_owners(comps: list[Component]) -> dict[str, str]:
-    """Column -> the component that declares it; a column two components declare is a build error."""
+    """Column -> the component that declares it; a column two components declare is a ValueError."""
     owner: dict[str, str] = {}
     for c in comps:
         for col in sorted(c.metric_columns()):
@@ -287,7 +287,7 @@ class Simulation:
         if len(set(names)) != len(names):
             raise ValueError(f"component names must be unique: {names}")
         ctx.components = {c.name: c for c in comps}
-        self._check_metric_columns(comps)
+        _column_owners(comps)  # two components declaring one metric column: refused at build
         self._peers = {c.name: self._resolve_needs(c) for c in comps}
         self.setup_order = self._setup_order(comps)
         for c in self.setup_order:
@@ -386,10 +386,6 @@ class Simulation:
                 raise ValueError(f"{c.name}: period_source {src!r}: no such peer in this run")
             return peer.period
         return float(attr_path(c, src))
-
-    @staticmethod
-    def _check_metric_columns(comps: list[Component]) -> None:
-        _column_owners(comps)
 
     def _ticks_per_period(self, c: Component) -> int:
         n = round(c.period / self.ctx.dt)
