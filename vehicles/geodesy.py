@@ -104,3 +104,17 @@ def ned_to_enu(v_ned: np.ndarray) -> np.ndarray:
 
 
 enu_to_ned = ned_to_enu
+
+
+def metres_per_degree(lat_deg: np.ndarray, h_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Local scale of WGS-84 geodetic coordinates at (``lat_deg``, ``h_m``): metres north per degree
+    of latitude ((M + h) pi / 180, M the meridian radius of curvature) and metres east per degree of
+    longitude ((N + h) cos(lat) pi / 180, N the prime-vertical radius)."""
+    a, b = 6378137.0, 6356752.314245179  # [m] WGS-84 semi-axes
+    e2 = 1.0 - (b / a) ** 2
+    lat = np.radians(lat_deg)
+    w = np.sqrt(1.0 - e2 * np.sin(lat) ** 2)
+    m = a * (1.0 - e2) / w**3
+    n = a / w
+    rad = np.pi / 180.0
+    return (m + h_m) * rad, (n + h_m) * np.cos(lat) * rad

@@ -1,8 +1,13 @@
 """A fleet of JSBSim aircraft (F450 quadcopters, c172x light aircraft) in the scenario's ENU frame.
 
 Each aircraft is one ``jsbsim.FGFDMExec`` stepped at ``rate_hz`` (120 Hz, JSBSim's default). The
-fleet converts between JSBSim's geodetic state and the local ENU frame (``geodesy.Origin``), runs
-corridor's autopilots (``autopilot.py``) every sub-step, and exports a ``WorldSnapshot`` block.
+fleet converts between JSBSim's geodetic state and the local ENU frame (``geodesy.Origin``) and
+exports a ``WorldSnapshot`` block. The quadcopters' cascade (position -> velocity -> attitude ->
+the F450's rate loops) runs inside JSBSim as FCS components (``jsbsim_data/corridor_quad_cascade.xml``,
+loaded through ``jsbsim_models.aircraft_dir``; the same equations as ``autopilot.QuadCascade``, its
+tested reference), so each aircraft runs a step's sub-steps in a row and Python writes its targets
+and reads its state once per step. The c172x's guidance (``autopilot.FixedWingGuidance``) runs in
+Python every ``_fw_every`` sub-steps.
 
 JSBSim notes (discovered from the data dir, ``jsbsim.get_default_root_dir()``):
 
@@ -43,14 +48,14 @@ from .autopilot import (
     HoldCommand,
     Hover,
     PositionCommand,
-    QuadCascade,
     QuadGains,
     QuadMode,
     QuadTargets,
     VelocityCommand,
     WaypointCommand,
 )
-from .geodesy import FT_PER_M, M_PER_FT, Origin, enu_yaw_from_heading, heading_from_enu_yaw
+from .geodesy import FT_PER_M, M_PER_FT, Origin, enu_yaw_from_heading, heading_from_enu_yaw, metres_per_degree
+from .jsbsim_models import aircraft_dir, patched
 
 MODELS = ("F450", "c172x")
 SIZE_M = {"F450": (0.45, 0.45, 0.2), "c172x": (8.3, 11.0, 2.7)}  # (length, width, height) [m]
@@ -64,7 +69,16 @@ _STATE_PROPS = (
 )
 _VEL_COLS = [4, 3, 5]  # v-east, v-north, v-down columns of _STATE_PROPS
 _VEL_SIGN_M_PER_FT = np.array([1.0, 1.0, -1.0]) * M_PER_FT
-_QUAD_STICKS = ("fcs/aileron-cmd-norm", "fcs/elevator-cmd-norm", "fcs/rudder-cmd-norm", "fcs/throttle-cmd-norm")
+# the cascade's inputs (jsbsim_data/corridor_quad_cascade.xml), written once per step in this order
+_QUAD_CMD = tuple("corridor/cmd/" + p for p in (
+    "velocity-mode", "v-e-mps", "v-n-mps", "v-u-mps", "err0-e-m", "err0-n-m", "err0-u-m",
+    "ref-lat-deg", "ref-lon-deg", "ref-h-m", "m-per-deg-lat", "m-per-deg-lon", "speed-limit-mps", "yaw-rad",
+))
+# QuadGains field -> the cascade's gain property (max_speed_xy_mps enters through speed-limit-mps)
+_QUAD_GAINS = {f: "corridor/gain/" + f.replace("_", "-") for f in (
+    "kp_pos", "kp_vel_xy", "ki_vel_xy", "kp_vel_z", "ki_vel_z", "kp_att", "kp_yaw", "max_climb_mps",
+    "max_descent_mps", "max_tilt_rad", "max_yaw_rate_rps", "hover_throttle", "integ_limit_mps2",
+)}
 _C172_INPUTS = ("ap/heading_setpoint", "ap/altitude_setpoint", "fcs/throttle-cmd-norm")
 
 
@@ -168,11 +182,10 @@ class JSBSimFleet:
         self._getters: list[Callable[[], float]] = []  # state nodes' get_double_value, row-major
         self._raw = np.zeros((0, len(_STATE_PROPS)))
         self._quad_rows: list[int] = []  # fleet row of each quad-cascade row
-        self._quad_in: list[list[jsbsim.FGPropertyNode]] = []  # per quad: stick nodes
-        self._stick_setters: list[Callable[[float], None]] = []  # quads' stick nodes, row-major
+        self._cmd_setters: list[Callable[[float], None]] = []  # quads' cascade inputs, row-major (_QUAD_CMD)
         self._quad_wp: dict[int, tuple[WaypointCommand, int]] = {}  # quad row -> (command, index)
         self.quad_targets = QuadTargets()
-        self.quad_ap = QuadCascade(quad_gains)
+        self.quad_gains = quad_gains or QuadGains()
         self._fw_rows: list[int] = []
         self._fw_in: list[list[jsbsim.FGPropertyNode]] = []
         self._fw_guidance: list[FixedWingGuidance] = []
@@ -187,6 +200,8 @@ class JSBSimFleet:
         with quiet_fds():
             fdm = jsbsim.FGFDMExec(self.root)
             fdm.set_debug_level(0)
+            if patched(model):  # corridor's copy with its FCS system (jsbsim_models.py)
+                fdm.set_aircraft_path(aircraft_dir(self.root))
             if not fdm.load_model(model):
                 raise RuntimeError(f"JSBSim could not load model {model!r} from {self.root}")
         fdm.set_dt(1.0 / self.rate_hz)
@@ -257,10 +272,10 @@ class JSBSimFleet:
 
     def _add_quad(self, row: int, pm: jsbsim.FGPropertyManager, enu: np.ndarray, yaw_rad: float) -> None:
         self._quad_rows.append(row)
-        self._quad_in.append([pm.get_node(p) for p in _QUAD_STICKS])
-        self._stick_setters.extend(n.set_double_value for n in self._quad_in[-1])
+        for name, prop in _QUAD_GAINS.items():
+            pm.get_node(prop).set_double_value(float(getattr(self.quad_gains, name)))
+        self._cmd_setters.extend(pm.get_node(p).set_double_value for p in _QUAD_CMD)
         self.quad_targets.append(enu, yaw_rad, np.inf)
-        self.quad_ap.add_row()
 
     def _add_fixed_wing(self, row: int, pm: jsbsim.FGPropertyManager, enu: np.ndarray, yaw_rad: float, speed_mps: float) -> None:
         guidance = FixedWingGuidance()
@@ -304,40 +319,52 @@ class JSBSimFleet:
 
     # ------------------------------------------------------------------------------------ stepping
     def step(self, dt_s: float) -> None:
-        """Advance every aircraft by ``n = round(dt_s * rate_hz)`` JSBSim sub-steps."""
+        """Advance every aircraft by ``n = round(dt_s * rate_hz)`` JSBSim sub-steps.
+
+        The quads' cascade runs inside JSBSim (``jsbsim_data/corridor_quad_cascade.xml``), so each
+        aircraft runs its sub-steps in a row (one aircraft's data stays in the CPU caches) and Python
+        writes its targets once per step. Fixed wings get their guidance every ``_fw_every``
+        sub-steps: the step is cut into segments at those instants (one segment per step at the
+        default 120 Hz / 0.1 s)."""
         n = round(dt_s * self.rate_hz)
-        h = 1.0 / self.rate_hz
         jsbsim.set_logger(self._log_sink)  # the stepping thread may differ from the building one
-        runs = self._runs
-        # targets only change between steps: with no quad in POSITION mode the cascade's velocity
-        # demand is the same at every sub-step of this step (the position is not needed at all)
-        tgt = self.quad_targets
-        v_dem = None
-        if self._quad_rows and not (tgt.mode == QuadMode.POSITION).any():
-            v_dem = self.quad_ap.velocity_demand(None, tgt)
-        for _ in range(n):
-            self._control(h, v_dem)
-            for run in runs:
-                run()
-            self._read_all()
-            self._substep += 1
-        self.t_s += n * h
+        self._write_quad_targets()
+        done = 0
+        while done < n:
+            k = self._substep + done
+            if self._fw_rows and k % self._fw_every == 0:
+                if done:
+                    self._read_all()
+                self._control_fixed_wing(self._fw_every / self.rate_hz)
+            seg = min(n - done, self._fw_every - k % self._fw_every) if self._fw_rows else n
+            for run in self._runs:
+                for _ in range(seg):
+                    run()
+            done += seg
+        self._read_all()
+        self._substep += n
+        self.t_s += n / self.rate_hz
         self._advance_quad_waypoints()
 
-    def _control(self, h_s: float, v_dem: np.ndarray | None = None) -> None:
-        """Run the autopilots on the latest state and write their outputs into the FDMs.
-
-        ``v_dem``: the quads' velocity demand if it does not depend on their positions (no row in
-        POSITION mode); the geodetic -> ENU conversion is then skipped."""
-        if self._quad_rows:
-            raw = self._raw if len(self._quad_rows) == len(self.ids) else self._raw[self._quad_rows]
-            p = None if v_dem is not None else self._enu_rows(raw)
-            sticks = self.quad_ap.stick_array(p, self._vel_rows(raw), self._euler_rows(raw), self.quad_targets, h_s,
-                                              v_dem)
-            for set_value, value in zip(self._stick_setters, sticks.ravel().tolist(), strict=True):
-                set_value(value)
-        if self._fw_rows and self._substep % self._fw_every == 0:
-            self._control_fixed_wing(self._fw_every * h_s)
+    def _write_quad_targets(self) -> None:
+        """Every quad's targets into its cascade inputs (``_QUAD_CMD`` order); position-mode rows get
+        the error to their target at the current state and that state as the linearisation point."""
+        if not self._quad_rows:
+            return
+        tgt, g = self.quad_targets, self.quad_gains
+        raw = self._raw if len(self._quad_rows) == len(self.ids) else self._raw[self._quad_rows]
+        vel_mode = tgt.mode == QuadMode.VELOCITY
+        err0 = np.zeros_like(tgt.p_enu)
+        pos = ~vel_mode
+        if pos.any():
+            err0[pos] = tgt.p_enu[pos] - self._enu_rows(raw[pos])
+        m_lat, m_lon = metres_per_degree(raw[:, 0], raw[:, 2] * M_PER_FT)
+        cols = np.column_stack([
+            vel_mode.astype(float), tgt.v_enu, err0, raw[:, 0], raw[:, 1], raw[:, 2] * M_PER_FT, m_lat, m_lon,
+            np.minimum(tgt.speed_limit_mps, g.max_speed_xy_mps), tgt.yaw_rad,
+        ])
+        for set_value, value in zip(self._cmd_setters, cols.ravel().tolist(), strict=True):
+            set_value(value)
 
     def _control_fixed_wing(self, dt_s: float) -> None:
         raw = self._raw[self._fw_rows]

@@ -67,7 +67,7 @@ def test_velocity_command_tracks_and_saturates() -> None:
     assert np.allclose(v, [3.0, -4.0, 0.0], atol=0.3)
     fleet.command("q", VelocityCommand((0.0, 0.0, 10.0)))  # beyond the 3 m/s climb limit
     _trace(fleet, 4.0)
-    assert fleet.state().velocity[0, 2] == pytest.approx(fleet.quad_ap.gains.max_climb_mps, abs=0.2)
+    assert fleet.state().velocity[0, 2] == pytest.approx(fleet.quad_gains.max_climb_mps, abs=0.2)
 
 
 def test_waypoints_are_visited_in_order() -> None:

@@ -1,0 +1,50 @@
+"""JSBSim aircraft directories with corridor's FCS systems added (package data ``jsbsim_data/``).
+
+JSBSim resolves an aircraft's ``<system file="...">`` in the aircraft's own directory (then its
+``Systems`` folder, then the root's ``systems``); the F450 shipped in the jsbsim wheel lists no
+corridor system. :func:`aircraft_dir` therefore assembles, once per process and JSBSim root, a
+private aircraft directory in a temporary folder: a copy of the wheel's ``aircraft/F450`` whose
+``F450.xml`` gains one line, ``<system file="corridor_quad_cascade"/>``, next to corridor's system
+file. JSBSim loads every ``<system>`` before the ``<flight_control>`` into one FCS and runs the
+channels in that order, so the cascade's stick outputs feed the F450's own rate loops in the same
+sub-step. The folder is removed at interpreter exit; nothing is written into the wheel.
+"""
+
+from __future__ import annotations
+
+import atexit
+import functools
+import shutil
+import tempfile
+from importlib import resources
+from pathlib import Path
+
+CASCADE_SYSTEM = "corridor_quad_cascade"  # file stem in jsbsim_data/ and the <system file=...> name
+_PATCHED = {"F450": CASCADE_SYSTEM}  # aircraft -> corridor system added to it
+
+
+def system_xml(name: str) -> str:
+    """Text of one of corridor's JSBSim system files (package data)."""
+    return resources.files("corridor.vehicles").joinpath("jsbsim_data", f"{name}.xml").read_text()
+
+
+@functools.lru_cache(maxsize=4)
+def aircraft_dir(root: str) -> str:
+    """Aircraft path holding the patched copies of ``_PATCHED`` for the JSBSim data dir ``root``."""
+    out = Path(tempfile.mkdtemp(prefix="corridor-jsbsim-"))
+    atexit.register(shutil.rmtree, out, True)
+    for model, system in _PATCHED.items():
+        dst = out / model
+        shutil.copytree(Path(root) / "aircraft" / model, dst)
+        main = dst / f"{model}.xml"
+        text = main.read_text()
+        if "</fdm_config>" not in text:
+            raise RuntimeError(f"unexpected JSBSim aircraft file {main}: no </fdm_config>")
+        main.write_text(text.replace("</fdm_config>", f'    <system file="{system}"/>\n</fdm_config>', 1))
+        (dst / f"{system}.xml").write_text(system_xml(system))
+    return str(out)
+
+
+def patched(model: str) -> bool:
+    """True if corridor loads ``model`` from :func:`aircraft_dir` (with its own FCS system)."""
+    return model in _PATCHED
