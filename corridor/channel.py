@@ -129,6 +129,19 @@ class DeliveredBatch(NamedTuple):
     seq: int  # send order (ties in deliver's ordering)
 
 
+class IndexedBatch(NamedTuple):
+    """A :class:`DeliveredBatch` with its receivers as node indices (``node_names``) in arrays: no
+    per-copy Python object (a swarm's broadcasts are N^2 copies per tick)."""
+
+    src: str
+    src_idx: int  # node index of the sender
+    t_sent_s: float  # [s]
+    payload: Any
+    dst_idx: np.ndarray  # node indices of the receivers (one copy each)
+    t_recv_s: np.ndarray  # [s] per receiver
+    seq: int  # send order
+
+
 class Delivery(NamedTuple):
     """One message copy that reached receiver ``dst`` (a NamedTuple: cheap to create in bulk)."""
 
@@ -393,14 +406,28 @@ class Channel:
     def deliver_batches(self, t_s: float) -> list[DeliveredBatch]:
         """The copies ``deliver(t_s)`` would return, grouped by sent message in send order (see the
         module docstring); the same statistics, age of information and inboxes."""
+        names = self._names
+        return [DeliveredBatch(b.src, b.t_sent_s, b.payload, [names[i] for i in b.dst_idx.tolist()],
+                               b.t_recv_s.tolist(), b.seq) for b in self.deliver_indexed(t_s)]
+
+    def deliver_indexed(self, t_s: float) -> list[IndexedBatch]:
+        """:meth:`deliver_batches` with node indices and arrays (see :class:`IndexedBatch`)."""
         due_batches, due_parts = self._pop_due(t_s)
         self._n_delivered += sum(d.size for d, _ in due_parts)
         self._record_received(due_batches, due_parts)
         self._inboxes, self._last = None, (due_batches, due_parts)
         self._sample_aoi(t_s)
-        names = self._names
-        return [DeliveredBatch(b.src, b.t_sent_s, b.payload, [names[i] for i in d.tolist()], t.tolist(), b.seq)
+        return [IndexedBatch(b.src, b.src_idx, b.t_sent_s, b.payload, d, t, b.seq)
                 for b, (d, t) in zip(due_batches, due_parts, strict=True)]
+
+    def node_index(self, name: str) -> int:
+        """Index of node ``name`` in :attr:`node_names` (registered on first use)."""
+        return self._node(name)
+
+    @property
+    def node_names(self) -> list[str]:
+        """Every node (sender or receiver) the channel knows, by index."""
+        return self._names
 
     def _pop_due(self, t_s: float) -> tuple[list[_Batch], list[tuple[np.ndarray, np.ndarray]]]:
         """Remove and return the due copies (batches in send order, with their due receivers/times)."""

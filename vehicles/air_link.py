@@ -1,5 +1,5 @@
 """The engine's MAVLink link: every aircraft's telemetry as MAVLink 2 bytes over a scenario channel,
-and, per receiving UAV, a filterpy-tracked picture of the other aircraft.
+and, per receiving UAV, a Kalman-tracked picture of the other aircraft.
 
 Each COMMUNICATE tick (period 1 / position rate, default 0.1 s) the link
 
@@ -11,8 +11,11 @@ Each COMMUNICATE tick (period 1 / position rate, default 0.1 s) the link
    keeps, per receiver and source, the newest report.
 
 Avoidance controllers call :meth:`AirLink.picture` at their own period: the buffered reports of that
-receiver are fused into its :class:`~corridor.vehicles.tracking.TrackTable` (one constant-velocity
-Kalman filter per source) and every track is predicted to the query time. Only the newest report
+receiver are fused into its row of a :class:`~corridor.vehicles.track_stack.TrackStack` (one
+constant-velocity Kalman filter per receiver and source, all updated in one stacked pass; tested
+against filterpy's ``TrackTable``) and every track is predicted to the query time. The reports wait
+in a :class:`~corridor.vehicles.mavlink_link.LatestReports` (arrays over receiver x source, filled
+per datagram, not per copy); :meth:`AirLink.pictures` serves every governed UAV in one call. Only the newest report
 per source since the previous query is fused: the reports carry position *and* velocity, so an
 intermediate sample 0.1 s older adds almost nothing, and lazy fusion keeps the cost proportional to
 the controllers' rate (the ``none`` variant tracks nothing). Each receiver tracks only its
@@ -51,8 +54,8 @@ from corridor.controllers.uav.models import TrackedAgent
 from corridor.engine import Component, Need, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
 
-from .mavlink_link import LinkRates, MavlinkLink, ReceivedReport
-from .tracking import TrackTable
+from .mavlink_link import LatestReports, LinkRates, MavlinkLink
+from .track_stack import TrackStack
 
 
 class Relevance(NamedTuple):
@@ -122,10 +125,13 @@ class AirLink(Component):
         o = scenario.origin
         self.origin = (o.lat, o.lon, o.alt)
         self.link: MavlinkLink | None = None
-        self.tables: dict[str, TrackTable] = {}
         self.piloted: set[str] = set()
         self.log_path: Path | None = None  # resolved under the run's output folder in setup
-        self._pending: dict[str, dict[str, ReceivedReport]] = {}  # receiver -> source -> newest report
+        self.latest: LatestReports | None = None  # receiver x source: the newest report not yet fused
+        self.tracks: TrackStack | None = None  # receiver x source: Kalman tracks
+        self._rx: dict[str, int] = {}  # receiver id -> row
+        self._piloted_col = np.zeros(0, dtype=bool)  # per source column: piloted aircraft
+        self._calls = 0  # picture calls (track creation order)
         self.fused = 0
         self._pace_origin: tuple[float, float] | None = None  # (sim time [s], wall clock [s]) of the first tick
         self.paced_sleep_s = 0.0
@@ -139,15 +145,19 @@ class AirLink(Component):
             udp_mirror=p.udp_mirror, log_path=str(self.log_path) if self.log_path else None,
             bit_error_rate=p.bit_error_rate, rng=ctx.rng(f"{self.name}/bits"),
         )
+        receivers = []
         for a in backend.aircraft:
             if a.is_piloted:
                 self.link.add_piloted(a.id)
                 self.piloted.add(a.id)
             else:
                 self.link.add_uav(a.id)
-                self.tables[a.id] = TrackTable(dim=3, process_noise=p.process_noise, meas_noise=p.meas_noise_m,
-                                               stale_after_s=p.stale_after_s, vel_noise=p.vel_noise_mps)
-                self._pending[a.id] = {}
+                receivers.append(a.id)
+        sources = [a.id for a in backend.aircraft]
+        self.latest = self.link.latest_table(receivers, sources)
+        self.tracks = TrackStack(len(receivers), len(sources), 3, p.process_noise, p.meas_noise_m, p.vel_noise_mps)
+        self._rx = {id: k for k, id in enumerate(receivers)}
+        self._piloted_col = np.array([src in self.piloted for src in sources], dtype=bool)
 
     def _pace(self, t_s: float) -> None:
         """With ``realtime_factor``: sleep until wall time has caught up with simulated time."""
@@ -173,7 +183,7 @@ class AirLink(Component):
             pos = s.position[air]
             self.link.channel.set_positions_arrays(ids, pos)
             self.link.publish(ctx.t, ids, pos, s.velocity[air], s.heading[air])
-        self.link.receive_latest(ctx.t, self._pending)  # keeps the newest report per receiver and source
+        self.link.receive_latest_table(ctx.t, self.latest)  # the newest report per receiver and source
 
     def inject(self, t_s: float, src: str, payload: bytes, dst: str | None = None) -> None:
         """Put raw bytes on the channel (tests: garbage must be counted and dropped)."""
@@ -188,45 +198,82 @@ class AirLink(Component):
         aircraft) are fused; tracks of UAVs that drop out of that set are removed. With a
         ``relevance`` range as well, UAV reports outside it are not fused either (same removal).
         """
-        table = self.tables[uav_id]
-        chosen = self._nearest(self._pending[uav_id], own_pos, relevance)
-        for src in [tid for tid in table.ids if tid not in chosen and tid in self._pending[uav_id]]:
-            table.remove(src)
-        for src, r in chosen.items():
-            if table.update(src, r.t_meas_s, r.p_enu, r.v_enu):
-                self.fused += 1
-        self._pending[uav_id] = {}
-        table.drop_stale(t_s)
-        ids, x, cov, _ = table.predict_arrays(t_s)
-        if not ids:
-            return ()
+        own = None if own_pos is None else np.asarray(own_pos, float).reshape(1, 3)
+        return self.pictures([uav_id], t_s, own, [relevance])[0]
+
+    def pictures(
+        self, uav_ids: list[str], t_s: float, own_pos: np.ndarray | None = None,
+        relevance: list[Relevance | None] | None = None,
+    ) -> list[tuple[TrackedAgent, ...]]:
+        """:meth:`picture` for several receivers at once (``own_pos`` (k, 3), one relevance each):
+        the pending reports of all of them are chosen and fused in one stacked Kalman pass."""
+        if not uav_ids:
+            return []
+        rows = np.array([self._rx[u] for u in uav_ids])
+        lat, tr = self.latest, self.tracks
+        fresh = lat.fresh[rows]
+        chosen = self._nearest(rows, fresh, own_pos, relevance)
+        tr.kill(_scatter(tr.alive.shape, rows, tr.alive[rows] & fresh & ~chosen))
+        r_k, cols = np.nonzero(chosen)
+        r = rows[r_k]
+        z = np.concatenate([lat.p_enu[r, cols], lat.v_enu[r, cols]], axis=1)
+        order = self._calls * 2**32 + lat.first[r, cols]
+        self.fused += int(tr.fuse(r, cols, lat.t_meas_s[r, cols], z, order).sum())
+        self._calls += 1
+        lat.fresh[rows] = False
+        tr.drop_stale(rows, t_s, self.params.stale_after_s)
+        return self._predicted(rows, t_s)
+
+    def _predicted(self, rows: np.ndarray, t_s: float) -> list[tuple[TrackedAgent, ...]]:
+        """Every live track of each receiver row at ``t_s`` as TrackedAgents, in creation order."""
+        tr = self.tracks
+        r_k, cols = np.nonzero(tr.alive[rows])
+        r = rows[r_k]
+        x, cov = tr.predict(r, cols, t_s)
         # uncertainty radius: factor x the largest position standard deviation of each track
         var = np.maximum(np.maximum(cov[:, 0, 0], cov[:, 1, 1]), cov[:, 2, 2])
         sigma = (self.params.sigma_factor * np.sqrt(var)).tolist()
-        piloted = self.piloted
-        return tuple(TrackedAgent(tid, x[i, :3].copy(), x[i, 3:6].copy(), sigma[i], tid in piloted)
-                     for i, tid in enumerate(ids))
+        out: list[list[tuple[int, TrackedAgent]]] = [[] for _ in range(rows.size)]
+        srcs, piloted, order = self.latest.sources, self._piloted_col, tr.order[r, cols].tolist()
+        for i, (k, c) in enumerate(zip(r_k.tolist(), cols.tolist(), strict=True)):
+            out[k].append((order[i], TrackedAgent(srcs[c], x[i, :3].copy(), x[i, 3:6].copy(), sigma[i],
+                                                  bool(piloted[c]))))
+        return [tuple(a for _, a in sorted(row, key=lambda o: o[0])) for row in out]
 
     def _nearest(
-        self, pend: dict[str, ReceivedReport], own_pos: np.ndarray | None, relevance: Relevance | None = None
-    ) -> dict[str, ReceivedReport]:
-        """Every piloted report plus the ``max_tracks`` UAV reports nearest to ``own_pos`` (and,
-        with ``relevance``, inside its range)."""
+        self, rows: np.ndarray, fresh: np.ndarray, own_pos: np.ndarray | None,
+        relevance: list[Relevance | None] | None,
+    ) -> np.ndarray:
+        """Which pending reports (k, n_src) each receiver fuses: every piloted report plus the
+        ``max_tracks`` UAV reports nearest to its ``own_pos`` (and, with a relevance range, inside
+        it); all of them without ``own_pos``, or when a receiver without a range has at most
+        ``max_tracks`` pending."""
         n = self.params.max_tracks
-        if own_pos is None or (len(pend) <= n and relevance is None) or not pend:
-            return pend
-        uav = [src for src in pend if src not in self.piloted]
-        if not uav:
-            return pend
-        rel = np.array([pend[src].p_enu for src in uav]) - own_pos
-        dist = np.sqrt(np.einsum("kd,kd->k", rel, rel))
-        order = np.argsort(dist, kind="stable")
-        if relevance is not None:
-            vel = np.array([pend[src].v_enu for src in uav])
-            reach = relevance.base_m + relevance.per_speed_s * np.sqrt(np.einsum("kd,kd->k", vel, vel))
-            order = order[dist[order] < reach[order]]
-        keep = {uav[i] for i in order[:n]}
-        return {src: r for src, r in pend.items() if src in keep or src in self.piloted}
+        if own_pos is None:
+            return fresh
+        rel = relevance or [None] * rows.size
+        has_rel = np.array([r is not None for r in rel])
+        pending = fresh.sum(axis=1)
+        apply = ~((pending <= n) & ~has_rel) & (pending > 0)
+        if not apply.any():
+            return fresh
+        lat = self.latest
+        d = lat.p_enu[rows] - np.asarray(own_pos, float)[:, None, :]
+        dist = np.sqrt(np.einsum("ksd,ksd->ks", d, d))
+        cand = fresh & ~self._piloted_col & apply[:, None]
+        if has_rel.any():
+            base = np.array([r.base_m if r is not None else np.inf for r in rel])
+            per_speed = np.array([r.per_speed_s if r is not None else 0.0 for r in rel])
+            v = lat.v_enu[rows]
+            reach = base[:, None] + per_speed[:, None] * np.sqrt(np.einsum("ksd,ksd->ks", v, v))
+            cand &= dist < reach
+        key = np.where(cand, dist, np.inf)
+        if key.shape[1] > n:
+            near = np.argpartition(key, n - 1, axis=1)[:, :n]
+            sel = np.zeros_like(cand)
+            np.put_along_axis(sel, near, True, axis=1)
+            cand &= sel
+        return np.where(apply[:, None], cand | (fresh & self._piloted_col), fresh)
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         self._pace(ctx.t)  # the last ticks after this link's last tick are paced too
@@ -251,3 +298,10 @@ class AirLink(Component):
     def close(self) -> None:
         if self.link is not None:
             self.link.close()
+
+
+def _scatter(shape: tuple[int, ...], rows: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """A False array of ``shape`` with ``values`` at ``rows``."""
+    out = np.zeros(shape, dtype=bool)
+    out[rows] = values
+    return out

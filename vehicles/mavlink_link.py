@@ -400,6 +400,49 @@ class ReceivedReport(NamedTuple):
         return self.fields.received(self.src, self.t_sent_s, self.t_recv_s)
 
 
+class LatestReports:
+    """The newest report per (receiver, source) not yet consumed, as arrays: what
+    :meth:`MavlinkLink.receive_latest_table` fills and a consumer (``AirLink``) reads and clears.
+
+    Rows are ``receivers``, columns ``sources`` (link member ids). ``fresh[r, s]``: a report is
+    pending; ``t_meas_s`` / ``t_recv_s`` [s], ``p_enu`` [m] / ``v_enu`` [m/s] (n_rx, n_src, 3) its
+    content; ``first`` the order in which pairs became fresh (the insertion order of
+    :meth:`MavlinkLink.receive_latest`'s dicts)."""
+
+    def __init__(self, receivers: list[str], sources: list[str]) -> None:
+        self.receivers, self.sources = list(receivers), list(sources)
+        n_rx, n_src = len(receivers), len(sources)
+        self.fresh = np.zeros((n_rx, n_src), dtype=bool)
+        self.t_meas_s = np.zeros((n_rx, n_src))
+        self.t_recv_s = np.zeros((n_rx, n_src))
+        self.p_enu = np.zeros((n_rx, n_src, 3))
+        self.v_enu = np.zeros((n_rx, n_src, 3))
+        self.first = np.zeros((n_rx, n_src), dtype=np.int64)
+        self.counter = 0
+
+    def copy(self) -> LatestReports:
+        out = LatestReports.__new__(LatestReports)
+        out.__dict__.update({k: (v.copy() if isinstance(v, np.ndarray | list) else v) for k, v in self.__dict__.items()})
+        return out
+
+    def offer(self, rows: np.ndarray, col: int, t_meas_s: float, t_recv_s: np.ndarray, p: np.ndarray,
+              v: np.ndarray) -> None:
+        """One datagram's copies at receivers ``rows`` (distinct): kept where no report is pending or
+        it is not older than the pending one (equal measurement times: the later-delivered one)."""
+        fresh = self.fresh[rows, col]
+        old_t, old_r = self.t_meas_s[rows, col], self.t_recv_s[rows, col]
+        take = ~fresh | (t_meas_s > old_t) | ((t_meas_s == old_t) & (t_recv_s >= old_r))
+        if not take.all():
+            rows, t_recv_s, fresh = rows[take], t_recv_s[take], fresh[take]
+        self.first[rows[~fresh], col] = self.counter
+        self.counter += 1
+        self.fresh[rows, col] = True
+        self.t_meas_s[rows, col] = t_meas_s
+        self.t_recv_s[rows, col] = t_recv_s
+        self.p_enu[rows, col] = p
+        self.v_enu[rows, col] = v
+
+
 class _Copy(NamedTuple):
     """Where one received copy came from and when (the fields of a channel delivery used here)."""
 
@@ -505,6 +548,10 @@ class MavlinkLink:
         self._by_sysid: dict[int, str] = {}
         self._decoders: dict[str, MavlinkDecoder] = {}
         self._cache: dict[bytes, _Decoded] = {}
+        self._tally: dict[tuple[int, int, int, int], np.ndarray] = {}  # counter key -> copies per node index
+        self._listen: np.ndarray | None = None  # per node index: a listening member
+        self._rx_of_node = np.zeros(0, dtype=np.int64)  # node index -> LatestReports row (-1: none)
+        self._src_col: dict[str, int] = {}  # link member -> LatestReports column
         self._udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM) if udp_mirror else None
         self._udp_addr = parse_udp_address(udp_mirror) if udp_mirror else None
         self._log = open(log_path, "wb") if log_path else None  # noqa: SIM115 - closed in close()
@@ -517,6 +564,8 @@ class MavlinkLink:
     def _add(self, id: str, sysid: int, kind: str, mav_type: int, listen: bool, **kw: Any) -> int:
         if id in self._nodes or sysid in self._by_sysid:
             raise ValueError(f"duplicate link member {id!r} / sysid {sysid}")
+        self._fold_tallies()
+        self._listen = None
         self._nodes[id] = _Node(MavlinkEndpoint(sysid, self.origin, mav_type=mav_type), kind, **kw)
         self._by_sysid[sysid] = id
         if listen:
@@ -683,6 +732,93 @@ class MavlinkLink:
             self._route_setpoints(inbox, _Copy(src, dst, t_sent, t_recv), hit)
         return inbox.setpoints
 
+    def latest_table(self, receivers: list[str], sources: list[str]) -> LatestReports:
+        """An empty :class:`LatestReports` for ``receivers`` (listening members) x ``sources``."""
+        table = LatestReports(receivers, sources)
+        ch = self.channel
+        n = max(ch.node_index(i) for i in [*self._nodes, *receivers, *sources]) + 1
+        self._rx_of_node = np.full(n, -1, dtype=np.int64)
+        self._src_col = {id: k for k, id in enumerate(sources)}
+        for k, id in enumerate(receivers):
+            self._rx_of_node[ch.node_index(id)] = k
+        return table
+
+    def receive_latest_table(self, t_s: float, table: LatestReports) -> list[Setpoint]:
+        """:meth:`receive_latest` into a :class:`LatestReports` (made by :meth:`latest_table`): the
+        same deliveries, decoding, counters and kept reports, with the copies of a datagram handled
+        as arrays (receiver rows, receive times, per-receiver counter tallies) instead of one Python
+        step per copy. With bit errors (each copy's bytes may differ) it goes copy by copy."""
+        if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_indexed"):
+            return self._receive_latest_table_copies(t_s, table)
+        self._cache.clear()
+        cache, routed, listen = self._cache, [], self._listening_nodes()
+        if self._rx_of_node.size < listen.size:  # nodes the channel learnt after latest_table
+            self._rx_of_node = np.r_[self._rx_of_node, np.full(listen.size - self._rx_of_node.size, -1)]
+        rx_of = self._rx_of_node
+        tally = self._tally
+        for b in self.channel.deliver_indexed(t_s):
+            payload = b.payload
+            if not isinstance(payload, bytes | bytearray):
+                continue
+            if type(payload) is not bytes:
+                payload = bytes(payload)
+            hit = cache.get(payload)
+            if hit is None:
+                hit = cache[payload] = self._decode_once(payload)
+            dst = b.dst_idx[listen[b.dst_idx]]
+            counts = tally.get(hit.counter_key)
+            if counts is None:
+                counts = tally[hit.counter_key] = np.zeros(listen.size, dtype=np.int64)
+            counts[dst] += 1
+            rep, col = hit.report, self._src_col.get(b.src)
+            if rep is not None and col is not None:
+                rows = rx_of[dst]
+                keep = rows >= 0
+                t_meas = b.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
+                t_recv = b.t_recv_s[listen[b.dst_idx]]
+                table.offer(rows[keep], col, t_meas, t_recv[keep], rep.p_enu, rep.v_enu)
+            if hit.setpoints:
+                names = self.channel.node_names
+                for i, t_recv in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
+                    if names[i] in self._decoders:
+                        routed.append((t_recv, b.src, names[i], b.seq, b.t_sent_s, hit))
+        inbox = Inbox()
+        for t_recv, src, dst_id, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
+            self._route_setpoints(inbox, _Copy(src, dst_id, t_sent, t_recv), hit)
+        return inbox.setpoints
+
+    def _receive_latest_table_copies(self, t_s: float, table: LatestReports) -> list[Setpoint]:
+        """:meth:`receive_latest_table` copy by copy (bit errors: each copy decoded on its own)."""
+        inbox = Inbox()
+        rows = {id: k for k, id in enumerate(table.receivers)}
+        for d, decoded in self._received(t_s):
+            rep, row, col = decoded.report, rows.get(d.dst), self._src_col.get(d.src)
+            if rep is not None and row is not None and col is not None:
+                t_meas = d.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
+                table.offer(np.array([row]), col, t_meas, np.array([d.t_recv_s]), rep.p_enu, rep.v_enu)
+            if decoded.setpoints:
+                self._route_setpoints(inbox, d, decoded)
+        return inbox.setpoints
+
+    def _listening_nodes(self) -> np.ndarray:
+        """Bool per channel node index: a listening link member (its copies are counted)."""
+        names = self.channel.node_names
+        if self._listen is None or self._listen.size != len(names):
+            self._fold_tallies()
+            self._listen = np.array([n in self._decoders for n in names], dtype=bool)
+        return self._listen
+
+    def _fold_tallies(self) -> None:
+        """Add the per-node copy tallies of :meth:`receive_latest_table` to the receivers' decoders."""
+        if not self._tally:
+            return
+        names = self.channel.node_names
+        for key, counts in self._tally.items():
+            for i in np.flatnonzero(counts).tolist():
+                shared = self._decoders[names[i]]._shared
+                shared[key] = shared.get(key, 0) + int(counts[i])
+        self._tally = {}
+
     def _receive_latest_copies(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
         """:meth:`receive_latest` copy by copy (each copy's bytes may differ: bit errors)."""
         inbox = Inbox()
@@ -748,6 +884,7 @@ class MavlinkLink:
     # -------------------------------------------------------------------------------- statistics
     def counters(self) -> DecodeCounters:
         """Decode counters summed over every receiver."""
+        self._fold_tallies()
         total = DecodeCounters()
         for dec in self._decoders.values():
             total.add(dec.counters)

@@ -104,16 +104,16 @@ class _UavController(Controller):
     def observe(self, ctx: RunContext) -> dict[str, AvoidanceObservation]:
         s = ctx.snapshot
         index = s.index()
-        obs = {}
-        for uid in self.uav_ids:
-            k = index.get(uid)
-            if k is None:
-                continue
-            others = (self.link.picture(uid, ctx.t, s.position[k], self.relevance(uid, s.velocity[k]))
-                      if self.uses_link else ())
-            obs[uid] = AvoidanceObservation(ctx.t, s.position[k].copy(), s.velocity[k].copy(),
-                                            self.goal[uid], others)
-        return obs
+        uids = [u for u in self.uav_ids if u in index]
+        rows = [index[u] for u in uids]
+        pos, vel = s.position[rows], s.velocity[rows]
+        if self.uses_link:  # every governed UAV's picture in one stacked pass of the link's trackers
+            rel = [self.relevance(u, vel[k]) for k, u in enumerate(uids)]
+            pictures = self.link.pictures(uids, ctx.t, pos, rel)
+        else:
+            pictures = [()] * len(uids)
+        return {u: AvoidanceObservation(ctx.t, pos[k].copy(), vel[k].copy(), self.goal[u], pictures[k])
+                for k, u in enumerate(uids)}
 
     def relevance(self, uid: str, own_vel: np.ndarray) -> Relevance | None:
         """Range beyond which a reporting UAV cannot matter to ``uid``'s method (None: no range)."""

@@ -106,16 +106,22 @@ def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_pilot
     sim.run()
     link, s = sim.ctx.get("link"), sim.ctx.snapshot
     own = s.position[s.index()["a"]]
-    pending = dict(link._pending["a"])
-    assert {"b", "far", "c172"} <= set(pending)  # every aircraft's reports reached a
+    pending = link.latest.copy()
+    row = link.latest.receivers.index("a")
+
+    def tracked() -> set[str]:
+        return {src for src, alive in zip(link.latest.sources, link.tracks.alive[row], strict=True) if alive}
+
+    fresh = {src for src, f in zip(pending.sources, pending.fresh[row], strict=True) if f}
+    assert {"b", "far", "c172"} <= fresh  # every aircraft's reports reached a
     near = {o.id for o in link.picture("a", sim.ctx.t, own, Relevance(200.0, 2.5))}
-    assert near == {"b", "c172"} and "far" not in link.tables["a"]
-    link._pending["a"] = pending  # the same reports, no range: the far UAV is tracked as well
+    assert near == {"b", "c172"} and "far" not in tracked()
+    link.latest = pending.copy()  # the same reports, no range: the far UAV is tracked as well
     assert {o.id for o in link.picture("a", sim.ctx.t, own)} == {"b", "c172", "far"}
     # a track that leaves the range is dropped at the next picture
-    link._pending["a"] = pending
+    link.latest = pending.copy()
     assert {o.id for o in link.picture("a", sim.ctx.t, own, Relevance(10.0, 0.0))} == {"c172"}
-    assert set(link.tables["a"].ids) == {"c172"}
+    assert tracked() == {"c172"}
     assert link.finish(sim.ctx)["link_delivered"] > 0
 
 

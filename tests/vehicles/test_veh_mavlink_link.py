@@ -297,3 +297,46 @@ def test_receive_latest_keeps_what_receive_would_keep() -> None:
                     r.src, r.sysid, r.kind, r.t_sent_s, r.t_recv_s, r.t_meas_s)
                 assert np.array_equal(got.p_enu, r.p_enu) and np.array_equal(got.v_enu, r.v_enu)
     assert lean.counters() == full.counters() and full.counters().messages > 100
+
+
+@pytest.mark.parametrize("ber", [0.0, 2e-4])
+def test_receive_latest_table_keeps_what_receive_latest_keeps(ber: float) -> None:
+    """The array form (LatestReports, one pass per datagram over its receivers) keeps the same
+    report per (receiver, source), in the same first-arrival order, and counts every copy, with
+    and without bit errors (then copy by copy); a ground-station set-point still reaches its target."""
+    cfg = ChannelConfig(latency_s=0.05, jitter_s=0.08, loss=BernoulliLoss(p=0.1))  # jitter reorders
+    kw = {"bit_error_rate": ber, "rng": np.random.default_rng(3)} if ber else {}
+    (_, ref), (_, arr) = _link(cfg, **kw), _link(cfg, **({**kw, "rng": np.random.default_rng(3)} if ber else {}))
+    ids = ["u1", "u2", "c172"]
+    pos = np.array([[0.0, 0.0, 30.0], [40.0, 0.0, 30.0], [800.0, 200.0, 300.0]])
+    vel = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
+    rx, src = ["u1", "u2"], ["u1", "u2", "c172"]
+    table = arr.latest_table(rx, src)
+    latest: dict[str, dict] = {"u1": {}, "u2": {}}
+    seen = setpoints = 0
+    for k in range(80):
+        t = 0.05 * k
+        for link in (ref, arr):
+            link.publish(t, ids, pos + vel * t, vel, np.zeros(3))
+            if 10 <= k < 20:
+                link.command(t, "u2", v_enu=np.array([1.0, 2.0, float(k)]))
+        got, want = arr.receive_latest_table(t, table), ref.receive_latest(t, latest)
+        assert [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in got] == [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in want]
+        setpoints += len(got)
+        for r, dst in enumerate(rx):
+            order = np.argsort(np.where(table.fresh[r], table.first[r], np.iinfo(np.int64).max), kind="stable")
+            fresh = [src[c] for c in order.tolist() if table.fresh[r, c]]
+            assert fresh == list(latest[dst])  # same sources, same first-arrival order
+            for c, s in enumerate(src):
+                if table.fresh[r, c]:
+                    want = latest[dst][s]
+                    assert (table.t_meas_s[r, c], table.t_recv_s[r, c]) == (want.t_meas_s, want.t_recv_s)
+                    assert np.array_equal(table.p_enu[r, c], want.p_enu)
+                    assert np.array_equal(table.v_enu[r, c], want.v_enu)
+                    seen += 1
+        if k % 4 == 3:  # a consumer fuses and clears now and then
+            table.fresh[:] = False
+            for d in latest.values():
+                d.clear()
+    assert seen > 100 and (setpoints >= 5 or ber > 0.0)
+    assert arr.counters() == ref.counters() and ref.counters().messages > 100
