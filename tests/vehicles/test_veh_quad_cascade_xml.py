@@ -92,3 +92,21 @@ def test_metres_per_degree_matches_the_enu_conversion() -> None:
     east = o.to_enu(ORIGIN[0], ORIGIN[1] + d, ORIGIN[2])[0]
     assert m_lat[0] * d == pytest.approx(north, rel=1e-6)
     assert m_lon[0] * d == pytest.approx(east, rel=1e-6)
+
+
+def test_leaving_out_the_unused_gps_and_baro_sensors_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """corridor's F450 copy omits SensorGps/SensorBaro: the flight is bit-identical with them."""
+    from corridor.vehicles import jsbsim_fleet, jsbsim_models
+
+    def flight(omit: tuple[str, ...]) -> list[float]:
+        monkeypatch.setattr(jsbsim_fleet, "aircraft_dir", lambda root: jsbsim_models.aircraft_dir(root, omit))
+        fleet = JSBSimFleet(ORIGIN)
+        fleet.add("q", "F450", (0.0, 0.0, 40.0), heading_rad=0.4)
+        fleet.command("q", VelocityCommand((3.0, -2.0, 1.0), yaw_rad=-1.0))
+        for _ in range(50):
+            fleet.step(0.1)
+        s = fleet.state()
+        return [*s.position[0], *s.velocity[0], s.yaw[0], s.roll[0], s.pitch[0]]
+
+    assert jsbsim_models.UNUSED_SYSTEMS == ("SensorBaro", "SensorGps")
+    assert flight(()) == flight(jsbsim_models.UNUSED_SYSTEMS)
