@@ -94,12 +94,14 @@ def test_metres_per_degree_matches_the_enu_conversion() -> None:
     assert m_lon[0] * d == pytest.approx(east, rel=1e-6)
 
 
-def test_leaving_out_the_unused_gps_and_baro_sensors_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
-    """corridor's F450 copy omits SensorGps/SensorBaro: the flight is bit-identical with them."""
+def test_leaving_out_the_unused_sensors_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
+    """corridor's F450 copy omits SensorGps/SensorBaro and keeps only the IMU's yaw gyro: the flight
+    is bit-identical with the full sensor set."""
     from corridor.vehicles import jsbsim_fleet, jsbsim_models
 
-    def flight(omit: tuple[str, ...]) -> list[float]:
-        monkeypatch.setattr(jsbsim_fleet, "aircraft_dir", lambda root: jsbsim_models.aircraft_dir(root, omit))
+    def flight(omit: tuple[str, ...], reduce_imu: bool = True) -> list[float]:
+        monkeypatch.setattr(jsbsim_fleet, "aircraft_dir",
+                            lambda root: jsbsim_models.aircraft_dir(root, omit, reduce_imu))
         fleet = JSBSimFleet(ORIGIN)
         fleet.add("q", "F450", (0.0, 0.0, 40.0), heading_rad=0.4)
         fleet.command("q", VelocityCommand((3.0, -2.0, 1.0), yaw_rad=-1.0))
@@ -109,4 +111,4 @@ def test_leaving_out_the_unused_gps_and_baro_sensors_changes_nothing(monkeypatch
         return [*s.position[0], *s.velocity[0], s.yaw[0], s.roll[0], s.pitch[0]]
 
     assert jsbsim_models.UNUSED_SYSTEMS == ("SensorBaro", "SensorGps")
-    assert flight(()) == flight(jsbsim_models.UNUSED_SYSTEMS)
+    assert flight((), reduce_imu=False) == flight(jsbsim_models.UNUSED_SYSTEMS)
