@@ -4,7 +4,9 @@ The F450 shipped with JSBSim has only body-rate loops (``fcs/aileron|elevator|ru
 roll/pitch/yaw *rate* demands, 0.75 rad/s at full stick; ``fcs/throttle-cmd-norm`` is the collective).
 :class:`QuadCascade` closes position -> velocity -> attitude -> rate around them, vectorised over every
 quadcopter of a fleet (struct of arrays, one call per sub-step), with saturations on horizontal speed,
-climb / descent rate and tilt. Modes per aircraft: hover / position (and waypoints, which the fleet
+climb / descent rate and tilt. The fleet flies the same equations inside JSBSim
+(``jsbsim_data/corridor_quad_cascade.xml``, see ``jsbsim_fleet``); this class is their reference,
+checked against the XML sub-step by sub-step in ``tests/vehicles/test_veh_quad_cascade_xml.py``. Modes per aircraft: hover / position (and waypoints, which the fleet
 turns into successive positions) / velocity command.
 
 The c172x carries JSBSim's own heading and altitude holds (``ap/heading_hold``, ``ap/altitude_hold``
