@@ -13,13 +13,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corridor.controllers.parking import optimise, profile
+from corridor.controllers.parking import optimise, profile, warm_start
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles, VehicleGeometry
 from corridor.controllers.parking.search import SearchFailed, hybrid_astar, merge, reverse
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
+MIN_RUN_M = 0.01  # shortest run in one direction that counts in direction_changes
 SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
-MARGINS_M = (0.03, 0.08)  # corridor margins tried in turn by the optimisation
+MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
+# warm starts tried in turn: (builder, node spacing in the warm start's time [s])
+TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.by_profile, 0.12))
+MIN_NODES, MAX_NODES = 40, 400
+REFINE_MAX = 3  # re-solves with corridors around the last solution ...
+REFINE_GAIN = 0.02  # ... while each shortens the manoeuvre by more than this share
 DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
 
 
@@ -43,9 +49,22 @@ class Trajectory:
     optimise_time_s: float
     stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback)
 
-    def direction_changes(self) -> int:
-        signs = np.sign(self.v[np.abs(self.v) > 1e-6])
-        return int(np.count_nonzero(signs[1:] != signs[:-1]))
+    def direction_changes(self, min_run_m: float = MIN_RUN_M) -> int:
+        """Changes between forward and reverse motion, counting only runs in one direction that
+        travel at least ``min_run_m`` (the optimiser's sub-centimetre shuffles while it turns the wheels
+        standing are not manoeuvres)."""
+        ds = self.v[:-1] * np.diff(self.t)  # signed distance of each step
+        sign = np.sign(self.v[:-1])
+        runs: list[tuple[float, float]] = []  # (direction, distance)
+        for sg, d in zip(sign, ds):
+            if sg == 0:
+                continue
+            if runs and runs[-1][0] == sg:
+                runs[-1] = (sg, runs[-1][1] + abs(d))
+            else:
+                runs.append((sg, abs(d)))
+        dirs = [sg for sg, d in runs if d >= min_run_m]
+        return int(sum(a != b for a, b in zip(dirs[:-1], dirs[1:])))
 
     def length_m(self) -> float:
         return float(np.hypot(np.diff(self.x), np.diff(self.y)).sum())
@@ -95,18 +114,39 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
 
 def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
               deadline: float) -> tuple[dict[str, np.ndarray], str]:
-    """The optimised trajectory if IPOPT solves it and it is collision-free when sampled densely (a
-    second try with a wider margin otherwise); else the stop-and-steer search path, which meets every
-    limit by construction."""
-    for margin in MARGINS_M:
-        try:
-            sol = optimise.solve(segments, obs, vehicle, deadline, optimise.OptimiseParams(margin_m=margin))
-        except optimise.OptimiseFailed:
-            continue
-        states = optimise.sample(sol, vehicle, dt_s)
-        if not _collides_densely(states, obs, vehicle):
-            return states, "optimised"
-    return profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s), "search"
+    """The optimised trajectory, else the stop-and-steer search path (which meets every limit by
+    construction). Warm starts are tried in turn (`TRIES`); a solution is accepted when it is
+    collision-free sampled densely, then refined while it improves: the corridors re-grown around it,
+    so the nodes are no longer tied to the warm start's timing."""
+    best = None
+    for build, node_dt in TRIES:
+        ws, T0 = build(segments, vehicle, node_dt, MIN_NODES, MAX_NODES)
+        best = _solve_checked(ws, T0, obs, vehicle, dt_s, deadline)
+        if best is not None:
+            break
+    if best is None:
+        return profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s), "search"
+    for _ in range(REFINE_MAX):
+        sol, _ = best
+        if time.perf_counter() > deadline - 0.5:
+            break
+        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, deadline)
+        if better is None or better[0].h_s > sol.h_s * (1 - REFINE_GAIN):
+            if better is not None and better[0].h_s < sol.h_s:
+                best = better
+            break
+        best = better
+    return best[1], "optimised"
+
+
+def _solve_checked(ws: np.ndarray, T0: float, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
+                   deadline: float) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
+    try:
+        sol = optimise.solve(ws, T0, obs, vehicle, deadline, optimise.OptimiseParams(margin_m=MARGIN_M))
+    except optimise.OptimiseFailed:
+        return None
+    states = optimise.sample(sol, vehicle, dt_s)
+    return None if _collides_densely(states, obs, vehicle) else (sol, states)
 
 
 def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: VehicleGeometry) -> bool:

@@ -85,8 +85,10 @@ def test_enclosed_goal_has_no_solution() -> None:
 
 
 def test_trajectory_counts_direction_changes_and_length() -> None:
-    t = np.arange(5) * 0.1
-    v = np.array([1.0, 0.0, -1.0, 0.0, 1.0])
-    tr = Trajectory(t, np.array([0, 3, 3, 3, 7.0]), np.array([0, 4, 4, 4, 4.0]), t * 0, v, t * 0, t * 0, 0.1, 0.2)
-    assert tr.direction_changes() == 2
-    assert tr.length_m() == pytest.approx(9.0)
+    t = np.arange(9) * 0.1
+    v = np.array([1.0, 1.0, 0.0, -1.0, -1.0, 0.0, 0.05, -1.0, 0.0])  # the 5 mm run forward is not counted
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * 0.1)])
+    tr = Trajectory(t, x, x * 0, t * 0, v, t * 0, t * 0, 0.1, 0.2)
+    assert tr.direction_changes() == 1
+    assert tr.direction_changes(min_run_m=0.001) == 3
+    assert tr.length_m() == pytest.approx(0.2 + 0.2 + 0.005 + 0.1)
