@@ -15,16 +15,24 @@ import numpy as np
 
 from corridor.controllers.parking import optimise, profile, warm_start
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles, VehicleGeometry
-from corridor.controllers.parking.search import SearchFailed, hybrid_astar, merge, reverse
+from corridor.controllers.parking.search import SearchFailed, SearchParams, hybrid_astar, merge, reverse
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
 MIN_RUN_M = 0.01  # shortest run in one direction that counts in direction_changes
 SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
+FINE = dict(xy_res_m=0.2, n_heading=144, step_m=0.5, short_step_m=0.15, check_m=0.1)
+# search attempts in turn, each bounded by expansions (deterministic) and all by the search budget:
+# (out of the tighter end of start and goal?, parameters)
+ATTEMPTS = ((True, SearchParams(heuristic_weight=1.5, max_expansions=600)),
+            (True, SearchParams(heuristic_weight=3.0, max_expansions=3000)),
+            (True, SearchParams(heuristic_weight=3.0, max_expansions=6000, **FINE)),
+            (False, SearchParams(heuristic_weight=3.0)))
+CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
 MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
 # warm starts tried in turn: (builder, node spacing in the warm start's time [s])
 TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.by_profile, 0.12))
 MIN_NODES, MAX_NODES = 40, 400
-REFINE_MAX = 3  # re-solves with corridors around the last solution ...
+REFINE_MAX = 2  # re-solves with corridors around the last solution ...
 REFINE_GAIN = 0.02  # ... while each shortens the manoeuvre by more than this share
 DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
 
@@ -160,17 +168,34 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
             vehicle: VehicleGeometry, lb: tuple[float, ...], t0: float, time_limit_s: float) -> list:
-    """Search from the goal out (the tight end of a parking manoeuvre, where leaving is easier than
-    entering) and drive the path backwards; if that fails in half the search budget, search forward."""
-    budget = SEARCH_SHARE * time_limit_s
-    try:
-        return merge(reverse(hybrid_astar(g, s, obs, vehicle, lb, t0 + 0.5 * budget)))
-    except SearchFailed as exc:
-        first = str(exc)
-    try:
-        return merge(hybrid_astar(s, g, obs, vehicle, lb, t0 + budget))
-    except SearchFailed as exc:
-        raise NoSolution(f"{exc} (searched from the goal: {first}; time limit {time_limit_s:g} s)") from None
+    """Search attempts in turn (`ATTEMPTS`), each up to its number of expansions: out of the tighter of
+    start and goal (usually the goal: leaving a bay is easier than entering it; a path found from the
+    goal is then driven backwards), first near-optimal, then greedier, then at a finer resolution,
+    then from the other end until the search budget is spent."""
+    budget, reasons = SEARCH_SHARE * time_limit_s, []
+    goal_tighter = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
+    for from_tight_end, params in ATTEMPTS:
+        backwards = from_tight_end == goal_tighter
+        a, b = (g, s) if backwards else (s, g)
+        try:
+            segs = hybrid_astar(a, b, obs, vehicle, lb, t0 + budget, params)
+        except SearchFailed as exc:
+            reasons.append(f"{'from the goal' if backwards else 'from the start'}, "
+                           f"{params.xy_res_m:g} m cells, weight {params.heuristic_weight:g}: {exc}")
+            if time.perf_counter() >= t0 + budget:
+                break
+            continue
+        return merge(reverse(segs) if backwards else segs)
+    timed_out = time.perf_counter() - t0 >= budget - 1e-3
+    head = (f"no path within the time limit of {time_limit_s:g} s" if timed_out
+            else "no path: the search space is exhausted")
+    raise NoSolution(f"{head} ({'; '.join(reasons)})")
+
+
+def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: VehicleGeometry) -> float:
+    """The largest of `CLEARANCE_STEPS_M` by which the footprint can grow at ``pose`` (0 if none)."""
+    free = [m for m in CLEARANCE_STEPS_M if not obs.collides(np.asarray(pose)[None], vehicle, m)[0]]
+    return max(free, default=0.0)
 
 
 def _to_world(states: dict[str, np.ndarray], origin: np.ndarray, t_search: float, t_opt: float,

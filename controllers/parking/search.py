@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corridor.controllers.parking import reeds_shepp as rs
-from corridor.controllers.parking.geometry import Obstacles, VehicleGeometry
+from corridor.controllers.parking.geometry import FootprintChecker, Obstacles, VehicleGeometry
 from corridor.controllers.parking.heuristic import HolonomicGrid, RsTable
 
 
@@ -28,15 +28,17 @@ class SearchParams:
     xy_res_m: float = 0.4
     n_heading: int = 72
     step_m: float = 0.8  # arc length of one primitive
+    short_step_m: float = 0.3  # ... and of the short ones, tried where a long one collides
     check_m: float = 0.2  # collision-check spacing along a primitive
     n_steer: int = 7  # steering angles per direction, spread over ±max
     reverse_weight: float = 1.0
     switch_cost_m: float = 4.0  # direction change
     steer_cost_m: float = 0.3  # per primitive at full lock
     steer_change_cost_m: float = 0.6  # per primitive, full-lock to straight
-    heuristic_weight: float = 1.5
+    heuristic_weight: float = 1.5  # weighted A* (> 1: faster, longer paths)
+    max_expansions: int = 1_000_000
     margin_m: float = 0.05  # footprint growth for the search (the optimiser keeps its own)
-    rs_every: int = 3  # try an analytic expansion every n expansions (when near)
+    rs_every: int = 4  # try an analytic expansion every n expansions (when near)
     rs_near_m: float = 25.0
 
 
@@ -61,13 +63,14 @@ class SearchFailed(Exception):
     pass
 
 
-def _primitives(vehicle: VehicleGeometry, p: SearchParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _primitives(vehicle: VehicleGeometry, p: SearchParams,
+                step_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Curvatures (P,), signed lengths (P,), local poses (P, m, 3) of the motion primitives."""
     steer = np.linspace(-vehicle.max_steer_rad, vehicle.max_steer_rad, p.n_steer)
     kap = np.tan(steer) / vehicle.wheelbase_m
     kappas = np.concatenate([kap, kap])
-    lengths = np.concatenate([np.full(p.n_steer, p.step_m), np.full(p.n_steer, -p.step_m)])
-    m = int(np.ceil(p.step_m / p.check_m))
+    lengths = np.concatenate([np.full(p.n_steer, step_m), np.full(p.n_steer, -step_m)])
+    m = int(np.ceil(step_m / p.check_m))
     local = np.stack([rs.arc(0.0, 0.0, 0.0, np.linspace(0, L, m + 1)[1:], k) for k, L in zip(kappas, lengths)])
     return kappas, lengths, local
 
@@ -83,7 +86,7 @@ def hybrid_astar(start: tuple[float, float, float], goal: tuple[float, float, fl
                  p: SearchParams | None = None) -> list[Segment]:
     """Segments from ``start`` to ``goal`` (local frame), or raise SearchFailed with a reason."""
     p = p or SearchParams()
-    box = vehicle.box(p.margin_m)
+    collides = FootprintChecker(obstacles, vehicle, p.margin_m, bounds)
     for name, pose in (("start", start), ("goal", goal)):
         if obstacles.collides_boxes(np.array([pose]), vehicle.box(0.0))[0]:
             raise SearchFailed(f"the {name} pose collides with an obstacle")
@@ -91,10 +94,11 @@ def hybrid_astar(start: tuple[float, float, float], goal: tuple[float, float, fl
     grid = HolonomicGrid(obstacles.polygons, goal[:2], bounds, res_m=0.3, clearance_m=0.5,
                          free_xy=start[:2])
     if not np.isfinite(grid(np.array([start[:2]]))[0]):
-        raise SearchFailed("the goal cannot be reached from the start (no free corridor around the obstacles)")
+        raise SearchFailed("start and goal are not connected around the obstacles (holonomic grid)")
     rs_h = RsTable(goal, radius)
-    kappas, lengths, local = _primitives(vehicle, p)
-    steer_of = np.arctan(kappas * vehicle.wheelbase_m) / vehicle.max_steer_rad
+    long_set = _primitives(vehicle, p, p.step_m)
+    short_set = _primitives(vehicle, p, p.short_step_m)
+    steer_of = np.arctan(long_set[0] * vehicle.wheelbase_m) / vehicle.max_steer_rad
     x0, x1, y0, y1 = bounds
     yaw_res = 2 * np.pi / p.n_heading
 
@@ -119,40 +123,47 @@ def hybrid_astar(start: tuple[float, float, float], goal: tuple[float, float, fl
         if g > best_g.get(key(pose), np.inf) + 1e-9:
             continue
         expansions += 1
+        if expansions > p.max_expansions:
+            raise SearchFailed(f"no path within {p.max_expansions} expansions")
         if expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - goal[:2])) < p.rs_near_m:
-            tail = _analytic(pose, goal, obstacles, box, radius, bounds)
+            tail = _analytic(pose, goal, collides, radius, bounds)
             if tail is not None:
                 return _backtrack(nodes, ni) + tail
-        ends = _compose(pose, local)  # (P, m, 3)
-        flat = ends.reshape(-1, 3)
-        inb = (flat[:, 0] >= x0) & (flat[:, 0] <= x1) & (flat[:, 1] >= y0) & (flat[:, 1] <= y1)
-        bad = (obstacles.collides_boxes(flat, box) | ~inb).reshape(ends.shape[:2]).any(axis=1)
-        child = ends[:, -1, :]
-        hc = h(child)
-        for k in np.flatnonzero(~bad & np.isfinite(hc)):
-            cost = abs(lengths[k]) * (1.0 if lengths[k] > 0 else p.reverse_weight)
-            cost += p.steer_cost_m * abs(steer_of[k]) + p.steer_change_cost_m * abs(steer_of[k] - steer) / 2
-            if length != 0.0 and np.sign(length) != np.sign(lengths[k]):
-                cost += p.switch_cost_m
-            gk = g + cost
-            ck = key(child[k])
-            if gk < best_g.get(ck, np.inf) - 1e-9:
-                best_g[ck] = gk
-                nodes.append((child[k], gk, ni, kappas[k], lengths[k], steer_of[k]))
-                heapq.heappush(heap, (gk + p.heuristic_weight * hc[k], len(nodes) - 1))
+        for kappas, lengths, local in (long_set, short_set):
+            ends = _compose(pose, local)  # (P, m, 3)
+            flat = ends.reshape(-1, 3)
+            inb = (flat[:, 0] >= x0) & (flat[:, 0] <= x1) & (flat[:, 1] >= y0) & (flat[:, 1] <= y1)
+            bad = (collides(flat) | ~inb).reshape(ends.shape[:2]).any(axis=1)
+            child = ends[:, -1, :]
+            hc = h(child)
+            for k in np.flatnonzero(~bad & np.isfinite(hc)):
+                cost = abs(lengths[k]) * (1.0 if lengths[k] > 0 else p.reverse_weight)
+                cost += (p.steer_cost_m * abs(steer_of[k]) + p.steer_change_cost_m * abs(steer_of[k] - steer) / 2)
+                if length != 0.0 and np.sign(length) != np.sign(lengths[k]):
+                    cost += p.switch_cost_m
+                gk = g + cost
+                ck = key(child[k])
+                if gk < best_g.get(ck, np.inf) - 1e-9:
+                    best_g[ck] = gk
+                    nodes.append((child[k], gk, ni, kappas[k], lengths[k], steer_of[k]))
+                    heapq.heappush(heap, (gk + p.heuristic_weight * hc[k], len(nodes) - 1))
+            if not bad.any():
+                break  # open space: the long primitives are enough
     raise SearchFailed(f"the search space is exhausted after {expansions} expansions: no path")
 
 
-def _analytic(pose: np.ndarray, goal: tuple[float, float, float], obstacles: Obstacles,
-              box: tuple[float, float, float, float], radius: float,
+def _analytic(pose: np.ndarray, goal: tuple[float, float, float], collides: FootprintChecker, radius: float,
               bounds: tuple[float, float, float, float]) -> list[Segment] | None:
     """The shortest collision-free Reeds–Shepp path from ``pose`` to ``goal`` as segments, if any."""
     x0, x1, y0, y1 = bounds
-    for path in rs.paths(tuple(pose), goal, radius, max_paths=6):
+    for path in rs.paths(tuple(pose), goal, radius, max_paths=4):
+        coarse, _, _ = rs.sample(tuple(pose), path, radius, step_m=0.5)
+        if collides(coarse).any():  # most candidates fail here, cheaply
+            continue
         pts, _, _ = rs.sample(tuple(pose), path, radius, step_m=0.1)
         if np.any((pts[:, 0] < x0) | (pts[:, 0] > x1) | (pts[:, 1] < y0) | (pts[:, 1] > y1)):
             continue
-        if not obstacles.collides_boxes(pts, box).any():
+        if not collides(pts).any():
             segs, at = [], tuple(float(v) for v in pose)
             for ch, L in zip(path.word, path.lengths_m):
                 if abs(L) < 1e-9:
