@@ -105,6 +105,8 @@ def solve(ws: np.ndarray, T0: float, obstacles: Obstacles, veh: VehicleGeometry,
 
 
 # IPOPT's wall-time cap is fixed when the solver is built: the largest of these within the time left
+LINEAR_SOLVER = "mumps"  # of the two shipped with CasADi's IPOPT (mumps, spral)
+IPOPT_TOL = 1e-6
 MAX_ITER = 400  # IPOPT iterations per solve (deterministic, unlike its wall-time cap)
 LAST_STATS: dict = {}  # of the last solve (for benchmarks)
 WALL_BUCKETS_S = (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 13.0, 20.0, 30.0, 45.0, 60.0)
@@ -129,7 +131,7 @@ def _nlp(n: int, veh: VehicleGeometry, margin_m: float, effort_weight: float, je
     effort = ca.sumsqr(U[0, :]) + 2 * ca.sumsqr(U[1, :])
     jerk = ca.sumsqr(U[0, 1:] - U[0, :-1]) / h ** 2
     opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": MAX_ITER,
-            "ipopt.tol": 1e-6, "ipopt.max_wall_time": wall_s, "ipopt.linear_solver": "mumps",
+            "ipopt.tol": IPOPT_TOL, "ipopt.max_wall_time": wall_s, "ipopt.linear_solver": LINEAR_SOLVER,
             "ipopt.mu_strategy": "adaptive"}
     return ca.nlpsol("parking", "ipopt", {"x": z, "p": P, "f": T + (effort_weight * effort + jerk_weight * jerk) * h,
                                           "g": ca.vertcat(*g)}, opts)

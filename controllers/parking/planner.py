@@ -133,7 +133,10 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
         if best is not None:
             break
     if best is None:
-        return profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s), "search"
+        states = profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s)
+        if _collides_densely(states, obs, vehicle):  # the search's margin should make this impossible
+            raise NoSolution("the optimisation failed and the search path clips an obstacle between its checks")
+        return states, "search"
     for _ in range(REFINE_MAX):
         sol, _ = best
         if time.perf_counter() > deadline - 0.5:

@@ -92,3 +92,10 @@ def test_trajectory_counts_direction_changes_and_length() -> None:
     assert tr.direction_changes() == 1
     assert tr.direction_changes(min_run_m=0.001) == 3
     assert tr.length_m() == pytest.approx(0.2 + 0.2 + 0.005 + 0.1)
+
+
+def test_a_time_limit_too_short_is_named_in_the_reason() -> None:
+    case = read_case(DATA / "Case10.csv")
+    with pytest.raises(NoSolution, match="time limit of 0.001 s") as err:
+        plan(case.start, case.goal, case.obstacles, time_limit_s=0.001)
+    assert "\n" not in str(err.value)
