@@ -9,24 +9,23 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from corridor.controllers.parking import optimise, profile, warm_start
-from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles, VehicleGeometry
-from corridor.controllers.parking.search import SearchFailed, SearchParams, hybrid_astar, merge, reverse
+from corridor.controllers.parking.geometry import TPCAP_VEHICLE, FootprintChecker, Obstacles, VehicleGeometry
+from corridor.controllers.parking.search import HybridAStar, SearchFailed, SearchParams, merge, reverse
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
 MIN_RUN_M = 0.01  # shortest run in one direction that counts in direction_changes
 SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
-FINE = dict(xy_res_m=0.2, n_heading=144, step_m=0.5, short_step_m=0.15, check_m=0.1)
-# search attempts in turn, each bounded by expansions (deterministic) and all by the search budget:
-# (out of the tighter end of start and goal?, parameters)
-ATTEMPTS = ((True, SearchParams(heuristic_weight=1.5, max_expansions=600)),
-            (True, SearchParams(heuristic_weight=3.0, max_expansions=3000)),
-            (True, SearchParams(heuristic_weight=3.0, max_expansions=6000, **FINE)),
-            (False, SearchParams(heuristic_weight=3.0)))
+# search resolutions, bounded by expansions so that results do not depend on the machine's load
+COARSE = SearchParams(heuristic_weight=3.0, max_expansions=4000)
+FINE = SearchParams(heuristic_weight=3.0, max_expansions=8000, xy_res_m=0.2, n_heading=144, step_m=0.5,
+                    short_step_m=0.15, check_m=0.1)
+SLICE = 100  # expansions per turn
+MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
 CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
 MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
 # warm starts tried in turn: (builder, node spacing in the warm start's time [s])
@@ -117,6 +116,9 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
     t_search = time.perf_counter() - t0
     states, stage = _optimise(segments, obs, vehicle, dt_s, deadline=t0 + time_limit_s)
     t_opt = time.perf_counter() - t0 - t_search
+    # a path searched from the goal reaches the start's heading modulo 2π: start from it exactly
+    turns = np.round((float(start[2]) - states["theta"][0]) / (2 * np.pi))
+    states["theta"] = states["theta"] + 2 * np.pi * turns
     return _to_world(states, origin, t_search, t_opt, stage=stage)
 
 
@@ -171,28 +173,56 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
             vehicle: VehicleGeometry, lb: tuple[float, ...], t0: float, time_limit_s: float) -> list:
-    """Search attempts in turn (`ATTEMPTS`), each up to its number of expansions: out of the tighter of
-    start and goal (usually the goal: leaving a bay is easier than entering it; a path found from the
-    goal is then driven backwards), first near-optimal, then greedier, then at a finer resolution,
-    then from the other end until the search budget is spent."""
-    budget, reasons = SEARCH_SHARE * time_limit_s, []
-    goal_tighter = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
-    for from_tight_end, params in ATTEMPTS:
-        backwards = from_tight_end == goal_tighter
-        a, b = (g, s) if backwards else (s, g)
+    """Searches from both ends take turns (`SLICE` expansions each, the tighter end first: leaving a
+    bay is easier than entering it; a path found from the goal is driven backwards) until one finds a
+    path. A search that fails at `COARSE` resolution is replaced by one at `FINE` resolution from the
+    same end; one whose path clips an obstacle between its collision checks, by one with checks twice
+    as dense."""
+    end, reasons = t0 + SEARCH_SHARE * time_limit_s, []
+    goal_first = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
+    checkers: dict[float, FootprintChecker] = {}
+
+    def start_search(backwards: bool, params: SearchParams) -> HybridAStar | None:
+        checker = checkers.setdefault(params.margin_m, FootprintChecker(obs, vehicle, params.margin_m, lb))
         try:
-            segs = hybrid_astar(a, b, obs, vehicle, lb, t0 + budget, params)
+            return HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker)
         except SearchFailed as exc:
-            reasons.append(f"{'from the goal' if backwards else 'from the start'}, "
-                           f"{params.xy_res_m:g} m cells, weight {params.heuristic_weight:g}: {exc}")
-            if time.perf_counter() >= t0 + budget:
-                break
-            continue
-        return merge(reverse(segs) if backwards else segs)
-    timed_out = time.perf_counter() - t0 >= budget - 1e-3
-    head = (f"no path within the time limit of {time_limit_s:g} s" if timed_out
+            reasons.append(_reason(backwards, params, exc))
+            return None
+
+    searches = {b: start_search(b, COARSE) for b in (goal_first, not goal_first)}
+    while any(searches.values()) and time.perf_counter() < end:
+        for backwards, search in list(searches.items()):
+            if search is None:
+                continue
+            try:
+                path = search.run(SLICE, end)
+            except SearchFailed as exc:
+                reasons.append(_reason(backwards, search.p, exc))
+                finer = replace(FINE, check_m=min(FINE.check_m, search.p.check_m))
+                searches[backwards] = start_search(backwards, finer) if search.p.xy_res_m > FINE.xy_res_m else None
+                continue
+            if path is None:
+                continue
+            if not _path_clips(path, obs, vehicle):
+                return merge(reverse(path) if backwards else path)
+            reasons.append(_reason(backwards, search.p, "the path clipped an obstacle between checks"))
+            dense = replace(search.p, check_m=search.p.check_m / 2)
+            searches[backwards] = start_search(backwards, dense) if dense.check_m >= MIN_CHECK_M else None
+    head = (f"no path within the time limit of {time_limit_s:g} s" if time.perf_counter() >= end
             else "no path: the search space is exhausted")
     raise NoSolution(f"{head} ({'; '.join(reasons)})")
+
+
+def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
+    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells: {exc}"
+
+
+def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry) -> bool:
+    """Does the footprint, grown by the optimisation's margin, meet an obstacle anywhere along the
+    path (sampled every `DENSE_M`)?"""
+    poses = np.vstack([seg.poses(DENSE_M) for seg in segments])
+    return bool(obs.collides(poses, vehicle, MARGIN_M).any())
 
 
 def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: VehicleGeometry) -> float:

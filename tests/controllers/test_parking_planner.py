@@ -28,6 +28,8 @@ def test_given_cases_pass_the_independent_check(name: str) -> None:
     tr = solve(case)
     assert tr.stage == "optimised"
     assert check(case, tr.as_array()) == []
+    assert (tr.x[0], tr.y[0], tr.theta[0]) == pytest.approx(case.start, abs=1e-9)  # exactly the start state
+    assert tr.v[0] == tr.steer[0] == 0.0
     assert np.max(np.diff(tr.t)) <= 0.1 + 1e-9
     assert tr.length_m() > np.hypot(case.goal[0] - case.start[0], case.goal[1] - case.start[1]) - 1e-6
     assert tr.direction_changes() >= 0 and tr.search_time_s > 0
