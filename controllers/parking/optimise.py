@@ -28,6 +28,7 @@ class OptimiseParams:
     grow_max_m: float = 2.0  # per side
     effort_weight: float = 0.5  # on ∫ a² + 2 ω² dt, beside the manoeuvre time
     jerk_weight: float = 0.05  # on ∫ (da/dt)² dt: no chattering of the speed about zero
+    max_iter: int = 150  # IPOPT iterations (deterministic, unlike its wall-time cap)
 
 
 class OptimiseFailed(Exception):
@@ -83,7 +84,7 @@ def solve(ws: np.ndarray, T0: float, obstacles: Obstacles, veh: VehicleGeometry,
     if remaining <= 0.05:
         raise OptimiseFailed("no time left for the optimisation")
     wall_s = max([w for w in WALL_BUCKETS_S if w <= remaining], default=remaining)
-    nlp = _nlp(n, veh, p.margin_m, p.effort_weight, p.jerk_weight, wall_s)
+    nlp = _nlp(n, veh, p.margin_m, p.effort_weight, p.jerk_weight, wall_s, p.max_iter)
     par = np.concatenate([ws[:, 0], ws[:, 1], ws[:, 2]])
     lo, hi = np.tile(boxes[:, [0, 2]], (1, 8)), np.tile(boxes[:, [1, 3]], (1, 8))
     lo[~pair, 8:], hi[~pair, 8:] = -np.inf, np.inf  # the next node is not held in this box
@@ -107,14 +108,13 @@ def solve(ws: np.ndarray, T0: float, obstacles: Obstacles, veh: VehicleGeometry,
 # IPOPT's wall-time cap is fixed when the solver is built: the largest of these within the time left
 LINEAR_SOLVER = "mumps"  # of the two shipped with CasADi's IPOPT (mumps, spral)
 IPOPT_TOL = 1e-6
-MAX_ITER = 400  # IPOPT iterations per solve (deterministic, unlike its wall-time cap)
 LAST_STATS: dict = {}  # of the last solve (for benchmarks)
 WALL_BUCKETS_S = (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 13.0, 20.0, 30.0, 45.0, 60.0)
 
 
 @lru_cache(maxsize=16)
 def _nlp(n: int, veh: VehicleGeometry, margin_m: float, effort_weight: float, jerk_weight: float,
-         wall_s: float) -> ca.Function:
+         wall_s: float, max_iter: int) -> ca.Function:
     """The NLP for n intervals, parametrised by the warm start's poses (the corridor frames); the boxes,
     start and goal enter through the bounds. Cached: replanning with the same n reuses it."""
     z = ca.MX.sym("z", 5 * (n + 1) + 2 * n + 1)  # x_0..x_n, y_0.., θ.., v.., δ.., a_0.., ω.., T
@@ -130,7 +130,7 @@ def _nlp(n: int, veh: VehicleGeometry, margin_m: float, effort_weight: float, je
     g.append(ca.vec(_corners_in_frame(veh, margin_m).map(n + 1)(X[:3, :], nodes1, W)))  # 16 per node
     effort = ca.sumsqr(U[0, :]) + 2 * ca.sumsqr(U[1, :])
     jerk = ca.sumsqr(U[0, 1:] - U[0, :-1]) / h ** 2
-    opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": MAX_ITER,
+    opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
             "ipopt.tol": IPOPT_TOL, "ipopt.max_wall_time": wall_s, "ipopt.linear_solver": LINEAR_SOLVER,
             "ipopt.mu_strategy": "adaptive"}
     return ca.nlpsol("parking", "ipopt", {"x": z, "p": P, "f": T + (effort_weight * effort + jerk_weight * jerk) * h,

@@ -33,6 +33,7 @@ TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.
 MIN_NODES, MAX_NODES = 40, 400
 REFINE_MAX = 2  # re-solves with corridors around the last solution ...
 REFINE_GAIN = 0.02  # ... while each shortens the manoeuvre by more than this share
+REFINE_ITER = 60  # IPOPT iterations of a re-solve (it starts from a solution)
 DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
 
 
@@ -94,10 +95,20 @@ def _default_bounds(start: np.ndarray, goal: np.ndarray, polys: list[np.ndarray]
 def plan(start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Sequence[np.ndarray],
          vehicle: VehicleGeometry = TPCAP_VEHICLE, *, time_limit_s: float = 30.0, dt_s: float = 0.1,
          bounds: tuple[float, float, float, float] | None = None) -> Trajectory:
-    """A collision-free trajectory from ``start`` to ``goal`` (rear-axle poses), or raise NoSolution."""
+    """A collision-free, limit-respecting trajectory from ``start`` to ``goal`` (rear-axle poses x [m],
+    y [m], heading [rad]) around ``obstacles`` (polygons, (k, 2) vertices [m]), or raise NoSolution.
+
+    ``bounds`` (x_min, x_max, y_min, y_max) [m] is the area the search may use (default: the box
+    around start, goal and obstacles grown by `BOUNDS_PAD_M`). The trajectory starts at rest with
+    straight wheels exactly at ``start`` (theta continuous from ``start[2]``, so it ends at ``goal[2]``
+    modulo 2π) and stops at ``goal``; rows are ≤ ``dt_s`` apart. Planning stops at ``time_limit_s``
+    (60 % of it for the search); the reason then says so. Only the vehicle's geometry and limits
+    come from ``vehicle``."""
     t0 = time.perf_counter()
     if dt_s <= 0 or time_limit_s <= 0:
         raise NoSolution(f"dt_s and time_limit_s must be > 0 (got {dt_s}, {time_limit_s})")
+    if not np.all(np.isfinite([*start, *goal])):
+        raise NoSolution("start and goal must be finite numbers")
     origin = np.array([start[0], start[1]], dtype=np.float64)
     s = np.array([0.0, 0.0, float(start[2])])
     g = np.array([goal[0] - origin[0], goal[1] - origin[1], float(goal[2])])
@@ -143,7 +154,8 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
         sol, _ = best
         if time.perf_counter() > deadline - 0.5:
             break
-        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, deadline)
+        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, deadline,
+                                REFINE_ITER)
         if better is None or better[0].h_s > sol.h_s * (1 - REFINE_GAIN):
             if better is not None and better[0].h_s < sol.h_s:
                 best = better
@@ -153,9 +165,10 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
 
 
 def _solve_checked(ws: np.ndarray, T0: float, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
-                   deadline: float) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
+                   deadline: float, max_iter: int = 150) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
     try:
-        sol = optimise.solve(ws, T0, obs, vehicle, deadline, optimise.OptimiseParams(margin_m=MARGIN_M))
+        sol = optimise.solve(ws, T0, obs, vehicle, deadline,
+                             optimise.OptimiseParams(margin_m=MARGIN_M, max_iter=max_iter))
     except optimise.OptimiseFailed:
         return None
     states = optimise.sample(sol, vehicle, dt_s)
