@@ -40,6 +40,7 @@ lint: $(DEV_STAMP)
 bench: $(STAMP)
 	$(BIN)/python benchmarks/kernel_overhead.py
 	$(BIN)/python benchmarks/uav_swarm_rtf.py --quick
+	$(BIN)/python benchmarks/parking_plan.py
 
 clean:
 	rm -rf $(VENV) results build *.egg-info .cache
