@@ -17,18 +17,25 @@ def box_corners(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray, widt
 
 
 def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray, width: np.ndarray,
-                      z: np.ndarray | None = None, height: np.ndarray | None = None) -> np.ndarray:
+                      z: np.ndarray | None = None, height: np.ndarray | None = None,
+                      involving: np.ndarray | None = None) -> np.ndarray:
     """Index pairs (M, 2), i < j, of rectangles that overlap (separating-axis test), optionally also
-    overlapping in altitude.  A circle pre-filter keeps the exact test to near pairs."""
+    overlapping in altitude.  A circle pre-filter keeps the exact test to near pairs.
+
+    ``involving``: only pairs with at least one of these rows (a few controlled vehicles among many:
+    the pre-filter is then (k, N) instead of (N, N)); the pairs come in the same (i, j) order."""
     n = len(center_xy)
     if n < 2:
         return np.zeros((0, 2), dtype=int)
     radius = 0.5 * np.hypot(length, width)
-    d = np.linalg.norm(center_xy[:, None, :] - center_xy[None, :, :], axis=-1)
-    near = np.triu(d <= radius[:, None] + radius[None, :], k=1)
-    if z is not None and height is not None:
-        near &= np.abs(z[:, None] - z[None, :]) <= 0.5 * (height[:, None] + height[None, :])
-    i, j = np.nonzero(near)
+    if involving is None:
+        d = np.linalg.norm(center_xy[:, None, :] - center_xy[None, :, :], axis=-1)
+        near = np.triu(d <= radius[:, None] + radius[None, :], k=1)
+        if z is not None and height is not None:
+            near &= np.abs(z[:, None] - z[None, :]) <= 0.5 * (height[:, None] + height[None, :])
+        i, j = np.nonzero(near)
+    else:
+        i, j = _near_pairs_involving(np.asarray(involving, dtype=np.int64), center_xy, radius, z, height)
     if len(i) == 0:
         return np.zeros((0, 2), dtype=int)
     corners = box_corners(center_xy, yaw, length, width)
@@ -39,6 +46,23 @@ def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray
     separated = (pi.max(axis=1) < pj.min(axis=1)) | (pj.max(axis=1) < pi.min(axis=1))
     hit = ~separated.any(axis=1)
     return np.column_stack([i[hit], j[hit]])
+
+
+def _near_pairs_involving(rows: np.ndarray, center_xy: np.ndarray, radius: np.ndarray, z: np.ndarray | None,
+                          height: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The circle pre-filter of ``obb_overlap_pairs`` for the pairs with a row of ``rows``: (i, j),
+    i < j, in row-major order (the same distances and sums as the full (N, N) test, term by term)."""
+    n = len(center_xy)
+    d = np.linalg.norm(center_xy[rows][:, None, :] - center_xy[None, :, :], axis=-1)
+    near = d <= radius[rows][:, None] + radius[None, :]
+    if z is not None and height is not None:
+        near &= np.abs(z[rows][:, None] - z[None, :]) <= 0.5 * (height[rows][:, None] + height[None, :])
+    a, b = np.nonzero(near)
+    a = rows[a]
+    keep = a != b
+    lo, hi = np.minimum(a[keep], b[keep]), np.maximum(a[keep], b[keep])
+    key = np.unique(lo * n + hi)  # a pair of two listed rows is found from both ends once; sorted (i, j)
+    return key // n, key % n
 
 
 def _edge_normals(corners: np.ndarray) -> np.ndarray:
@@ -60,7 +84,7 @@ def ttc_drac(gap_m: np.ndarray, v_follow: np.ndarray, v_lead: np.ndarray) -> tup
     """Time to collision [s] (inf when not closing) and DRAC [m/s²] (0 when not closing)."""
     closing = v_follow - v_lead
     gap = np.maximum(gap_m, 1e-3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ttc = np.where(closing > 0, gap / closing, np.inf)
-        drac = np.where(closing > 0, closing**2 / (2 * gap), 0.0)
+    closes = closing > 0  # divide only there (no warnings to silence: errstate costs more than the math)
+    ttc = np.divide(gap, closing, out=np.full(closing.shape, np.inf), where=closes)
+    drac = np.divide(closing * closing, 2 * gap, out=np.zeros(closing.shape), where=closes)
     return ttc, drac

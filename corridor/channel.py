@@ -293,49 +293,54 @@ class Channel:
         self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | None]]
     ) -> list[int]:
         """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order,
-        with the same random draws, statistics and result; broadcasts under Bernoulli loss (a fleet's
-        periodic reports) are handled in one vectorised pass instead of message by message."""
+        with the same random draws, statistics and result; under Bernoulli loss the messages
+        (broadcasts of a fleet's periodic reports, unicasts, or both mixed) are handled in one
+        vectorised pass instead of message by message."""
         messages = list(messages)
-        if not isinstance(self.cfg.loss, BernoulliLoss) or any(m[3] is not None for m in messages):
+        if not isinstance(self.cfg.loss, BernoulliLoss):
             return [self.send(t_s, src, payload, src_pos=pos, dst=dst) for src, payload, pos, dst in messages]
         if not messages:
             return []
         self._refresh_receivers()
         src_idx = np.array([self._node(m[0]) for m in messages])
         nan3 = np.full(3, np.nan)  # unknown sender position: no range check (as in send)
-        p_src = np.array([_as3(pos) if pos is not None else self._positions.get(src, nan3)
-                          for src, _, pos, _ in messages])
-        mask = self._recv_idx[None, :] != src_idx[:, None]  # (M, R): every receiver but the sender
-        counts = mask.sum(axis=1)
+        p_src = _rows3([pos if pos is not None else self._positions.get(src, nan3) for src, _, pos, _ in messages])
+        recv = self._recv_idx[None, :]
+        mask = recv != src_idx[:, None]  # (M, R): every receiver but the sender
+        if any(m[3] is not None for m in messages):  # a unicast goes to its receiver, if attached (send's
+            #   ``_targets``): the one column of the receivers that is that node (none if detached or unknown)
+            to = np.array([-1 if m[3] is None else self._index.get(m[3], -2) for m in messages])
+            uni = to != -1
+            mask[uni] &= recv == to[uni, None]
+        msg, col = np.nonzero(mask)  # the copies, message-major (send's order)
+        counts = np.bincount(msg, minlength=len(messages))
         d2 = np.sum((self._recv_pos[None, :, :] - p_src[:, None, :]) ** 2, axis=2)
-        in_range = (np.isnan(d2) | (d2 <= self.cfg.range_m**2))[mask]
-        dst_idx = np.broadcast_to(self._recv_idx, mask.shape)[mask]
-        n = int(counts.sum())
+        in_range = (np.isnan(d2) | (d2 <= self.cfg.range_m**2))[msg, col]
+        dst_idx = self._recv_idx[col]
+        n = len(msg)
         # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
         u = self._rng.random(2 * n)
         start = np.cumsum(counts) - counts
-        msg = np.repeat(np.arange(len(messages)), counts)
         pos_in_msg = np.arange(n) - start[msg]
         u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
         lost = in_range & (u_loss < self.cfg.loss.p)
         keep = in_range & ~lost
         t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay
         self._n_sent += n
-        self._n_oor += int(n - in_range.sum())
-        self._n_lost += int(lost.sum())
+        self._n_oor += int(n - np.count_nonzero(in_range))
+        self._n_lost += int(np.count_nonzero(lost))
         keep = self._admit(keep, t_recv)
-        kept = np.bincount(msg[keep], minlength=len(messages))
+        kept = np.bincount(msg[keep], minlength=len(messages)).tolist()
+        kept_dst, kept_t = dst_idx[keep], t_recv[keep]  # message-major: one slice per message
         out = []
-        for i, (src, payload, _, _) in enumerate(messages):
-            c = int(counts[i])
+        t_sent, a = float(t_s), 0
+        for c, k, si, (src, payload, _, _) in zip(counts.tolist(), kept, src_idx.tolist(), messages, strict=True):
             if c == 0:
                 out.append(0)
                 continue
-            a, k = int(start[i]), int(kept[i])
             if k:
-                sel = keep[a : a + c]
-                self._pending.append(_Batch(self._seq, src, int(src_idx[i]), float(t_s), payload,
-                                            dst_idx[a : a + c][sel], t_recv[a : a + c][sel]))
+                self._pending.append(_Batch(self._seq, src, si, t_sent, payload, kept_dst[a : a + k], kept_t[a : a + k]))
+                a += k
             self._seq += 1
             out.append(k)
         return out
@@ -430,28 +435,38 @@ class Channel:
         return self._names
 
     def _pop_due(self, t_s: float) -> tuple[list[_Batch], list[tuple[np.ndarray, np.ndarray]]]:
-        """Remove and return the due copies (batches in send order, with their due receivers/times)."""
+        """Remove and return the due copies (batches in send order, with their due receivers/times).
+
+        The due / still-live flags of every copy in flight are computed in one pass; a batch is only
+        cut into new arrays when part of it is due (or part of it went to a detached receiver)."""
+        pending = self._pending
+        if not pending:
+            self._n_in_flight = 0
+            return [], []
+        sizes = [b.dst_idx.size for b in pending]
+        dst = np.concatenate([b.dst_idx for b in pending])
+        t_recv = np.concatenate([b.t_recv_s for b in pending])
+        live = self._attached[dst]
+        due = (t_recv <= t_s + _T_EPS_S) & live
+        rest = ~due & live
+        starts = np.cumsum(sizes) - sizes
+        n_due = np.add.reduceat(due, starts).tolist()
+        n_rest = np.add.reduceat(rest, starts).tolist()
         due_batches: list[_Batch] = []
         due_parts: list[tuple[np.ndarray, np.ndarray]] = []
         keep: list[_Batch] = []
-        n_left = 0
-        for b in self._pending:
-            live = self._attached[b.dst_idx]
-            due = (b.t_recv_s <= t_s + _T_EPS_S) & live
-            if due.any():
+        for b, size, a, nd, nr in zip(pending, sizes, starts.tolist(), n_due, n_rest, strict=True):
+            if nd:
                 due_batches.append(b)
-                due_parts.append((b.dst_idx[due], b.t_recv_s[due]))
-            rest = ~due & live
-            if rest.all():
+                sel = due[a : a + size]
+                due_parts.append((b.dst_idx, b.t_recv_s) if nd == size else (b.dst_idx[sel], b.t_recv_s[sel]))
+            if nr == size:
                 keep.append(b)
-                n_left += b.dst_idx.size
-            elif rest.any():
-                keep.append(
-                    _Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[rest], b.t_recv_s[rest])
-                )
-                n_left += int(rest.sum())
+            elif nr:
+                sel = rest[a : a + size]
+                keep.append(_Batch(b.seq, b.src, b.src_idx, b.t_sent_s, b.payload, b.dst_idx[sel], b.t_recv_s[sel]))
         self._pending = keep
-        self._n_in_flight = n_left
+        self._n_in_flight = int(np.count_nonzero(rest))
         return due_batches, due_parts
 
     def _record_received(self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
@@ -526,7 +541,10 @@ class Channel:
         )
 
     def _sample_aoi(self, t_s: float) -> None:
-        known = self._last_sent[~np.isnan(self._last_sent)]
+        # only attached receivers hold received times (detach clears a node's row and column), so
+        # their rows give the same values in the same (row-major) order as the whole matrix
+        rows = self._last_sent[self._attached]
+        known = rows[~np.isnan(rows)]
         if known.size == 0:
             return
         ages = t_s - known
@@ -564,6 +582,19 @@ class Channel:
         self._recv_idx = idx
         self._recv_pos = np.array([self._positions.get(self._names[i], nan3) for i in idx]).reshape(-1, 3)
         self._recv_dirty = False
+
+
+def _rows3(points: list[Any]) -> np.ndarray:
+    """Positions as an (M, 3) float array, each row as ``_as3`` makes it (2-D points get z = 0)."""
+    try:
+        a = np.array(points, dtype=float) if points else np.zeros((0, 3))
+    except ValueError:  # mixed lengths
+        a = np.zeros(0)
+    if a.ndim == 2 and a.shape[1] == 3:
+        return a
+    if a.ndim == 2 and a.shape[1] == 2:
+        return np.column_stack([a, np.zeros(len(a))])
+    return np.array([_as3(p) for p in points]).reshape(-1, 3)
 
 
 def _as3(p: np.ndarray | Iterable[float]) -> np.ndarray:

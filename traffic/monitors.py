@@ -48,19 +48,19 @@ class SurrogateSafety(Component):
         braking = r.accel < self.p.hard_brake_mps2
         counting = ctx.t >= self.warmup
         if counting:
-            self.hard_brakes += int(np.count_nonzero(braking & ~self._braking[r.uid]))
+            self.hard_brakes += int(np.count_nonzero(braking > self._braking[r.uid]))  # started braking
         self._braking[r.uid] = braking
         f, lead = lane_leaders(r.lane, r.lane_pos)
         ttc_now = np.inf
         if len(f):
-            speed = snap.speed[r.sl]
-            length = snap.size[r.sl, 0]
-            gap = r.lane_pos[lead] - length[lead] - r.lane_pos[f]
+            sl = r.sl
+            speed = np.hypot(snap.velocity[sl, 0], snap.velocity[sl, 1])  # [m/s] (WorldSnapshot.speed)
+            gap = r.lane_pos[lead] - snap.size[sl, 0][lead] - r.lane_pos[f]
             ttc, drac = ttc_drac(gap, speed[f], speed[lead])
-            ttc_now = float(ttc.min())
+            ttc_now = float(np.minimum.reduce(ttc))  # ufunc reductions: no ndarray.min wrapper overhead
             if counting:
                 self.min_ttc = min(self.min_ttc, ttc_now)
-                self.max_drac = max(self.max_drac, float(drac.max()))
+                self.max_drac = max(self.max_drac, float(np.maximum.reduce(drac)))
                 self.tet += float(np.count_nonzero(ttc < self.p.ttc_threshold_s)) * self.period
         ctx.signals.record("min_ttc", ctx.t, min(ttc_now, 99.0))
 
@@ -130,18 +130,19 @@ class TrafficKpis(Component):
             self.energy = np.concatenate([self.energy, np.zeros(grow)])
             self.area_loss = np.concatenate([self.area_loss, np.zeros(grow)])
             self.in_area = np.concatenate([self.in_area, np.zeros(grow, dtype=bool)])
-        x = snap.position[r.sl, 0]
-        speed = snap.speed[r.sl]
+        sl, uid = r.sl, r.uid
+        x = snap.position[sl, 0]
+        speed = np.hypot(snap.velocity[sl, 0], snap.velocity[sl, 1])  # [m/s] (WorldSnapshot.speed)
         if ctx.t >= self.warmup:
-            self.energy[r.uid] += r.accel**2 * self.period
+            self.energy[uid] += r.accel * r.accel * self.period
         if self.area_x is not None:
             self._merge_area_loss(r, x, speed)
-        new = (x > self.line_x) & ~self.passed[r.uid]
-        self.passed[r.uid[new]] = True
+        new = (x > self.line_x) > self.passed[uid]  # past the line and not counted yet
+        self.passed[uid[new]] = True
         if ctx.t >= self.warmup:
             self.count += int(np.count_nonzero(new))
         ctx.signals.record("vehicles", ctx.t, n)
-        ctx.signals.record("mean_speed", ctx.t, float(speed.mean()))
+        ctx.signals.record("mean_speed", ctx.t, float(np.add.reduce(speed)) / n)  # = speed.mean()
 
     def _merge_area_loss(self, r: RoadFrame, x: np.ndarray, speed: np.ndarray) -> None:
         """SUMO's time loss, dt·(1 − v / v_desired), of every vehicle inside the merge area; v_desired
@@ -152,7 +153,7 @@ class TrafficKpis(Component):
         tb = r.tables
         uid, code = r.uid[inside], r.lane[inside]
         v_des = np.minimum(tb.max_speed[uid], tb.lane_speed_limit[code] * tb.speed_factor[uid])
-        self.area_loss[uid] += self.period * np.clip(1.0 - speed[inside] / v_des, 0.0, 1.0)
+        self.area_loss[uid] += self.period * np.minimum(np.maximum(1.0 - speed[inside] / v_des, 0.0), 1.0)  # clip
         self.in_area[uid] = True
 
     def _area_metrics(self) -> dict[str, float]:

@@ -21,13 +21,21 @@ from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
 from corridor.traffic.network import BuiltNetwork, build_network
 from corridor.traffic.road_spec import RoadSpec
 
-_VARS: tuple[int, ...] = ()  # filled at first start (libsumo constants)
+_CAR, _CONTROLLED = int(Kind.CAR), int(Role.CONTROLLED)  # plain ints for numpy (see _read_state)
+_RAMP, _MAINLINE = int(Role.RAMP), int(Role.MAINLINE)
+_NO_UIDS = np.zeros(0, dtype=np.int64)
+_NO_UIDS.flags.writeable = False
 
 
 def sumo_binary() -> str:
     import sumo
 
     return str(Path(sumo.SUMO_HOME) / "bin" / "sumo")
+
+
+def sumo_seed(run_seed: int) -> int:
+    """SUMO's ``--seed`` of a run (derived from the run seed)."""
+    return int(np.random.SeedSequence(run_seed, spawn_key=(7,)).generate_state(1)[0] % 2**31)
 
 
 def vtype_attrs(vt: Any) -> dict[str, str | float]:
@@ -40,6 +48,11 @@ def vtype_attrs(vt: Any) -> dict[str, str | float]:
     attrs.update(vt.lc)
     attrs.update(vt.extra)
     return attrs
+
+
+def _uids(values: list[int]) -> np.ndarray:
+    """An int64 array of uids (the shared empty one on most steps: no event)."""
+    return np.array(values, dtype=np.int64) if values else _NO_UIDS
 
 
 def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
@@ -91,11 +104,12 @@ class SumoBackend(Backend):
         self._rng = ctx.rng("sumo.demand")  # the stream's name predates the backend entry's name (road)
         self._flow_of = {fid: fl for fid, fl in self.road.demand.flows.items()}
         routes_file = self._write_demand(ctx)
-        seed = int(np.random.SeedSequence(ctx.run_seed, spawn_key=(7,)).generate_state(1)[0] % 2**31)
-        libsumo.start(self._args(routes_file, seed, ctx.duration))
+        libsumo.start(self._args(routes_file, sumo_seed(ctx.run_seed), ctx.duration))
         self._started = True
         self._vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE,
                       libsumo.VAR_ACCELERATION, libsumo.VAR_LANE_ID, libsumo.VAR_LANEPOSITION)
+        self._read_vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE, libsumo.VAR_ACCELERATION,
+                           libsumo.VAR_LANEPOSITION, libsumo.VAR_LANE_ID)
         every = round(self.period / ctx.dt)
         self._last_tick = ((round(ctx.duration / ctx.dt) - 1) // every) * every  # the run's last SUMO step
         libsumo.simulation.subscribe([libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
@@ -169,10 +183,8 @@ class SumoBackend(Backend):
         for vid in sim.get(ls.VAR_TELEPORT_STARTING_VEHICLES_IDS, ()):
             teleported.append(uid_of.get(vid, -1))
             ctx.events.emit(t, self.name, "teleport", f"{vid} teleported (jam or stuck merge)", vid=vid)
-        events = RoadEvents(
-            departed=np.asarray(departed, dtype=np.int64), arrived=np.asarray(arrived, dtype=np.int64),
-            teleported=np.asarray(teleported, dtype=np.int64),
-            collisions=tuple((t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()))
+        events = RoadEvents(departed=_uids(departed), arrived=_uids(arrived), teleported=_uids(teleported),
+                            collisions=tuple((t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()))
         self._pending(events)
         self._read_state(ls.vehicle.getAllSubscriptionResults(), t, events, final=ctx.tick == self._last_tick)
 
@@ -188,7 +200,7 @@ class SumoBackend(Backend):
         ev.pending_ids = ids
         ev.pending_wait_s = np.fromiter((ls.vehicle.getDepartDelay(v) for v in ids), dtype=float, count=n)
         ev.pending_route = np.fromiter((codes.get(s.route, -1) if s else -1 for s in specs), dtype=np.int64, count=n)
-        ev.pending_role = np.fromiter((Role.RAMP if s is not None and s.route == "ramp" else Role.MAINLINE
+        ev.pending_role = np.fromiter((_RAMP if s is not None and s.route == "ramp" else _MAINLINE
                                        for s in specs), dtype=np.int8, count=n)
 
     def _on_depart(self, vid: str, t: float) -> int:
@@ -230,7 +242,8 @@ class SumoBackend(Backend):
             loop_index=d.loop_index, area_index=d.area_index)
 
     def _read_state(self, res: dict[str, dict[int, Any]], t: float, events: RoadEvents, final: bool) -> None:
-        ls = self._ls
+        """The step's subscription results -> this backend's snapshot part (one pass over the rows,
+        then whole-array numpy; plain-int role/kind codes: numpy compares IntEnum members ~100x slower)."""
         ids = list(res)
         n = len(ids)
         self._ids = ids
@@ -238,27 +251,29 @@ class SumoBackend(Backend):
         if n == 0:
             self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
-        rows = list(res.values())
-        P, S, A, ACC, LP = ls.VAR_POSITION, ls.VAR_SPEED, ls.VAR_ANGLE, ls.VAR_ACCELERATION, ls.VAR_LANEPOSITION
+        rows = res.values()
+        P, S, A, ACC, LP, LN = self._read_vars
         num = np.array([(*r[P], r[S], r[A], r[ACC], r[LP]) for r in rows], dtype=float)  # one pass
+        lanes = [r[LN] for r in rows]
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
-        distance = np.array([ls.vehicle.getDistance(v) for v in ids]) if final else np.full(n, np.nan)
-        uid = np.fromiter(map(self.tables.uid_of.__getitem__, ids), dtype=np.int64, count=n)
-        speed, yaw = num[:, 2], yaw_from_sumo_angle(num[:, 3])
-        length, width = self.tables.length[uid], self.tables.width[uid]
-        cos, sin = np.cos(yaw), np.sin(yaw)
+        distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else np.full(n, np.nan)
+        tb = self.tables
+        uid = np.fromiter(map(tb.uid_of.__getitem__, ids), dtype=np.int64, count=n)
+        yaw = yaw_from_sumo_angle(num[:, 3])
+        length = tb.length[uid]
+        cs = np.empty((n, 2))
+        cs[:, 0], cs[:, 1] = np.cos(yaw), np.sin(yaw)
         pos = np.zeros((n, 3))
-        pos[:, 0] = num[:, 0] - 0.5 * length * cos  # SUMO reports the front bumper; store the centre
-        pos[:, 1] = num[:, 1] - 0.5 * length * sin
+        pos[:, :2] = num[:, :2] - (0.5 * length)[:, None] * cs  # SUMO reports the front bumper; store the centre
         vel = np.zeros((n, 3))
-        vel[:, 0], vel[:, 1] = speed * cos, speed * sin
-        role = self.tables.role[uid].copy()
+        vel[:, :2] = num[:, 2, None] * cs
+        size = np.empty((n, 3))
+        size[:, 0], size[:, 1], size[:, 2] = length, tb.width[uid], 1.5
+        role = tb.role[uid]  # a copy (fancy indexing)
         if self.controlled:
-            role[[k for k, v in enumerate(ids) if v in self.controlled]] = Role.CONTROLLED
-        codes = self.tables.lane_code_of
-        lane_var = ls.VAR_LANE_ID
-        lanes = [r[lane_var] for r in rows]
+            role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
+        codes = tb.lane_code_of
         try:
             lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
         except KeyError:  # a lane entered for the first time: code it (in order of appearance)
@@ -266,12 +281,11 @@ class SumoBackend(Backend):
                 if ln not in codes:
                     self._new_lane(ln)
             lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
-        road = RoadFrame(self.name, self.tables, t=t, uid=uid, lane=lane, lane_pos=num[:, 5], accel=num[:, 4],
+        road = RoadFrame(self.name, tb, t=t, uid=uid, lane=lane, lane_pos=num[:, 5], accel=num[:, 4],
                          distance=distance, events=events, detectors=detectors)
         self._part = WorldSnapshot(
-            t=0.0, ids=np.array(ids, dtype=object), kind=np.full(n, Kind.CAR, dtype=np.int8), role=role,
-            position=pos, velocity=vel, heading=yaw, size=np.column_stack([length, width, np.full(n, 1.5)]),
-            road=road)
+            t=0.0, ids=np.array(ids, dtype=object), kind=np.full(n, _CAR, dtype=np.int8), role=role,
+            position=pos, velocity=vel, heading=yaw, size=size, road=road)
 
     def snapshot_part(self) -> WorldSnapshot:
         return self._part

@@ -224,11 +224,12 @@ class V2XMerging(Controller):
             self._listen[vid] = set(ahead)
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
+        copies: list[tuple[str, Any, np.ndarray, str]] = []  # one send_many: the same draws as send by send
         for m in msgs:
             src_pos = m.position_m
-            self.channel.send(t, m.sender_id, m, src_pos=src_pos, dst=RSU)
-            for f in followers.get(m.sender_id, ()):
-                self.channel.send(t, m.sender_id, m, src_pos=src_pos, dst=f)
+            copies.append((m.sender_id, m, src_pos, RSU))
+            copies.extend((m.sender_id, m, src_pos, f) for f in followers.get(m.sender_id, ()))
+        self.channel.send_many(t, copies)
         for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
@@ -291,13 +292,15 @@ class V2XMerging(Controller):
             return {}
         order = self.coord.sequence
         road_of = {z.id: z.road for z in zone}
+        rsu_pos = np.array([self.x_merge, self.y_rsu, 0.0])
+        out: list[tuple[str, Any, np.ndarray, str]] = []
         for pos_, vid in enumerate(order):
             k = index.get(vid)
             if k is None or not s["connected"][k]:
                 continue
             pred = order[pos_ - 1] if pos_ > 0 else None
-            msg = Assignment(t, times[vid], pred, road_of.get(pred) if pred else None)
-            self.channel.send(t, RSU, msg, src_pos=np.array([self.x_merge, self.y_rsu, 0.0]), dst=vid)
+            out.append((RSU, Assignment(t, times[vid], pred, road_of.get(pred) if pred else None), rsu_pos, vid))
+        self.channel.send_many(t, out)
         return index
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:

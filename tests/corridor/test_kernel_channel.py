@@ -233,7 +233,32 @@ def test_send_many_and_deliver_batches_equal_send_and_deliver() -> None:
     assert ref.stats() == new.stats()
 
 
-def test_send_many_falls_back_to_send_for_unicasts_and_bursty_loss() -> None:
+def test_send_many_unicasts_and_broadcasts_mixed_equal_send_after_send() -> None:
+    """Unicasts (to attached, detached, unknown receivers and to the sender itself) mixed with
+    broadcasts in one send_many: the same copies, draws, deliveries and statistics as send after send."""
+    ref, ids = _fleet_channel(9)
+    new, _ = _fleet_channel(9)
+    for ch in (ref, new):
+        ch.detach("v3")
+    rng = np.random.default_rng(4)
+    dsts = [*ids, "listener", "nobody", None, None]
+    got_ref, got_new = [], []
+    for k in range(30):
+        t = 0.1 * k
+        pos = np.c_[np.linspace(0.0, 400.0, 12) + 3.0 * t, np.zeros(12)]
+        ref.set_positions_arrays(ids, pos)
+        new.set_positions_arrays(ids, pos)
+        msgs = [(ids[j], (j, k, m), pos[j] if m % 3 else None, dsts[rng.integers(len(dsts))])
+                for m, j in enumerate(rng.integers(0, 12, 25))]
+        counts = [ref.send(t, src, payload, src_pos=p, dst=dst) for src, payload, p, dst in msgs]
+        assert new.send_many(t, msgs) == counts
+        got_ref += ref.deliver(t + 0.1)
+        got_new += new.deliver(t + 0.1)
+    assert got_new == got_ref and len(got_ref) > 300
+    assert ref.stats() == new.stats() and ref.stats().out_of_range > 0 and ref.stats().lost_random > 0
+
+
+def test_send_many_falls_back_to_send_for_bursty_loss() -> None:
     loss = GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3)
     a, b = (_pair_channel(ChannelConfig(loss=loss), seed=2) for _ in range(2))
     for k in range(200):

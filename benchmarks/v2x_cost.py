@@ -1,0 +1,67 @@
+"""Cost of V2X merging: CPU time of a ``v2x_cps`` merging run divided by that of the ``sumo_default``
+run on the same seeds (the same demand draws, SUMO seed and vehicles), in one process run.
+
+Times are CPU times of this process's tick loops (``time.process_time``, set-up excluded), so the
+ratio holds on a machine shared with other work; the two variants alternate seed by seed.
+
+    python benchmarks/v2x_cost.py [--duration 300] [--seeds 2] [--repeat 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from corridor.batch import expand
+from corridor.run import build
+from corridor.scenario import apply_overrides, load, validate
+
+ROOT = Path(__file__).resolve().parents[1]
+VARIANTS = ("sumo_default", "v2x_cps")
+
+
+def tick_loop_cpu(sc, seed: int) -> float:
+    """CPU seconds of the run's tick loop (after every component's set-up)."""
+    with tempfile.TemporaryDirectory(prefix="corridor-bench-") as tmp:
+        sim = build(sc, seed, Path(tmp))
+        ctx = sim.ctx
+        try:
+            for c in sim.setup_order:
+                c.setup(ctx)
+            t0 = time.process_time()
+            for _ in range(round(ctx.duration / ctx.dt)):
+                sim.step()
+            return time.process_time() - t0
+        finally:
+            for c in ctx.components.values():
+                c.close()
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", default=str(ROOT / "scenarios" / "merging.yaml"))
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=1, help="rounds over the seeds (best per run is kept)")
+    args = ap.parse_args()
+    sc, raw = load(args.scenario, [f"duration={args.duration}", "outputs.signals=false"])
+    plan = expand(sc, raw, args.scenario, args.seeds, variants=list(VARIANTS))
+    runs = [(s.variant, s.seed, validate(apply_overrides(s.base, s.overrides), s.run_id)) for s in plan]
+    tick_loop_cpu(runs[0][2], runs[0][1])  # warm the network cache and imports
+    best: dict[tuple[str, int], float] = {}
+    for _ in range(args.repeat):
+        for variant, seed, vsc in runs:
+            cpu = tick_loop_cpu(vsc, seed)
+            best[variant, seed] = min(cpu, best.get((variant, seed), cpu))
+    for seed in sorted({s for _, s in best}):
+        base, v2x = best["sumo_default", seed], best["v2x_cps", seed]
+        print(f"seed {seed}: sumo_default {base:.2f} s CPU | v2x_cps {v2x:.2f} s CPU | ratio {v2x / base:.2f}")
+    total = {v: sum(t for (w, _), t in best.items() if w == v) for v in VARIANTS}
+    print(f"\n{args.seeds} seeds x {args.duration:g} s simulated: v2x_cps CPU / sumo_default CPU = "
+          f"{total['v2x_cps'] / total['sumo_default']:.2f}x (target <= 2)")
+
+
+if __name__ == "__main__":
+    main()
