@@ -244,6 +244,9 @@ class SumoBackend(Backend):
     def _read_state(self, res: dict[str, dict[int, Any]], t: float, events: RoadEvents, final: bool) -> None:
         """The step's subscription results -> this backend's snapshot part (one pass over the rows,
         then whole-array numpy; plain-int role/kind codes: numpy compares IntEnum members ~100x slower)."""
+        P, S, A, ACC, LP, LN = self._read_vars
+        if any(not r[LN] for r in res.values()):  # teleporting vehicles still report: lane '', invalid values
+            res = {v: r for v, r in res.items() if r[LN]}  # off the road until SUMO re-inserts them
         ids = list(res)
         n = len(ids)
         self._ids = ids
@@ -252,7 +255,6 @@ class SumoBackend(Backend):
             self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
         rows = res.values()
-        P, S, A, ACC, LP, LN = self._read_vars
         num = np.array([(*r[P], r[S], r[A], r[ACC], r[LP]) for r in rows], dtype=float)  # one pass
         lanes = [r[LN] for r in rows]
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
