@@ -71,9 +71,9 @@ def main() -> None:
     ap.add_argument("--load", type=float, default=1.05)
     ap.add_argument("--sizes", type=int, nargs="+", default=[4, 8, 16])
     ap.add_argument("--time-limit", type=float, default=30.0, help="IPOPT cpu/wall limit per solve [s]")
-    ap.add_argument("--quick", action="store_true", help="5 receding steps per case (for make bench)")
+    ap.add_argument("--quick", action="store_true", help="4 receding steps per case (for make bench)")
     args = ap.parse_args()
-    steps = 5 if args.quick else args.steps
+    steps = 4 if args.quick else args.steps
     configs = {"corridor": MPCConfig(max_cpu_time_s=args.time_limit),
                "previous": MPCConfig(max_cpu_time_s=args.time_limit, **PREVIOUS),
                "+duals": MPCConfig(max_cpu_time_s=args.time_limit, warm_start_duals=True)}
