@@ -4,8 +4,9 @@ fresh ``python -m corridor.worker`` process per run), all four batches in the sa
 
 Prints, per executor, the batch wall time with 1 and 2 workers and their ratio (the speed-up), the
 per-run overhead (batch wall time with 1 worker minus the runs' own ``wall_s``, per run: process
-start, imports, row transfer and writing), and the CPU time per run of the whole batch (parent and
-all workers, from ``getrusage``: the part of the overhead that does not depend on the machine's load).
+start, imports, row transfer and writing), the CPU time per run of the whole batch (parent and all
+workers, from ``getrusage``: what does not depend much on the machine's load) with 1 and 2 workers,
+and the 2-vs-1 speed-up those CPU times predict on 2 idle cores.
 
     python benchmarks/batch_speedup.py [--runs 16] [--repeat 1] [--scenario scenarios/hegyi_benchmark.yaml]
         [--set duration=600] [--variant none] [--quick]
@@ -77,17 +78,22 @@ def main() -> None:
     print(f"{Path(args.scenario).name} [{args.variant}] {' '.join(sets)}: {runs} runs per batch, "
           f"{args.repeat} batch(es) per configuration, {os.cpu_count()} CPUs, load average {load0:.1f} -> {load1:.1f}")
     print(f"{'executor':>12}{'1 worker [s]':>14}{'2 workers [s]':>15}{'speed-up':>10}{'overhead/run [s]':>18}"
-          f"{'cpu/run [s]':>13}{'run wall/run [s]':>18}")
+          f"{'cpu/run 1w [s]':>16}{'cpu/run 2w [s]':>16}{'idle est.':>11}")
     for fork, name in ((True, "fork server"), (False, "spawn/run")):
         t1, t2 = med(fork, 1, "wall_s"), med(fork, 2, "wall_s")
         overhead = (t1 - med(fork, 1, "run_wall_s")) / runs
-        cpu = statistics.median([r["cpu_s"] for w in (1, 2) for r in res[(fork, w)]]) / runs
-        print(f"{name:>12}{t1:>14.2f}{t2:>15.2f}{t1 / t2:>10.2f}{overhead:>18.3f}{cpu:>13.3f}"
-              f"{med(fork, 1, 'run_wall_s') / runs:>18.3f}")
+        cpu1, cpu2 = med(fork, 1, "cpu_s"), med(fork, 2, "cpu_s")
+        # idle 2-core estimate: one worker runs all CPU in series; two share it, except what each
+        # worker process pays once (a fork server's imports: cpu2 - cpu1, the second server's share)
+        once = max(cpu2 - cpu1, 0.0) if fork else 0.0
+        idle = cpu1 / (once + (cpu1 - once) / 2)
+        print(f"{name:>12}{t1:>14.2f}{t2:>15.2f}{t1 / t2:>10.2f}{overhead:>18.3f}{cpu1 / runs:>16.3f}"
+              f"{cpu2 / runs:>16.3f}{idle:>11.2f}")
     for w in (1, 2):
         print(f"{w} worker(s): fork server / spawn per run, batch wall time {med(True, w, 'wall_s') / med(False, w, 'wall_s'):.2f}")
     print("(a speed-up below 2 on a loaded machine is the load's share of the cores: compare the ratios "
-          "and the CPU per run, which the load does not change much)")
+          "and the CPU per run, which the load does not change much; 'idle est.' is the 2-vs-1 speed-up "
+          "these CPU times give on 2 idle cores, each fork server paying its first run's imports once)")
 
 
 if __name__ == "__main__":
