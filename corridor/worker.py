@@ -147,7 +147,19 @@ def serve(fd: int, parent_pid: int) -> int:
         data, code = _fork_run(pickle.loads(body))
         out.write(FRAME.pack(len(data), code) + data)
         out.flush()
+        if _threads() > 1:  # a learned module started a thread (a Rust runtime, say): forking a
+            break  # multi-threaded process is unsafe, so retire; the batch starts a fresh server
     return 0
+
+
+def _threads() -> int:
+    """Native threads of this process (Linux), else Python's own count."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        import threading
+
+        return threading.active_count()
 
 
 if __name__ == "__main__":
