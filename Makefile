@@ -37,10 +37,18 @@ lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python tools/lint_imports.py
 
+# make bench: every benchmark in benchmarks/, short settings, under 10 minutes on 2 cores (one command a line)
 bench: $(STAMP)
-	$(BIN)/python benchmarks/kernel_overhead.py
+	$(BIN)/python benchmarks/kernel_overhead.py --duration 120 --repeat 1
+	$(BIN)/python benchmarks/v2x_cost.py --duration 120 --seeds 1
+	$(BIN)/python benchmarks/mpc_solve.py --quick
+	$(BIN)/python benchmarks/batch_speedup.py --quick
+	$(BIN)/python benchmarks/avoidance_solve.py --duration 20
+	$(BIN)/python benchmarks/overtaking_solve.py --seeds 2 --duration 10
+	$(BIN)/python benchmarks/stl_robustness.py --sizes 100000 --rtamt-budget 20
+	$(BIN)/python benchmarks/uav_fleet.py --n 10 --sim-s 10
 	$(BIN)/python benchmarks/uav_swarm_rtf.py --quick
-	$(BIN)/python benchmarks/parking_plan.py
+	$(BIN)/python benchmarks/parking_plan.py --repeats 1
 
 clean:
 	rm -rf $(VENV) results build *.egg-info .cache

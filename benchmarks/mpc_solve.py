@@ -6,13 +6,19 @@ demand that loads the busiest ring link to ``--load`` x capacity (2 lanes, OD fa
 demand capped at 95 % of the two on-ramps' capacity), starting near critical density with half-full
 ramp queues, and prints solve-time percentiles with the growth ratio against the 4-interchange ring.
 
-    python benchmarks/mpc_solve.py [--steps 10] [--load 1.05] [--sizes 4 8 16]
+Each case runs three times, back to back in the same run so all see the same machine load: with
+corridor's MPC configuration, with the previous one (MUMPS choosing its own ordering), and with the
+opt-in dual warm start on top of corridor's (``MPCConfig.warm_start_duals``).
+
+    python benchmarks/mpc_solve.py [--steps 10] [--load 1.05] [--sizes 4 8 16] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +32,7 @@ from corridor.traffic.metanet_networks import (
 )
 
 
-def run_case(n: int, steps: int, load: float, cfg: MPCConfig) -> dict[str, float]:
+def run_case(n: int, steps: int, load: float, cfg: MPCConfig) -> dict[str, Any]:
     """Closed-loop MPC on an n-interchange beltway; returns sizes, solve-time stats and TTS."""
     layout = BeltwayLayout(n_interchanges=n, lanes=2, trip_exponent=2.0)
     net = beltway(layout)
@@ -44,8 +50,19 @@ def run_case(n: int, steps: int, load: float, cfg: MPCConfig) -> dict[str, float
     n_var = int(mpc.lay.offsets[-1])
     return {"n": n, "segments": net.n_seg, "meters": net.n_metered, "variables": n_var,
             "p50_s": st["p50_s"], "p95_s": st["p95_s"], "max_s": st["max_s"],
+            "cpu_p50_s": float(np.percentile(mpc.solve_cpu_s, 50)),
+            "cpu_p95_s": float(np.percentile(mpc.solve_cpu_s, 95)), "order": mpc.pivot_order,
             "fallbacks": st["fallbacks"], "iters": float(np.mean(mpc.iter_counts)), "tts": res.tts_veh_h,
             "wall_s": wall}
+
+
+PREVIOUS: dict[str, Any] = {"mumps_pivot_order": 7, "warm_start_duals": False}  # before issue 16: MUMPS chose
+# its own ordering, and warm solves started from the shifted primal solution only
+
+
+def _growth(rows: list[dict[str, Any]], key: str) -> str:
+    """Ratio of ``key`` between successive sizes (per doubling when the sizes double)."""
+    return " ".join(f"x{b[key] / a[key]:.2f}" for a, b in zip(rows, rows[1:]))
 
 
 def main() -> None:
@@ -54,18 +71,37 @@ def main() -> None:
     ap.add_argument("--load", type=float, default=1.05)
     ap.add_argument("--sizes", type=int, nargs="+", default=[4, 8, 16])
     ap.add_argument("--time-limit", type=float, default=30.0, help="IPOPT cpu/wall limit per solve [s]")
+    ap.add_argument("--quick", action="store_true", help="4 receding steps per case (for make bench)")
     args = ap.parse_args()
-    cfg = MPCConfig(max_cpu_time_s=args.time_limit)
-    rows = [run_case(n, args.steps, args.load, cfg) for n in args.sizes]
-    base = rows[0]
-    print(f"{'interchanges':>12}{'segments':>9}{'meters':>7}{'NLP vars':>9}{'p50 [s]':>9}{'p95 [s]':>9}"
-          f"{'max [s]':>9}{'iters':>7}{'fallbk':>7}{'p50 x':>7}{'p95 x':>7}")
-    for r in rows:
-        print(f"{r['n']:>12}{r['segments']:>9}{r['meters']:>7}{r['variables']:>9}{r['p50_s']:>9.3f}"
-              f"{r['p95_s']:>9.3f}{r['max_s']:>9.3f}{r['iters']:>7.1f}{r['fallbacks']:>7.0f}{r['p50_s'] / base['p50_s']:>7.1f}"
-              f"{r['p95_s'] / base['p95_s']:>7.1f}")
-    print(f"({args.steps} receding steps each, horizon {cfg.horizon_ctrl_steps} x {cfg.control_step_s:.0f} s, "
-          f"load {args.load:.2f} x link capacity, limit {args.time_limit:.0f} s per solve)")
+    steps = 4 if args.quick else args.steps
+    configs = {"corridor": MPCConfig(max_cpu_time_s=args.time_limit),
+               "previous": MPCConfig(max_cpu_time_s=args.time_limit, **PREVIOUS),
+               "+duals": MPCConfig(max_cpu_time_s=args.time_limit, warm_start_duals=True)}
+    results: dict[str, list[dict[str, Any]]] = {name: [] for name in configs}
+    for n in args.sizes:  # both configurations of one size back to back: the same machine load
+        for name, cfg in configs.items():
+            results[name].append(run_case(n, steps, args.load, cfg))
+    print(f"{'config':>9}{'interch.':>9}{'NLP vars':>9}{'order':>6}{'p50 [s]':>9}{'p95 [s]':>9}{'max [s]':>9}"
+          f"{'cpu p50':>9}{'cpu p95':>9}{'iters':>7}{'cpu/iter':>9}{'fallbk':>7}{'TTS [veh h]':>13}")
+    for n_i in range(len(args.sizes)):
+        for name, rows in results.items():
+            r = rows[n_i]
+            print(f"{name:>9}{r['n']:>9}{r['variables']:>9}{r['order']:>6}{r['p50_s']:>9.3f}{r['p95_s']:>9.3f}"
+                  f"{r['max_s']:>9.3f}{r['cpu_p50_s']:>9.3f}{r['cpu_p95_s']:>9.3f}{r['iters']:>7.1f}"
+                  f"{r['cpu_p50_s'] / r['iters']:>9.4f}{r['fallbacks']:>7.0f}{r['tts']:>13.4f}")
+    sizes = " -> ".join(str(n) for n in args.sizes)
+    for name, rows in results.items():
+        print(f"{name:>9}: growth {sizes}: wall p50 {_growth(rows, 'p50_s')}, p95 {_growth(rows, 'p95_s')}; "
+              f"cpu p50 {_growth(rows, 'cpu_p50_s')}, p95 {_growth(rows, 'cpu_p95_s')}")
+    for (a, b), n_i in itertools.product((("corridor", "previous"), ("+duals", "corridor")), range(len(args.sizes))):
+        c, p, n = results[a][n_i], results[b][n_i], args.sizes[n_i]
+        print(f"{n:>3} interchanges: {a} / {b}: wall p50 {c['p50_s'] / p['p50_s']:.2f}, "
+              f"p95 {c['p95_s'] / p['p95_s']:.2f}; cpu p50 {c['cpu_p50_s'] / p['cpu_p50_s']:.2f}, "
+              f"p95 {c['cpu_p95_s'] / p['cpu_p95_s']:.2f}; TTS difference {c['tts'] - p['tts']:+.4f} veh h")
+    print(f"({steps} receding steps each, horizon {configs['corridor'].horizon_ctrl_steps} x "
+          f"{configs['corridor'].control_step_s:.0f} s, load {args.load:.2f} x link capacity, limit "
+          f"{args.time_limit:.0f} s per solve; previous = IPOPT/MUMPS with {PREVIOUS}; wall times on this "
+          f"machine under its present load: compare ratios)")
 
 
 if __name__ == "__main__":

@@ -1,8 +1,9 @@
 """Batches: expand seeds × sweep variants × randomize draws into runs, execute them on an executor,
 write each finished run at once, compact into ``runs.parquet``.
 
-Executors: ``local`` (one fresh process per run, at most ``workers`` at once; libsumo allows one
-simulation per process) and ``ray`` (``pip install -e '.[ray]'``).  Both call ``corridor.run.execute``
+Executors: ``local`` (one process per run, at most ``workers`` at once, each forked from a
+pre-imported fork server per worker slot, see ``corridor.worker``; libsumo allows one simulation per
+process) and ``ray`` (``pip install -e '.[ray]'``).  Both call ``corridor.run.execute``
 and give identical rows.
 """
 
@@ -25,6 +26,7 @@ from corridor.errors import CorridorError, clip
 from corridor.results import ResultStore
 from corridor.run import RunSpec, execute
 from corridor.scenario import MAX_SEED, Scenario
+from corridor.worker import FRAME, SPEC_LEN
 
 
 def draw_seed(seed: int, path: str) -> np.random.SeedSequence:
@@ -111,38 +113,61 @@ WORKER_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 
 @dataclass
 class _Worker:
-    """One run in its own ``python -m corridor.worker`` process; its row arrives on ``fd``."""
+    """A ``python -m corridor.worker`` process: one run (``serve=False``), or a fork server that runs
+    spec after spec, each in a forked child (``serve=True``).  Rows arrive on ``fd``."""
 
     proc: subprocess.Popen
-    spec: RunSpec
+    spec: RunSpec | None  # the run in progress (None: a server waiting for work)
     fd: int
+    serve: bool = False
     data: bytearray = field(default_factory=bytearray)
 
 
-def _start(spec: RunSpec) -> _Worker:
+def _spawn(serve: bool) -> _Worker:
     r, w = os.pipe()
+    args = [sys.executable, "-m", "corridor.worker", *(["--serve"] if serve else []), str(w), str(os.getpid())]
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "corridor.worker", str(w), str(os.getpid())], stdin=subprocess.PIPE,
-                                pass_fds=(w,), start_new_session=True)  # own session: no terminal SIGINT
+        proc = subprocess.Popen(args, stdin=subprocess.PIPE, pass_fds=(w,),
+                                start_new_session=True)  # own session: no terminal SIGINT
     except BaseException:
         os.close(r)
         raise
     finally:
         os.close(w)
+    os.set_blocking(r, False)
+    return _Worker(proc, None, r, serve)
+
+
+def _send(w: _Worker, spec: RunSpec) -> None:
+    """Hand ``spec`` to the worker (to a server as a length-prefixed frame, which keeps stdin open)."""
+    w.spec = spec
+    assert w.proc.stdin is not None
+    body = pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL)
     try:
-        os.set_blocking(r, False)
-        assert proc.stdin is not None
-        try:
-            proc.stdin.write(pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL))
-            proc.stdin.close()
-        except OSError:  # the worker died at once; its row says so
-            pass
+        w.proc.stdin.write(SPEC_LEN.pack(len(body)) + body if w.serve else body)
+        w.proc.stdin.flush()
+        if not w.serve:
+            w.proc.stdin.close()
+    except OSError:  # the worker died at once; its row says so
+        pass
+
+
+def _start(spec: RunSpec, serve: bool = False, w: _Worker | None = None) -> _Worker:
+    """Give ``spec`` to the idle server ``w`` (which the caller already tracks and stops), or to a new
+    worker process."""
+    if w is not None:
+        _send(w, spec)
+        return w
+    w = _spawn(serve)
+    try:
+        _send(w, spec)
     except BaseException:  # e.g. Ctrl-C right now: a worker in its own session must not outlive us
-        proc.kill()
-        proc.wait()
-        os.close(r)
+        w.proc.kill()
+        w.proc.wait()
+        _close_stdin(w)
+        os.close(w.fd)
         raise
-    return _Worker(proc, spec, r)
+    return w
 
 
 def _died_row(spec: RunSpec, exitcode: int | None) -> dict[str, Any]:
@@ -151,30 +176,62 @@ def _died_row(spec: RunSpec, exitcode: int | None) -> dict[str, Any]:
             "status": "error", "error": f"worker process died ({how}) before returning a row"}
 
 
-def _finish(w: _Worker) -> dict[str, Any]:
-    os.close(w.fd)
-    code = w.proc.wait()
+def _row(spec: RunSpec, data: bytes, code: int | None) -> dict[str, Any]:
     try:
-        row = pickle.loads(bytes(w.data)) if w.data else None
+        row = pickle.loads(data) if data else None
     except Exception:  # a truncated row: the worker died while writing it
         row = None
-    return row if isinstance(row, dict) else _died_row(w.spec, code)
+    return row if isinstance(row, dict) else _died_row(spec, code)
 
 
-def _local(specs: Iterable[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
-    """At most ``workers`` runs at once, each in a fresh process of its own (libsumo allows one
-    simulation per process).  A worker that dies (segfault, kill -9) costs its own row only.  Workers
-    run in sessions of their own: a terminal's Ctrl-C reaches only the parent, which stops them (see
-    ``run_batch``)."""
+def _finish(w: _Worker) -> dict[str, Any] | None:
+    """The worker closed its end: reap it; the row of the run it still had (None if it had none)."""
+    os.close(w.fd)
+    code = w.proc.wait()
+    if w.spec is None:
+        return None
+    data = bytes(w.data)
+    if w.serve:  # a server that died mid-run: a whole frame cannot be left over (it would have been taken)
+        data = b""
+    return _row(w.spec, data, code)
+
+
+def _take_frame(w: _Worker) -> dict[str, Any] | None:
+    """A server's finished row, once its whole frame has arrived."""
+    if len(w.data) < FRAME.size:
+        return None
+    n, code = FRAME.unpack_from(w.data)
+    if len(w.data) < FRAME.size + n:
+        return None
+    data = bytes(w.data[FRAME.size:FRAME.size + n])
+    del w.data[:FRAME.size + n]
+    assert w.spec is not None
+    row, w.spec = _row(w.spec, data, code), None
+    return row
+
+
+def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
+           said: list[bool] | None = None) -> Iterator[dict[str, Any]]:
+    """At most ``workers`` runs at once, each in a process of its own (libsumo allows one simulation
+    per process): forked from a pre-imported server per worker slot (``fork_server``), or a fresh
+    ``python -m corridor.worker`` per run.  A worker that dies (segfault, kill -9) costs its own row
+    only; a dead server is replaced.  Workers run in sessions of their own: a terminal's Ctrl-C
+    reaches only the parent, which stops them (see ``run_batch``)."""
     for var in WORKER_THREAD_ENV:  # workers inherit the environment and read it at import
         os.environ.setdefault(var, "1")
     queue = iter(specs)
     running: dict[int, _Worker] = {}
     try:
         while True:
-            while len(running) < workers and (spec := next(queue, None)) is not None:
-                w = _start(spec)
+            busy = sum(1 for w in running.values() if w.spec is not None)
+            while busy < workers and (spec := next(queue, None)) is not None:
+                idle = next((w for w in running.values() if w.spec is None), None)
+                w = _start(spec, fork_server, idle)
                 running[w.fd] = w
+                busy += 1
+            if not busy:  # nothing left to run: idle servers get end of file on stdin and exit
+                for w in running.values():
+                    _close_stdin(w)
             if not running:
                 return
             for fd in mp_wait(list(running)):
@@ -182,14 +239,27 @@ def _local(specs: Iterable[RunSpec], workers: int) -> Iterator[dict[str, Any]]:
                 chunk = os.read(fd, 1 << 20)
                 if chunk:
                     w.data += chunk
+                    if w.serve and (row := _take_frame(w)) is not None:
+                        yield row
                     continue
                 del running[fd]  # end of file: the worker is done (or dead)
-                yield _finish(w)
+                if (row := _finish(w)) is not None:
+                    yield row
     except KeyboardInterrupt:
-        _say_stopping(len(running))  # before the workers are stopped: say it at once
+        _say_stopping(sum(1 for w in running.values() if w.spec is not None))  # at once, before stopping
+        if said is not None:
+            said.append(True)
         raise
     finally:
         _stop(running)
+
+
+def _close_stdin(w: _Worker) -> None:
+    if w.proc.stdin is not None and not w.proc.stdin.closed:
+        try:
+            w.proc.stdin.close()
+        except OSError:
+            pass
 
 
 def _say_stopping(n_running: int | None) -> None:
@@ -209,6 +279,7 @@ def _stop(running: dict[int, _Worker]) -> None:
         except subprocess.TimeoutExpired:
             w.proc.kill()
             w.proc.wait()
+        _close_stdin(w)
         os.close(w.fd)
     running.clear()
 
@@ -241,11 +312,12 @@ class BatchInterrupted(KeyboardInterrupt):
 
 def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True,
-              on_row: Callable[[dict[str, Any]], None] | None = None) -> None:
+              on_row: Callable[[dict[str, Any]], None] | None = None, fork_server: bool = True) -> None:
     """Execute runs not yet in the store; each finished row is written at once.
 
     Ctrl-C stops launching at once, terminates the runs in progress, compacts the finished rows and
-    raises ``BatchInterrupted``.  A row that cannot be written (disk full) stops the batch the same
+    raises ``BatchInterrupted``.  ``fork_server=False`` starts a fresh worker process per run (the
+    local executor's former way, kept for ``benchmarks/batch_speedup.py``).  A row that cannot be written (disk full) stops the batch the same
     way with a one-line ``CorridorError``; the rows already written stay (``--resume`` continues)."""
     finished = store.finished()
     total = len(specs)
@@ -257,7 +329,8 @@ def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str 
         order = [s.run_id for s in specs]
         n_todo = sum(1 for s in specs if s.run_id not in finished)
     bar = _progress(total, total - n_todo, progress)
-    rows = _ray(todo, address) if executor == "ray" else _local(todo, max(1, workers))
+    said: list[bool] = []  # the local executor said it is stopping (the interrupt reached it)
+    rows = _ray(todo, address) if executor == "ray" else _local(todo, max(1, workers), fork_server, said)
     written = 0
     try:
         for row in rows:
@@ -274,7 +347,7 @@ def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str 
                 on_row(row)
     except KeyboardInterrupt:
         bar.close()
-        if executor == "ray":
+        if not said:  # Ray, or Ctrl-C while this loop (not the local executor) had control
             _say_stopping(None)
         rows.close()  # terminates the workers (a no-op once the local executor has stopped them)
         store.compact(order)

@@ -60,6 +60,21 @@ class MPCConfig:
     occupancy_eff_length_m: float = 7.0  # vehicle + loop length, converts density to occupancy [m]
     alinea_gain_vph_per_pct: float = 70.0
     alinea_override_frac: float = 0.8
+    # IPOPT's linear solver (95 % of the solve time) and MUMPS's fill-reducing ordering (its ICNTL(7):
+    # 0 AMD, 2 AMF, 4 PORD, 5 METIS, 6 QAMD, 7 MUMPS chooses; None: by problem size, see
+    # ``pivot_order_for``).  METIS halves the beltway MPC's solve time at 8 and 16 interchanges against
+    # 7 and costs time at 4 (benchmarks/mpc_solve.py prints both side by side)
+    linear_solver: str = "mumps"
+    mumps_pivot_order: int | None = None
+    ipopt_extra: tuple[tuple[str, Any], ...] = ()  # further IPOPT options, (name, value) pairs
+    # Opt-in: warm solves (after a successful one) also start from the shifted multipliers, with
+    # IPOPT's warm-start point and a small initial barrier parameter.  On the beltway (4-16
+    # interchanges) about half the iterations and CPU time, TTS equal to 1e-3 veh h; on the Hegyi
+    # benchmark it falls back to ALINEA 3 times (mu_init 1e-2, 1e-1) or never meters (1e-4), so it
+    # is off by default.  Cold solves (the first, after a fallback) use the plain solver either way.
+    warm_start_duals: bool = False
+    warm_mu_init: float = 1e-4
+    warm_bound_push: float = 1e-6  # warm_start_bound_push and warm_start_mult_bound_push
 
 
 @dataclass(frozen=True)
@@ -86,6 +101,8 @@ class _Warm:
 
     z: np.ndarray
     valid: bool = False
+    lam_x: np.ndarray | None = None  # multipliers of the bounds, shifted like z
+    lam_g: np.ndarray | None = None  # multipliers of the constraints, shifted by one control step
 
 
 @dataclass
@@ -117,6 +134,17 @@ class _Layout:
         return np.concatenate([a.ravel(order="F") for a in (x, r, s, sig)])
 
 
+METIS_FROM_VARIABLES = 3000  # NLP size from which METIS orders faster than MUMPS's own choice
+
+
+def pivot_order_for(n_variables: int, configured: int | None) -> int:
+    """MUMPS ordering: the configured one, else METIS (5) for NLPs of ``METIS_FROM_VARIABLES`` decision
+    variables or more (the beltway MPC at 8 interchanges: 3960) and MUMPS's own choice (7) below."""
+    if configured is not None:
+        return configured
+    return 5 if n_variables >= METIS_FROM_VARIABLES else 7
+
+
 def alinea_config_for(net: MetanetNetwork, j: int, cfg: MPCConfig) -> AlineaConfig:
     """ALINEA for origin j: set point at the critical occupancy of the segment it feeds."""
     i = int(net.orig_seg[j])
@@ -142,10 +170,12 @@ class RampMeteringMPC:
         self.queue_idx = np.flatnonzero(np.isfinite(net.orig_storage_veh))
         self.lay = _Layout(net.nx, self.n, net.n_metered, net.n_split, self.cfg.horizon_ctrl_steps,
                            len(self.queue_idx))
+        self.pivot_order = pivot_order_for(int(self.lay.offsets[-1]), self.cfg.mumps_pivot_order)
         self._solver, self._lbz, self._ubz, self._lbg, self._ubg = self._build()
         self._warm = _Warm(z=np.zeros(sum(self.lay.sizes)))
         self.alineas = [Alinea(alinea_config_for(net, int(j), self.cfg)) for j in net.metered_idx]
         self.solve_times_s: list[float] = []
+        self.solve_cpu_s: list[float] = []  # CPU time of each solve (this process) [s]
         self.iter_counts: list[int] = []
         self.n_solves = 0
         self.n_fallbacks = 0
@@ -183,11 +213,25 @@ class RampMeteringMPC:
         opts = {"expand": True, "print_time": False,
                 "ipopt": {"print_level": 0, "sb": "yes", "max_iter": c.max_iter, "tol": c.tol,
                           "acceptable_tol": c.acceptable_tol, "acceptable_iter": c.acceptable_iter,
-                          "max_cpu_time": c.max_cpu_time_s, "max_wall_time": c.max_cpu_time_s}}
-        solver = ca.nlpsol("ramp_mpc", "ipopt", {"x": z, "p": p, "f": cost, "g": ca.vertcat(*g)}, opts)
+                          "max_cpu_time": c.max_cpu_time_s, "max_wall_time": c.max_cpu_time_s,
+                          "linear_solver": c.linear_solver,
+                          **({"mumps_pivot_order": self.pivot_order} if c.linear_solver == "mumps" else {}),
+                          **dict(c.ipopt_extra)}}
+        self._nlp, self._opts, self._warm_solver = {"x": z, "p": p, "f": cost, "g": ca.vertcat(*g)}, opts, None
+        solver = ca.nlpsol("ramp_mpc", "ipopt", self._nlp, opts)
         lbz, ubz = self._bounds()
         lbg, ubg = self._constraint_bounds()
         return solver, lbz, ubz, lbg, ubg
+
+    def _warm_start_solver(self) -> ca.Function:
+        """The same NLP with IPOPT's warm-start options (built at the first warm solve)."""
+        if self._warm_solver is None:
+            c = self.cfg
+            ipopt = {**self._opts["ipopt"], "warm_start_init_point": "yes", "mu_init": c.warm_mu_init,
+                     "warm_start_bound_push": c.warm_bound_push, "warm_start_mult_bound_push": c.warm_bound_push,
+                     **dict(c.ipopt_extra)}
+            self._warm_solver = ca.nlpsol("ramp_mpc_warm", "ipopt", self._nlp, {**self._opts, "ipopt": ipopt})
+        return self._warm_solver
 
     def _change_cost(self, R: ca.SX, S: ca.SX, u_prev: ca.SX) -> ca.SX:
         """Quadratic penalty on control changes, the first against the applied input u_prev."""
@@ -229,7 +273,7 @@ class RampMeteringMPC:
         self._warm = _Warm(z=np.zeros(sum(self.lay.sizes)))
         for a in self.alineas:
             a.reset()
-        self.solve_times_s, self.iter_counts, self.n_solves, self.n_fallbacks = [], [], 0, 0
+        self.solve_times_s, self.solve_cpu_s, self.iter_counts, self.n_solves, self.n_fallbacks = [], [], [], 0, 0
         self.n_suboptimal = 0  # limit hit, improving feasible iterate applied
 
     def forecast_matrix(self, demand_forecast: np.ndarray) -> np.ndarray:
@@ -265,15 +309,17 @@ class RampMeteringMPC:
                          - self.net.orig_storage_veh[self.queue_idx, None], 0.0)
         return np.clip(lay.join(xs, r, s, sig), self._lbz, self._ubz)
 
-    def _store_shifted(self, z: np.ndarray) -> None:
-        """Keep the solution shifted by one control step (last columns repeated) for the next solve."""
+    def _shift_z(self, z: np.ndarray) -> np.ndarray:
+        """A z-shaped vector shifted by one control step (last columns repeated)."""
         xs, r, s, sig = self.lay.split(z)
-        m = self.m
-        xs = np.hstack([xs[:, m:], np.repeat(xs[:, -1:], m, axis=1)])
-        sig = np.hstack([sig[:, m:], np.repeat(sig[:, -1:], m, axis=1)])
-        r = np.hstack([r[:, 1:], r[:, -1:]])
-        s = np.hstack([s[:, 1:], s[:, -1:]])
-        self._warm = _Warm(z=self.lay.join(xs, r, s, sig), valid=True)
+        xs, sig = _shift_cols(xs, self.m), _shift_cols(sig, self.m)
+        return self.lay.join(xs, _shift_cols(r, 1), _shift_cols(s, 1), sig)
+
+    def _store_shifted(self, z: np.ndarray, lam_x: np.ndarray, lam_g: np.ndarray) -> None:
+        """Keep the solution and its multipliers shifted by one control step for the next solve."""
+        g_cols = lam_g.reshape((-1, self.lay.n), order="F")  # one column of rows per model step
+        self._warm = _Warm(z=self._shift_z(z), valid=True, lam_x=self._shift_z(lam_x),
+                           lam_g=_shift_cols(g_cols, self.m).ravel(order="F"))
 
     def solve(self, x0: np.ndarray, demand_forecast: np.ndarray, u_prev: np.ndarray | None = None,
               occupancy_pct: np.ndarray | None = None) -> MPCResult:
@@ -287,15 +333,20 @@ class RampMeteringMPC:
         dmat = self.forecast_matrix(demand_forecast)
         p = np.concatenate([x0, dmat.ravel(order="F"), u_prev])
         z0 = self._initial_guess(x0, dmat, u_prev)
-        t0 = time.perf_counter()
+        args = {"x0": z0, "p": p, "lbx": self._lbz, "ubx": self._ubz, "lbg": self._lbg, "ubg": self._ubg}
+        solver, warm = self._solver, self._warm
+        if self.cfg.warm_start_duals and warm.valid and warm.lam_x is not None:
+            solver, args["lam_x0"], args["lam_g0"] = self._warm_start_solver(), warm.lam_x, warm.lam_g
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
-            sol = self._solver(x0=z0, p=p, lbx=self._lbz, ubx=self._ubz, lbg=self._lbg, ubg=self._ubg)
-            stats = self._solver.stats()
+            sol = solver(**args)
+            stats = solver.stats()
             status = str(stats["return_status"])
             self.iter_counts.append(int(stats.get("iter_count", -1)))
         except RuntimeError as exc:  # IPOPT may raise on evaluation errors
             sol, status = None, f"error: {exc}"
         solve_s = time.perf_counter() - t0
+        self.solve_cpu_s.append(time.process_time() - c0)
         self.n_solves += 1
         self.solve_times_s.append(solve_s)
         if sol is not None and status in _LIMIT_STATUS and self._usable_iterate(sol, x0, dmat, u_prev, p):
@@ -304,7 +355,7 @@ class RampMeteringMPC:
         elif sol is None or status not in _OK_STATUS:
             return self._fallback(x0, dmat[:, 0], occupancy_pct, status, solve_s)
         z = sol["x"].full().ravel()
-        self._store_shifted(z)
+        self._store_shifted(z, sol["lam_x"].full().ravel(), sol["lam_g"].full().ravel())
         _, r, s, _ = self.lay.split(z)
         rates = np.clip(r[:, 0], self.cfg.rate_min, self.cfg.rate_max)
         rates_vph = rates * self.net.orig_cap_vph[self.net.metered_idx]
@@ -350,6 +401,11 @@ class RampMeteringMPC:
         t = np.asarray(self.solve_times_s) if self.solve_times_s else np.array([math.nan])
         return {"p50_s": float(np.percentile(t, 50)), "p95_s": float(np.percentile(t, 95)),
                 "max_s": float(np.max(t)), "solves": float(self.n_solves), "fallbacks": float(self.n_fallbacks)}
+
+
+def _shift_cols(a: np.ndarray, k: int) -> np.ndarray:
+    """Columns k.. of ``a`` followed by its last column k times."""
+    return np.hstack([a[:, k:], np.repeat(a[:, -1:], k, axis=1)])
 
 
 def _origin_demand_now(net: MetanetNetwork, d_now: np.ndarray, split: np.ndarray) -> np.ndarray:

@@ -93,3 +93,35 @@ def test_iteration_limit_applies_a_feasible_improving_iterate_instead_of_falling
     assert np.all((res.rates >= 0.0) & (res.rates <= 1.0))
     strict = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3, max_iter=n_opt - 3, accept_improving_iterate=False))
     assert strict.solve(x0, demand, net.default_u()).fallback
+
+
+def test_mumps_ordering_is_chosen_by_problem_size_unless_configured() -> None:
+    from corridor.controllers.ramp_metering.mpc import METIS_FROM_VARIABLES, pivot_order_for
+
+    assert pivot_order_for(METIS_FROM_VARIABLES - 1, None) == 7  # MUMPS's own choice for small NLPs
+    assert pivot_order_for(METIS_FROM_VARIABLES, None) == 5  # METIS from there on
+    assert pivot_order_for(10**6, 0) == 0  # a configured ordering always wins
+    net, x0, demand = congested_case()
+    small = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3))
+    assert small.pivot_order == 7 and small.lay.offsets[-1] < METIS_FROM_VARIABLES
+    # the ordering changes the pivots' round-off only: the same plan up to IPOPT's tolerance
+    metis = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3, mumps_pivot_order=5))
+    a, b = small.solve(x0, demand, net.default_u()), metis.solve(x0, demand, net.default_u())
+    assert not a.fallback and not b.fallback
+    assert abs(a.predicted_tts - b.predicted_tts) <= 1e-4 * abs(a.predicted_tts)
+    np.testing.assert_allclose(a.u, b.u, atol=1e-3)
+
+
+def test_dual_warm_start_reaches_the_primal_warm_starts_plan() -> None:
+    """Receding steps with the shifted multipliers (opt-in) end at the same plans as without them."""
+    net, x0, demand = congested_case()
+    plain = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3))
+    duals = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3, warm_start_duals=True))
+    u_a = u_b = net.default_u()
+    for _ in range(3):
+        a, b = plain.solve(x0, demand, u_a), duals.solve(x0, demand, u_b)
+        assert not a.fallback and not b.fallback
+        assert abs(a.predicted_tts - b.predicted_tts) <= 1e-4 * abs(a.predicted_tts)
+        np.testing.assert_allclose(a.u, b.u, atol=1e-3)
+        u_a, u_b = a.u, b.u
+    assert duals._warm.lam_x is not None and duals._warm_solver is not None  # the warm solver was used
