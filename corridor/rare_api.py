@@ -70,7 +70,9 @@ def estimate(scenario: str | Path, event: str, *, method: str = "ce", budget: in
                                 "for the adaptive methods")
     settings = {"event": ev.text, "method": method, "budget": budget, "level": str(lvl) if lvl else None,
                 "seed": first, "variant": var}
-    bdir = _open(sc, raw, path, out_dir, sets, settings, resume, overwrite)
+    # naive is the plain batch: like --runs, a larger --budget extends it on --resume
+    fixed = {k: v for k, v in settings.items() if not (method == "naive" and k == "budget")}
+    bdir = _open(sc, raw, path, out_dir, sets, fixed, resume, overwrite)
     try:
         st = Setup(sc, raw, path, out_dir, var, first, ev, lvl or parse_level("collisions"))
         if method == "naive":
