@@ -86,8 +86,10 @@ def estimate(scenario: str | Path, event: str, *, method: str = "ce", budget: in
         data = {"kind": "estimate", "scenario": sc.name, "source": str(path), **settings, "sets": list(sets),
                 "inputs": sorted(sc.randomize), "result": res, "likely_failures": likely_failures(st, rows, list(sets))}
         write_json(out_dir / "estimate.json", data)
-        if method != "naive":
-            df = write_rows(out_dir, stages)
+        if report or method != "naive":
+            import pandas as pd
+
+            df = write_rows(out_dir, stages) if method != "naive" else pd.read_parquet(out_dir / "runs.parquet")
             if report:
                 from corridor.reports import write_reports
 
