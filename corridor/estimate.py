@@ -104,6 +104,10 @@ def run_stage(st: Setup, stage: int, z: np.ndarray, tag: str, executor: str, wor
     df = store.compact([s.run_id for s in specs])
     by_id = {r["run_id"]: r for r in df.to_dict("records")}
     rows = [by_id.get(s.run_id, {"run_id": s.run_id, "status": "error", "error": "no row"}) for s in specs]
+    for spec, r in zip(specs, rows):  # a resumed stage must hold this stage's runs, not another estimate's
+        if r.get("status") == "ok" and any(r.get(f"draw.{p}") != v for p, v in spec.draws.items()):
+            raise CorridorError(f"{store.dir}: run {r['run_id']} was drawn with other inputs than this estimate "
+                                "asks for (a folder of another estimate?); use --overwrite or another --out")
     for r in rows:
         if r.get("status") != "ok":
             raise EstimateRunError(f"run {r['run_id']} failed: {r.get('error')}; an estimate needs every run: "
