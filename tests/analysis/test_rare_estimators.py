@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 from corridor.analysis.rare.ce import CrossEntropy
 from corridor.analysis.rare.splitting import SubsetSimulation
 from corridor.cli import main
+from corridor.errors import CorridorError
 from corridor.rare_api import estimate, falsify
 from tests.corridor.rare_data import GAUSS, TRUTH
 
@@ -62,6 +64,12 @@ def test_determinism_and_resume(tmp_path: Path) -> None:
     (last / "runs.parquet").unlink()
     c = _ce(tmp_path, budget=200, seed=5, resume=True)
     assert c["result"]["estimate"] == a["result"]["estimate"]
+    # stage rows of another estimate (another seed) are refused on resume, never mixed in
+    _ce(tmp_path, budget=200, seed=6)
+    shutil.rmtree(tmp_path / "ce6" / "stages" / "000")
+    shutil.copytree(tmp_path / "ce5" / "stages" / "000", tmp_path / "ce6" / "stages" / "000")
+    with pytest.raises(CorridorError, match="other inputs"):
+        _ce(tmp_path, budget=200, seed=6, resume=True)
     with pytest.raises(Exception, match="settings differ"):
         estimate(GAUSS, "nmac > 0", method="splitting", budget=200, level="sep_min_h_m", seed=5,
                  out=tmp_path / "ce5", executor="inline", resume=True)
