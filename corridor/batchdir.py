@@ -33,7 +33,8 @@ from corridor.errors import CorridorError
 MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
 # What a batch writes, and so what --overwrite may delete (nothing else in the folder is touched).
-OWNED = ("parts", "signals", "runs.parquet", "report.html", MANIFEST, ".runs.parquet.tmp")
+OWNED = ("parts", "signals", "runs.parquet", "report.html", MANIFEST, ".runs.parquet.tmp",
+         "stages", "estimate.json", "falsify.json", "counterexample.yaml")  # the last four: --estimate/--falsify
 
 
 def scenario_hash(raw: dict[str, Any]) -> str:

@@ -24,6 +24,10 @@ examples:
   run_scenario scenarios/merging.yaml --rerun out.rrd --out results/rec
                                                            also record the first run for the Rerun viewer
   run_scenario scenarios/merging.yaml --executor ray --out results/ray      a private local Ray
+  run_scenario uav_encounter --estimate 'nmac > 0' --level min_sep_h_m --method ce --budget 1000
+                                                           P(NMAC) by importance sampling (see "Safety statistics")
+  run_scenario overtaking --falsify safety_space --budget 200
+                                                           search for a violation; writes DIR/counterexample.yaml
 
 Output folders: a batch writes only inside DIR (--out, default results/<name>) and the --rerun file
 you name: batch.json (what defines the batch), parts/ (one file per finished run), runs.parquet,
@@ -77,11 +81,33 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-report", action="store_true", help="skip report.html")
     p.add_argument("--quiet", action="store_true", help="no progress bar and no summary table")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
+    r = p.add_argument_group("safety statistics (a batch of adaptive stages instead of --runs)")
+    r.add_argument("--estimate", default=None, metavar="EVENT",
+                   help="estimate P(EVENT): an expression over a run's row ('collisions > 0', 'nmac > 0 or "
+                        "min_sep_h_m < 10') or spec:NAME (robustness < 0); default DIR results/<name>-<method>")
+    r.add_argument("--method", choices=["naive", "ce", "splitting"], default="ce",
+                   help="naive: plain Monte Carlo (Clopper-Pearson); ce: cross-entropy importance sampling "
+                        "(default); splitting: subset simulation")
+    r.add_argument("--budget", type=int, default=None, metavar="N", help="runs the estimate or search may use")
+    r.add_argument("--level", default=None, metavar="COLUMN",
+                   help="level function of ce/splitting: a row column, smaller = closer to failure ('-COL': "
+                        "larger is); default: the spec's robustness, or a - b of a single comparison 'a < b'")
+    r.add_argument("--falsify", default=None, metavar="SPEC",
+                   help="minimise SPEC's robustness over the randomized inputs (CMA-ES); writes "
+                        "DIR/counterexample.yaml on a violation; default DIR results/<name>-falsify")
     args = p.parse_args(argv)
     if args.runs < 1:
         p.error("--runs must be >= 1")
     if args.workers < 1:
         p.error("--workers must be >= 1")
+    if args.estimate is not None and args.falsify is not None:
+        p.error("--estimate and --falsify exclude each other")
+    if (args.estimate is not None or args.falsify is not None) != (args.budget is not None):
+        p.error("--budget N goes with --estimate or --falsify (and they need it)")
+    if (args.estimate is not None or args.falsify is not None) and (args.runs != 1 or args.rerun):
+        p.error("--runs and --rerun do not apply to --estimate/--falsify (the method chooses the runs)")
+    if args.budget is not None and args.budget < 1:
+        p.error("--budget must be >= 1")
     return args
 
 
@@ -127,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
+    if args.estimate is not None or args.falsify is not None:
+        return _rare(args)
     from corridor.api import run
 
     res = run(args.scenario, runs=args.runs, seed=args.seed, sets=args.sets, variants=args.variant,
@@ -146,6 +174,33 @@ def _main(args: argparse.Namespace) -> int:
     for _, r in errors.head(5).iterrows():
         print(f"run {r['run_id']} failed: {r['error']}", file=sys.stderr)
     return 1 if len(errors) else 0
+
+
+
+def _rare(args: argparse.Namespace) -> int:
+    from corridor import rare_api
+    from corridor.estimate import EstimateRunError
+
+    variant = args.variant[0] if args.variant else None
+    if len(args.variant) > 1:
+        raise CorridorError("--estimate/--falsify run one sweep variant: give at most one --variant")
+    common = dict(seed=args.seed, sets=args.sets, variant=variant, out=args.out, resume=args.resume,
+                  overwrite=args.overwrite, executor=args.executor, workers=args.workers, address=args.address,
+                  progress=not args.quiet, report=not args.no_report)
+    try:
+        if args.falsify is not None:
+            data = rare_api.falsify(args.scenario, args.falsify, budget=args.budget, **common)
+        else:
+            data = rare_api.estimate(args.scenario, args.estimate, method=args.method, budget=args.budget,
+                                     level=args.level, **common)
+    except EstimateRunError as exc:
+        print(f"run_scenario: {exc}", file=sys.stderr)
+        return 1
+    if not args.quiet:
+        from corridor.estimate import print_rare
+
+        print_rare(data)
+    return 0
 
 
 if __name__ == "__main__":

@@ -4,9 +4,10 @@ commanded.  Tests drive the engine with it (Scenic keeps a dummy simulator for t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar, Literal
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Backend, RunContext
 from corridor.snapshot import Kind, Role, WorldSnapshot
@@ -45,3 +46,34 @@ class NullBackend(Backend):
             ids=self.ids, kind=np.full(n, self.kind, dtype=np.int8), role=np.full(n, Role.OTHER, dtype=np.int8),
             position=self.position.copy(), velocity=self.velocity.copy(),
             heading=np.arctan2(self.velocity[:, 1], self.velocity[:, 0]), size=np.tile([4.5, 1.8, 1.5], (n, 1)))
+
+
+class NullVehicle(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    x_m: float = 0.0  # [m] ENU start position
+    y_m: float = 0.0  # [m]
+    z_m: float = 0.0  # [m]
+    vx_mps: float = 0.0  # [m/s] ENU velocity
+    vy_mps: float = 0.0  # [m/s]
+    vz_mps: float = 0.0  # [m/s]
+
+
+class NullFleet(NullBackend):
+    """The null backend as a scenario component (registry name ``point_mass``): point masses at constant
+    velocity, declared in the YAML.  Scenarios whose outcome is known in closed form (the analytic
+    checks of the rare-event estimators) run on it without any simulator library."""
+
+    period_source: ClassVar[str | None] = "dt"
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+        vehicles: dict[str, NullVehicle] = Field(min_length=1)
+        kind: Literal["car", "truck", "uav", "aircraft", "obstacle"] = "car"
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        ids = list(params.vehicles)
+        pos = np.array([[v.x_m, v.y_m, v.z_m] for v in params.vehicles.values()])
+        vel = np.array([[v.vx_mps, v.vy_mps, v.vz_mps] for v in params.vehicles.values()])
+        super().__init__(name, ids, pos, vel, scenario.dt, Kind[params.kind.upper()])

@@ -81,15 +81,22 @@ class SpecDecl(Strict):
 
 
 class Distribution(Strict):
+    """One ``randomize`` entry: exactly one kind.  ``draw`` is the nominal sampler (the numbers of the
+    first four kinds are those corridor always drew); ``corridor.distributions`` gives every kind a
+    density and a map from the standard normal, for importance sampling and splitting."""
+
     uniform: tuple[float, float] | None = None
     normal: tuple[float, float] | None = None  # (mean, std)
     integers: tuple[int, int] | None = None  # inclusive
     choice: list[Any] | None = None
+    truncnormal: tuple[float, float, float, float] | None = None  # (mean, std, low, high)
+    lognormal: tuple[float, float] | None = None  # (mu, sigma) of log(x): median exp(mu)
+    beta: tuple[float, float, float, float] | None = None  # (a, b, low, high): low + (high - low) Beta(a, b)
 
     @model_validator(mode="after")
     def _exactly_one(self) -> Distribution:
-        if sum(v is not None for v in (self.uniform, self.normal, self.integers, self.choice)) != 1:
-            raise ValueError("give exactly one of uniform, normal, integers, choice")
+        if sum(getattr(self, k) is not None for k in KINDS) != 1:
+            raise ValueError(f"give exactly one of {', '.join(KINDS)}")
         if self.uniform is not None:
             lo, hi = self.uniform
             if not lo <= hi or not math.isfinite(hi - lo):
@@ -103,7 +110,23 @@ class Distribution(Strict):
                                  f"got [{clip(lo, 24)[1:-1]}, {clip(hi, 24)[1:-1]}]")
         if self.choice is not None and not 1 <= len(self.choice) <= 10_000:
             raise ValueError(f"choice: needs 1 to 10000 options, got {len(self.choice)}")
+        if self.truncnormal is not None:
+            mean, std, lo, hi = self.truncnormal
+            if not (0 < std < 1e300 and lo < hi and math.isfinite(hi - lo)):
+                raise ValueError(f"truncnormal: [mean, std, low, high] needs std > 0 and finite low < high, "
+                                 f"got [{mean:.6g}, {std:.6g}, {lo:.6g}, {hi:.6g}]")
+        if self.lognormal is not None and not 0 < self.lognormal[1] < 1e3:
+            raise ValueError(f"lognormal: [mu, sigma] needs 0 < sigma < 1000, got sigma {self.lognormal[1]:.6g}")
+        if self.beta is not None:
+            a, b, lo, hi = self.beta
+            if not (0 < a < 1e6 and 0 < b < 1e6 and lo < hi and math.isfinite(hi - lo)):
+                raise ValueError(f"beta: [a, b, low, high] needs a, b > 0 and finite low < high, "
+                                 f"got [{a:.6g}, {b:.6g}, {lo:.6g}, {hi:.6g}]")
         return self
+
+    @property
+    def kind(self) -> str:
+        return next(k for k in KINDS if getattr(self, k) is not None)
 
     def extremes(self) -> list[Any]:
         """Values a draw can take at the edges (checked against the schema at load)."""
@@ -113,6 +136,12 @@ class Distribution(Strict):
             return [self.normal[0]]
         if self.integers is not None:
             return list(self.integers)
+        if self.truncnormal is not None:
+            return list(self.truncnormal[2:])
+        if self.lognormal is not None:
+            return [math.exp(self.lognormal[0])]
+        if self.beta is not None:
+            return list(self.beta[2:])
         return list(self.choice[:20])
 
     def draw(self, rng: Any) -> Any:
@@ -122,7 +151,14 @@ class Distribution(Strict):
             return float(rng.normal(*self.normal))
         if self.integers is not None:
             return int(rng.integers(self.integers[0], self.integers[1] + 1))
-        return self.choice[int(rng.integers(len(self.choice)))]
+        if self.choice is not None:
+            return self.choice[int(rng.integers(len(self.choice)))]
+        from corridor.distributions import frozen  # scipy-backed kinds: sampled by their own rvs
+
+        return float(frozen(self).rvs(random_state=rng))
+
+
+KINDS = ("uniform", "normal", "integers", "choice", "truncnormal", "lognormal", "beta")
 
 
 class Origin(Strict):

@@ -1,0 +1,167 @@
+"""The failure event and the level function of a rare-event estimate (``--estimate``, ``--level``).
+
+``EVENT`` is either ``spec:NAME`` (failure: the spec's robustness ``spec.NAME.space`` is below 0) or a
+boolean expression over the columns of a run's row: comparisons of columns and numbers joined with
+``and``, ``or``, ``not`` and parentheses, e.g. ``collisions > 0``, ``nmac > 0 or min_sep_h_m < 10``.
+Dotted column names are allowed (``spec.safety.space < -0.5``).  The expression is parsed into a
+small tree of these node kinds only (Python's ``ast`` as the parser, never ``eval``).
+
+The level function (``--level COL``: smaller is closer to failure, ``--level=-COL``: larger is) guides
+the adaptive methods; by default it is the spec's robustness, or ``a - b`` of a single comparison.
+"""
+
+from __future__ import annotations
+
+import ast
+import math
+import operator
+from dataclasses import dataclass
+from typing import Any
+
+from corridor.errors import CorridorError, clip
+
+_CMP = {ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE: operator.ge,
+        ast.Eq: operator.eq, ast.NotEq: operator.ne}
+
+
+def _column(node: ast.AST) -> str | None:
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        head = _column(node.value)
+        return None if head is None else f"{head}.{node.attr}"
+    return None
+
+
+def _number(node: ast.AST) -> float | None:
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        inner = _number(node.operand)
+        return None if inner is None else -inner
+    if isinstance(node, ast.Constant) and isinstance(node.value, int | float) and not isinstance(node.value, bool):
+        return float(node.value)
+    return None
+
+
+@dataclass(frozen=True)
+class Event:
+    """A parsed failure event; ``fails(row)`` says whether a run's row is a failure."""
+
+    text: str
+    tree: ast.Expression
+    columns: tuple[str, ...]
+    spec: str | None = None
+
+    def fails(self, row: dict[str, Any]) -> bool:
+        if self.spec is not None:  # robustness below 0 (NaN: never judged satisfied, so a failure)
+            value = self._value(ast.Name(self.columns[0]), row)
+            return not value >= 0
+        return bool(self._eval(self.tree.body, row))
+
+    def _eval(self, node: ast.AST, row: dict[str, Any]) -> Any:
+        if isinstance(node, ast.BoolOp):
+            vals = [self._eval(v, row) for v in node.values]
+            return all(vals) if isinstance(node.op, ast.And) else any(vals)
+        if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+            return not self._eval(node.operand, row)
+        if isinstance(node, ast.Compare):
+            left = self._value(node.left, row)
+            for op, right_node in zip(node.ops, node.comparators, strict=True):
+                right = self._value(right_node, row)
+                if not _CMP[type(op)](left, right):
+                    return False
+                left = right
+            return True
+        return bool(self._value(node, row))
+
+    def _value(self, node: ast.AST, row: dict[str, Any]) -> float:
+        num = _number(node)
+        if num is not None:
+            return num
+        col = _column(node)
+        value = row.get(col, math.nan) if col is not None else math.nan
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            return math.nan
+
+    def default_level(self) -> Level | None:
+        """``spec.NAME.space`` for a spec; ``a - b`` for a single comparison ``a < b`` (``b - a`` for ``>``)."""
+        if self.spec is not None:
+            return Level(f"spec.{self.spec}.space", 1.0)
+        body = self.tree.body
+        if isinstance(body, ast.Compare) and len(body.ops) == 1 and type(body.ops[0]) in (ast.Lt, ast.LtE, ast.Gt, ast.GtE):
+            col, num = _column(body.left), _number(body.comparators[0])
+            if col is not None and num is not None:
+                sign = 1.0 if isinstance(body.ops[0], ast.Lt | ast.LtE) else -1.0
+                return Level(col, sign, num)
+        return None
+
+
+@dataclass(frozen=True)
+class Level:
+    """``sign * (row[column] - offset)``: smaller is closer to failure."""
+
+    column: str
+    sign: float = 1.0
+    offset: float = 0.0
+
+    def of(self, row: dict[str, Any]) -> float:
+        try:
+            return self.sign * (float(row.get(self.column, math.nan)) - self.offset)
+        except (TypeError, ValueError):
+            return math.nan
+
+    def __str__(self) -> str:
+        name = self.column if self.sign > 0 else f"-{self.column}"
+        return name if not self.offset else f"{name} {'-' if self.sign > 0 else '+'} {self.offset:g}"
+
+
+def parse_level(text: str) -> Level:
+    col = text.strip().removeprefix("-")
+    if not col or not all(p.isidentifier() for p in col.split(".")):
+        raise CorridorError(f"--level {clip(text)}: expected a column name (e.g. min_ttc_s, spec.safety.space), "
+                            "'-' in front when larger is closer to failure")
+    return Level(col, -1.0 if text.strip().startswith("-") else 1.0)
+
+
+def _check(node: ast.AST, text: str, cols: set[str]) -> None:
+    """Refuse every node kind but the allowed ones; collect the column names."""
+    if isinstance(node, ast.BoolOp):
+        for v in node.values:
+            _check(v, text, cols)
+    elif isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.Not):
+        _check(node.operand, text, cols)
+    elif isinstance(node, ast.Compare):
+        for op in node.ops:
+            if type(op) not in _CMP:
+                raise CorridorError(f"--estimate {clip(text)}: only <, <=, >, >=, ==, != compare")
+        for side in (node.left, *node.comparators):
+            if _number(side) is None and _column(side) is None:
+                raise CorridorError(f"--estimate {clip(text)}: compare column names and numbers only")
+            if (col := _column(side)) is not None:
+                cols.add(col)
+    elif (col := _column(node)) is not None:
+        cols.add(col)
+    else:
+        raise CorridorError(f"--estimate {clip(text)}: expected comparisons such as 'collisions > 0' "
+                            "joined by and/or/not, or spec:NAME")
+
+
+def parse_event(text: str, spec_names: list[str] | None = None) -> Event:
+    """Parse ``EVENT``; a one-line ``CorridorError`` when it is not of the allowed form."""
+    text = text.strip()
+    if text.startswith("spec:"):
+        name = text[5:].strip()
+        if spec_names is not None and name not in spec_names:
+            known = ", ".join(spec_names) or "none declared"
+            raise CorridorError(f"--estimate {clip(text)}: no spec {clip(name)} in the scenario (specs: {known})")
+        return Event(text, ast.Expression(ast.Constant(False)), (f"spec.{name}.space",), name)
+    if not text or len(text) > 500:
+        raise CorridorError("--estimate: expected an expression such as 'collisions > 0', or spec:NAME")
+    try:
+        tree = ast.parse(text, mode="eval")
+    except SyntaxError:
+        raise CorridorError(f"--estimate {clip(text)}: not an expression such as 'collisions > 0'") from None
+    cols: set[str] = set()
+    _check(tree.body, text, cols)
+    return Event(text, tree, tuple(sorted(cols)))
