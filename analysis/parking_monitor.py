@@ -1,0 +1,102 @@
+"""Parking measurements from the snapshot: pose error at the goal, clearance, manoeuvre time, direction
+changes.  A DETECT-phase monitor (``parking``) that reads only the snapshot: the ego's row and the
+lot's typed landmarks (a ``ParkingLot`` in the road frame: the goal bay's centre and heading), so any
+controller in the ego's place is judged the same way.
+
+* ``success``: the ego's box centre within ``pos_tol_m`` of the goal bay's centre, its heading within
+  ``heading_tol_rad`` of the bay's (either direction with ``either_direction``), standing
+  (``|v| < stop_mps``) at the end of the run, and no collision (the collision monitor's count is not
+  visible here: ``success`` is pose-based; the report shows both);
+* ``pos_err_m`` / ``heading_err_rad``: the final pose error;
+* ``min_clearance_m``: the smallest distance of the ego's box to any other entity's box over the run;
+* ``manoeuvre_time_s``: from the first motion (``|v| > stop_mps``) to the last;
+* ``direction_changes``: sign changes of the ego's signed speed (counted when ``|v| > stop_mps``).
+
+Signals: ``clearance`` [m], ``speed`` [m/s] (signed) and ``pos_err`` [m] each period.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.controllers.parking.clearance import box_polygons, clearances
+from corridor.engine import Component, Phase, RunContext
+
+
+class ParkingMonitor(Component):
+    phase = Phase.DETECT
+    period_source: ClassVar[str | None] = "p.period_s"
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+        ego: str = "ego"
+        period_s: float = Field(0.1, gt=0.0)  # [s]
+        pos_tol_m: float = Field(0.3, gt=0.0)  # [m]
+        heading_tol_rad: float = Field(0.05, gt=0.0)  # [rad]
+        either_direction: bool = False  # nose-in and reversed-in both count
+        stop_mps: float = Field(0.05, gt=0.0)  # [m/s]
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.p = params
+        self.min_clear = math.inf
+        self.first_move = math.nan
+        self.last_move = math.nan
+        self.changes = 0
+        self._dir = 0
+        self.final: tuple[float, float, float] | None = None  # (pos err, heading err, v)
+
+    def tick(self, ctx: RunContext) -> None:
+        s = ctx.snapshot
+        lot = s.road.tables.landmarks if s.road is not None else None
+        rows = np.flatnonzero(s.ids == self.p.ego)
+        if lot is None or not hasattr(lot, "goal_centre") or not len(rows):
+            return
+        k = int(rows[0])
+        h = float(s.heading[k])
+        v = float(s.velocity[k, :2] @ np.array([math.cos(h), math.sin(h)]))
+        others = np.flatnonzero(s.ids != self.p.ego)
+        if len(others):
+            me = box_polygons(s.position[k, :2], np.array([h]), s.size[k:k + 1, 0], s.size[k:k + 1, 1])[0]
+            polys = box_polygons(s.position[others, :2], s.heading[others], s.size[others, 0], s.size[others, 1])
+            clear = float(clearances(me, polys).min())
+            self.min_clear = min(self.min_clear, clear)
+            ctx.signals.record("clearance", ctx.t, clear)
+        if abs(v) > self.p.stop_mps:
+            if math.isnan(self.first_move):
+                self.first_move = ctx.t
+            self.last_move = ctx.t
+            d = 1 if v > 0 else -1
+            if self._dir and d != self._dir:
+                self.changes += 1
+            self._dir = d
+        pos_err = float(np.hypot(*(s.position[k, :2] - lot.goal_centre)))
+        dh = (h - lot.goal_heading + math.pi) % (2 * math.pi) - math.pi
+        if self.p.either_direction:
+            dh = min(abs(dh), math.pi - abs(dh))
+        self.final = (pos_err, abs(dh), v)
+        ctx.signals.record("speed", ctx.t, v)
+        ctx.signals.record("pos_err", ctx.t, pos_err)
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        if self.final is None:
+            return {c: math.nan for c in self.metric_columns()}
+        pos, head, v = self.final
+        ok = pos <= self.p.pos_tol_m and head <= self.p.heading_tol_rad and abs(v) < self.p.stop_mps
+        return {
+            "success": int(ok),
+            "pos_err_m": pos,
+            "heading_err_rad": head,
+            "min_clearance_m": self.min_clear if math.isfinite(self.min_clear) else math.nan,
+            "manoeuvre_time_s": self.last_move - self.first_move if not math.isnan(self.first_move) else 0.0,
+            "direction_changes": self.changes,
+        }
+
+    def metric_columns(self) -> frozenset[str]:
+        return frozenset({"success", "pos_err_m", "heading_err_rad", "min_clearance_m", "manoeuvre_time_s",
+                          "direction_changes"})
