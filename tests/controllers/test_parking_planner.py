@@ -1,0 +1,70 @@
+"""The parking planner on the four given TPCAP cases, far from the origin, and on infeasible cases."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corridor.controllers.parking.case import Case, read_case
+from corridor.controllers.parking.check import check
+from corridor.controllers.parking.planner import NoSolution, Trajectory, plan
+
+DATA = Path(__file__).resolve().parents[1] / "data" / "tpcap"
+
+
+def solve(case: Case, **kw: float) -> Trajectory:
+    return plan(case.start, case.goal, case.obstacles, **kw)
+
+
+@pytest.mark.parametrize("name", ["Case1", "Case2", "Case10", "Case17"])
+def test_given_cases_pass_the_independent_check(name: str) -> None:
+    case = read_case(DATA / f"{name}.csv")
+    tr = solve(case)
+    assert check(case, tr.as_array()) == []
+    assert np.max(np.diff(tr.t)) <= 0.1 + 1e-9
+    assert tr.length_m() > np.hypot(case.goal[0] - case.start[0], case.goal[1] - case.start[1]) - 1e-6
+    assert tr.direction_changes() >= 0 and tr.search_time_s > 0
+
+
+def test_a_case_far_from_the_origin_solves_identically() -> None:
+    case = read_case(DATA / "Case17.csv")
+    shift = np.array([1e9, -1e9])
+    far = Case(start=(case.start[0] + shift[0], case.start[1] + shift[1], case.start[2]),
+               goal=(case.goal[0] + shift[0], case.goal[1] + shift[1], case.goal[2]),
+               obstacles=tuple(p + shift for p in case.obstacles))
+    near, away = solve(case), solve(far)
+    assert len(near.t) == len(away.t)
+    np.testing.assert_allclose(away.x - shift[0], near.x, atol=1e-5)
+    np.testing.assert_allclose(away.y - shift[1], near.y, atol=1e-5)
+    np.testing.assert_allclose(away.theta, near.theta, atol=1e-6)
+    assert check(far, away.as_array()) == []
+
+
+def walls_around(x: float, y: float, half: float = 6.0, thick: float = 0.5) -> list[np.ndarray]:
+    def box(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
+        return np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    return [box(x - half, y - half, x + half, y - half + thick), box(x - half, y + half - thick, x + half, y + half),
+            box(x - half, y - half, x - half + thick, y + half), box(x + half - thick, y - half, x + half, y + half)]
+
+
+def test_goal_inside_an_obstacle_has_no_solution() -> None:
+    block = np.array([[18.0, -2.0], [24.0, -2.0], [24.0, 2.0], [18.0, 2.0]])
+    with pytest.raises(NoSolution, match="goal pose collides") as err:
+        plan((0.0, 0.0, 0.0), (20.0, 0.0, 0.0), [block], time_limit_s=5.0)
+    assert "\n" not in str(err.value)
+
+
+def test_enclosed_goal_has_no_solution() -> None:
+    with pytest.raises(NoSolution) as err:
+        plan((0.0, 0.0, 0.0), (20.0, 0.0, 0.0), walls_around(20.0, 0.0), time_limit_s=5.0)
+    assert "\n" not in str(err.value) and "no" in str(err.value)
+
+
+def test_trajectory_counts_direction_changes_and_length() -> None:
+    t = np.arange(5) * 0.1
+    v = np.array([1.0, 0.0, -1.0, 0.0, 1.0])
+    tr = Trajectory(t, np.array([0, 3, 3, 3, 7.0]), np.array([0, 4, 4, 4, 4.0]), t * 0, v, t * 0, t * 0, 0.1, 0.2)
+    assert tr.direction_changes() == 2
+    assert tr.length_m() == pytest.approx(9.0)
