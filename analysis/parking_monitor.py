@@ -10,7 +10,11 @@ controller in the ego's place is judged the same way.
 * ``pos_err_m`` / ``heading_err_rad``: the final pose error;
 * ``min_clearance_m``: the smallest distance of the ego's box to any other entity's box over the run;
 * ``manoeuvre_time_s``: from the first motion (``|v| > stop_mps``) to the last;
-* ``direction_changes``: sign changes of the ego's signed speed (counted when ``|v| > stop_mps``).
+* ``slot_precision`` / ``slot_recall``: the slots a controller reported (events of kind ``slots``: per
+  row its line, the observed extent and the detected intervals) against the true free intervals
+  between the parked cars of the first snapshot (``spot_detection.true_slots``, same extent);
+* ``direction_changes``: sign changes of the ego's signed speed (counted when ``|v| > direction_mps``,
+  so the creeping of a final correction is not counted).
 
 Signals: ``clearance`` [m], ``speed`` [m/s] (signed) and ``pos_err`` [m] each period.
 """
@@ -24,7 +28,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.parking.clearance import box_polygons, clearances
+from corridor.controllers.parking.spot_detection import Slot, match_slots, true_slots
 from corridor.engine import Component, Phase, RunContext
+from corridor.snapshot import Kind
 
 
 class ParkingMonitor(Component):
@@ -39,7 +45,8 @@ class ParkingMonitor(Component):
         pos_tol_m: float = Field(0.3, gt=0.0)  # [m]
         heading_tol_rad: float = Field(0.05, gt=0.0)  # [rad]
         either_direction: bool = False  # nose-in and reversed-in both count
-        stop_mps: float = Field(0.05, gt=0.0)  # [m/s]
+        stop_mps: float = Field(0.05, gt=0.0)  # [m/s] moving above this
+        direction_mps: float = Field(0.2, gt=0.0)  # [m/s] a direction of travel counts above this
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -50,6 +57,7 @@ class ParkingMonitor(Component):
         self.changes = 0
         self._dir = 0
         self.final: tuple[float, float, float] | None = None  # (pos err, heading err, v)
+        self.parked: np.ndarray | None = None  # (m, 4, 2) the parked cars of the first snapshot
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -58,6 +66,9 @@ class ParkingMonitor(Component):
         if lot is None or not hasattr(lot, "goal_centre") or not len(rows):
             return
         k = int(rows[0])
+        if self.parked is None:
+            cars = np.flatnonzero((s.ids != self.p.ego) & (s.kind == Kind.CAR))
+            self.parked = box_polygons(s.position[cars, :2], s.heading[cars], s.size[cars, 0], s.size[cars, 1])
         h = float(s.heading[k])
         v = float(s.velocity[k, :2] @ np.array([math.cos(h), math.sin(h)]))
         others = np.flatnonzero(s.ids != self.p.ego)
@@ -71,6 +82,7 @@ class ParkingMonitor(Component):
             if math.isnan(self.first_move):
                 self.first_move = ctx.t
             self.last_move = ctx.t
+        if abs(v) > self.p.direction_mps:
             d = 1 if v > 0 else -1
             if self._dir and d != self._dir:
                 self.changes += 1
@@ -82,6 +94,20 @@ class ParkingMonitor(Component):
         self.final = (pos_err, abs(dh), v)
         ctx.signals.record("speed", ctx.t, v)
         ctx.signals.record("pos_err", ctx.t, pos_err)
+
+    def _score_slots(self, ctx: RunContext) -> dict[str, Any]:
+        tp = n_found = n_true = 0
+        for ev in ctx.events.of_kind("slots"):
+            d = ev.data
+            if d.get("extent") is None or self.parked is None:
+                continue
+            truth = true_slots(self.parked, np.asarray(d["origin"]), np.asarray(d["direction"]), int(d["side"]),
+                               tuple(d["band_m"]), tuple(d["extent"]), float(d["need_m"]))
+            a, b, c = match_slots([Slot(*x) for x in d["slots"]], truth)
+            tp, n_found, n_true = tp + a, n_found + b, n_true + c
+        return {"slot_precision": tp / n_found if n_found else math.nan,
+                "slot_recall": tp / n_true if n_true else math.nan,
+                "slots_detected": n_found, "slots_true": n_true}
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         if self.final is None:
@@ -95,8 +121,9 @@ class ParkingMonitor(Component):
             "min_clearance_m": self.min_clear if math.isfinite(self.min_clear) else math.nan,
             "manoeuvre_time_s": self.last_move - self.first_move if not math.isnan(self.first_move) else 0.0,
             "direction_changes": self.changes,
+            **self._score_slots(ctx),
         }
 
     def metric_columns(self) -> frozenset[str]:
         return frozenset({"success", "pos_err_m", "heading_err_rad", "min_clearance_m", "manoeuvre_time_s",
-                          "direction_changes"})
+                          "direction_changes", "slot_precision", "slot_recall", "slots_detected", "slots_true"})

@@ -89,6 +89,11 @@ class ParkingLot:
     def bay_polygon(self, k: int) -> np.ndarray:
         return box_corners(self.bay_centres[k], float(self.bay_heading[k]), self.bay_length_m, self.bay_width_m)
 
+    def outlines(self) -> dict[str, list[np.ndarray]]:
+        """Polygons to draw (a recorder's view of the lot): every bay, the goal bay, the walls."""
+        bays = [self.bay_polygon(k) for k in range(len(self.bay_centres))]
+        return {"bays": bays, "goal_bay": [bays[self.goal_bay]], "walls": list(self.walls)}
+
     def bay_of(self, xy: np.ndarray) -> np.ndarray:
         """Bay index per point (-1: none), by the bays' rectangles."""
         xy = np.atleast_2d(xy)
@@ -117,7 +122,7 @@ class HighwayEnvParking(Backend):
 
         vehicles_count: int = Field(10, ge=0, le=26)  # parked cars (highway-env's ``vehicles_count``)
         policy_frequency_hz: float = Field(10.0, gt=0.0, le=100.0)  # [Hz] commands (= 1 / period)
-        simulation_frequency_hz: float = Field(30.0, gt=0.0, le=1000.0)  # [Hz] highway-env's Euler step
+        simulation_frequency_hz: float = Field(20.0, gt=0.0, le=1000.0)  # [Hz] highway-env's Euler step
         success_goal_reward: float = Field(0.12, gt=0.0)  # highway-env's success threshold
         start_jitter_m: tuple[float, float] = (0.0, 0.0)  # [m] ego start moved by U(-jx, jx), U(-jy, jy)
         intruder_t_s: float | None = Field(None, ge=0.0)  # [s] a pedestrian-sized obstacle appears
@@ -164,6 +169,8 @@ class HighwayEnvParking(Backend):
             start = ctx.rng(f"{self.name}.start")
             self.env.vehicle.position = self.env.vehicle.position + [start.uniform(-jx, jx), start.uniform(-jy, jy)]
         self.lot = self._read_lot()
+        for v in [*self.env.road.vehicles, *self.env.road.objects]:  # parked cars and walls never move:
+            v.check_collisions = v is self.env.vehicle  # no checks among them (the ego is checked against all)
         self.tables.landmarks = self.lot  # the static part handed out before setup holds these tables
         for k in range(len(self.lot.bay_centres)):
             self.tables.add_lane(f"bay{k}", 0.0)
@@ -211,9 +218,10 @@ class HighwayEnvParking(Backend):
         a_max, s_max = float(at.acceleration_range[1]), float(at.steering_range[1])
         action = np.clip([self._u[0] / a_max, self._u[1] / s_max], -1.0, 1.0)
         self._maybe_intruder(ctx)
-        _, _, _, _, info = self.env.step(action)
+        self._env_step(action)
         self._t = ctx.t + self.period
-        self.he_success = bool(info["is_success"])
+        obs = self.env.observation_type_parking.observe()
+        self.he_success = bool(self.env._is_success(obs["achieved_goal"], obs["desired_goal"]))
         if self.he_success and not self.he_success_any:
             self.he_success_any, self.he_success_first_s = True, self._t
         self._collisions = []
@@ -222,6 +230,19 @@ class HighwayEnvParking(Backend):
             if v.crashed and vid not in self._crashed_seen and v is self.env.vehicle:
                 self._crashed_seen.add(vid)
                 self._collisions.append((self._t, vid, self._crash_partner(v), "highway-env crashed"))
+
+    def _env_step(self, action: np.ndarray) -> None:
+        """``AbstractEnv.step`` without what a run does not use (the reward, the RL observation and
+        termination flags, rendering: four observations per step): the action, then the frames of
+        ``road.act(); road.step(1 / simulation_frequency)``, as ``AbstractEnv._simulate`` does."""
+        env = self.env
+        env.time += 1.0 / env.config["policy_frequency"]
+        env.action_type.act(action)
+        frames = int(env.config["simulation_frequency"] // env.config["policy_frequency"])
+        for _ in range(frames):
+            env.road.act()
+            env.road.step(1.0 / env.config["simulation_frequency"])
+            env.steps += 1
 
     def _crash_partner(self, ego: Any) -> str:
         """The entity the ego touches (the nearest one), named as in the snapshot."""
@@ -268,7 +289,11 @@ class HighwayEnvParking(Backend):
             pos = np.vstack([pos, [*o.position, 0.0]])
             vel = np.vstack([vel, np.zeros(3)])
             hdg = np.append(hdg, o.heading)
-            size = np.vstack([size, [o.LENGTH, o.WIDTH, HEIGHT_M if o is self._intruder else 1.0]])
+            # highway-env's side walls reach into the end walls (0.5 m each end): cut 0.55 m off each
+            # end of every wall's snapshot box, so walls do not collide with each other (the cut
+            # pieces lie behind the other walls, out of the ego's reach)
+            length = o.LENGTH if o is self._intruder else o.LENGTH - 1.1
+            size = np.vstack([size, [length, o.WIDTH, HEIGHT_M if o is self._intruder else 1.0]])
             kind.append(Kind.OBSTACLE)
             role.append(Role.OTHER)
         n_v = len(vs)

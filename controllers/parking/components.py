@@ -32,10 +32,12 @@ from corridor.controllers.parking.manoeuvre import (
     ParkingManoeuvre,
     ParkingObservation,
 )
+from corridor.controllers.parking.spot_detection import DetectorParams, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
 from corridor.engine import Controller, RunContext
 from corridor.snapshot import WorldSnapshot
 from corridor.vehicles.highway_env_parking import ParkingInput, ParkingLot
+from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingLotController(Controller):
@@ -60,12 +62,16 @@ class ParkingLotController(Controller):
         straighten_m: float = Field(3.0, ge=0.0)  # [m]
         stuck_s: float = Field(12.0, gt=0.0)  # [s]
         max_replans: int = Field(3, ge=0)
+        sensors: RangeSensorParams | None = None  # side-looking range sensors (None: none)
+        slot_width_m: float = Field(2.8, gt=0.0)  # [m] free width a perpendicular slot needs
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
         self.p = params
         self.man: ParkingManoeuvre | None = None
         self.lot: ParkingLot | None = None
+        self.detectors: list[SlotDetector] = []
+        self.last_scan: Scan | None = None
 
     def reset(self, rng: np.random.Generator) -> None:
         super().reset(rng)
@@ -80,6 +86,20 @@ class ParkingLotController(Controller):
                             max_accel_mps2=min(1.5, lot.max_accel_mps2), cruise_mps=p.cruise_mps)
         mp = ManoeuvreParams(tracking=tp, straighten_m=p.straighten_m, stuck_s=p.stuck_s, max_replans=p.max_replans)
         self.man = ParkingManoeuvre(mp, self.fp, self._plan, self.events, name=self.name)
+        if p.sensors is not None:
+            self.detectors = [self._row_detector(lot, h) for h in sorted(set(np.round(lot.bay_heading, 6)))]
+
+    def _row_detector(self, lot: ParkingLot, heading: float) -> SlotDetector:
+        """A detector along the entry line of the row of bays with ``heading`` (pointing into the row)."""
+        rows = np.flatnonzero(np.isclose(lot.bay_heading, heading, atol=1e-6))
+        into = np.array([math.cos(heading), math.sin(heading)])
+        along = np.array([into[1], -into[0]])
+        s = lot.bay_centres[rows] @ along
+        entry = lot.bay_centres[rows[np.argmin(s)]] - 0.5 * lot.bay_length_m * into
+        origin = entry - 0.5 * lot.bay_width_m * along
+        side = 1 if float(np.cross(along, into)) > 0 else -1
+        length = float(s.max() - s.min()) + lot.bay_width_m
+        return SlotDetector(origin, along, side, length, DetectorParams(perpendicular_width_m=self.p.slot_width_m))
 
     def _plan(self, start: np.ndarray, goal: np.ndarray, obstacles: Sequence[np.ndarray]) -> Any:
         from corridor.controllers.parking.geometry import VehicleGeometry
@@ -91,7 +111,9 @@ class ParkingLotController(Controller):
                               width_m=lot.vehicle_width_m + 2.0 * p.margin_m, max_steer_rad=p.max_steer_rad,
                               max_speed_mps=p.max_speed_mps, max_accel_mps2=p.max_accel_mps2,
                               max_steer_rate_rps=p.max_steer_rate_rps)
-        return plan(start, goal, obstacles, veh, time_limit_s=p.plan_time_limit_s, dt_s=p.plan_dt_s)
+        walls = np.vstack(lot.walls)  # the search area: inside the walls
+        bounds = (float(walls[:, 0].min()), float(walls[:, 0].max()), float(walls[:, 1].min()), float(walls[:, 1].max()))
+        return plan(start, goal, obstacles, veh, time_limit_s=p.plan_time_limit_s, dt_s=p.plan_dt_s, bounds=bounds)
 
     # ------------------------------------------------------------------ observe / step
     def goal_pose(self, lot: ParkingLot) -> np.ndarray:
@@ -118,6 +140,10 @@ class ParkingLotController(Controller):
         v = float(s.velocity[k, :2] @ d)
         others = np.flatnonzero(s.ids != self.p.ego)
         polys = box_polygons(s.position[others, :2], s.heading[others], s.size[others, 0], s.size[others, 1])
+        if self.p.sensors is not None:  # sensing: the sensors' echoes off every other box, with their errors
+            self.last_scan = scan(self.p.sensors, np.array([rear[0], rear[1], h]), polys, self.rng)
+            for det in self.detectors:
+                det.add(self.last_scan.origin, self.last_scan.axis, self.last_scan.range_m, self.p.sensors.max_range_m)
         return ParkingObservation(ctx.t, np.array([rear[0], rear[1], h]), v, self.goal_pose(lot),
                                   lot.bay_polygon(lot.goal_bay), tuple(str(i) for i in s.ids[others]), polys)
 
@@ -127,8 +153,29 @@ class ParkingLotController(Controller):
         accel, steer = self.man.step(obs)
         return [ParkingInput(self.p.ego, accel, steer)]
 
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """What a recorder may draw (name -> ("lines", [(k, 2)...]) or ("points", (n, 2))): the sensor
+        beams of the last scan (to the echo, or to the maximum range) and the echoes."""
+        sc = self.last_scan
+        if sc is None:
+            return {}
+        reach = np.where(np.isfinite(sc.range_m), sc.range_m, sc.max_range_m)
+        beams = [np.vstack([o, o + r * a]) for o, a, r in zip(sc.origin, sc.axis, reach)]
+        return {"sensors/beams": ("lines", beams), "sensors/echoes": ("points", sc.hits)}
+
+    def _report_slots(self, ctx: RunContext) -> None:
+        """The detected slots per row as an event (the ``parking`` monitor scores them)."""
+        for k, det in enumerate(self.detectors):
+            ext = det.observed_extent()
+            found = det.slots("perpendicular")
+            ctx.events.emit(ctx.t, self.name, "slots", f"row {k}: {len(found)} slots detected",
+                            origin=det.origin.tolist(), direction=det.direction.tolist(), side=det.side,
+                            extent=ext, slots=[(f.s0_m, f.s1_m) for f in found], need_m=self.p.slot_width_m,
+                            band_m=(0.0, self.lot.bay_length_m if self.lot else 0.0))
+
     # ------------------------------------------------------------------ metrics
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._report_slots(ctx)
         m = self.man
         if m is None:
             return {"final_mode": "none"}

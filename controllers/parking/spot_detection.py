@@ -1,10 +1,12 @@
 """Parking-spot detection from side-looking range sensors while driving past a row of parked cars.
 
-The row is a reference line (``origin``, unit ``direction``) with the bays on its ``side`` (+1 left of
-the direction, -1 right).  Every echo (or its absence) of a sensor on that side is one observation of
-the cell (``cell_m`` long, along the line) the sensor is abreast of: *occupied* if the echo lies
-closer than ``depth_gate_m`` (something stands in the row), *free* otherwise (no echo, or an echo
-beyond the row).  Noise rejection is by evidence, not by single readings:
+The row is a reference line (``origin``, unit ``direction``: the kerb or the bays' entry line) with the
+bays on its ``side`` (+1 left of the direction, -1 right).  Every echo (or its absence) of a sensor
+whose beam points into the row (within ``max_squint_rad`` of the row's normal) and that stands close
+enough to the line to see ``probe_m`` into the row is one observation of the cell (``cell_m`` long,
+along the line) the sensor is abreast of: *occupied* if the echo lies less than ``probe_m`` beyond
+the line (something stands in the row), *free* otherwise (no echo, or an echo deeper in the row).
+Noise rejection is by evidence, not by single readings:
 
 * a cell is occupied when at least ``occupied_ratio`` of its observations say so (a spurious echo in
   a gap, probability ``p``, gives a ratio ~ ``p``; a dropout on a car, probability ``q``, still leaves
@@ -29,7 +31,8 @@ import numpy as np
 @dataclass(frozen=True)
 class DetectorParams:
     cell_m: float = 0.2  # [m]
-    depth_gate_m: float = 3.0  # [m] an echo closer than this is something in the row
+    probe_m: float = 2.0  # [m] an echo less than this beyond the line is something in the row
+    max_squint_rad: float = 0.5  # [rad] beams further from the row's normal are not used
     occupied_ratio: float = 0.5
     min_object_m: float = 0.5  # [m]
     min_gap_m: float = 0.6  # [m]
@@ -66,21 +69,24 @@ class SlotDetector:
         self.origin = np.asarray(origin, dtype=float)
         self.direction = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
         self.side = int(side)
+        self.normal = self.side * np.array([-self.direction[1], self.direction[0]])  # into the row
         n = int(np.ceil(length_m / self.p.cell_m))
         self.n_obs = np.zeros(n, dtype=np.int64)
         self.n_occ = np.zeros(n, dtype=np.int64)
 
-    def add(self, origin: np.ndarray, side: np.ndarray, range_m: np.ndarray) -> None:
-        """Observations of a scan (sensor origins (n, 2), sides (n,), ranges (n,), nan = no echo);
-        sensors on the other side or off the row's extent are ignored."""
-        keep = np.asarray(side) == self.side
-        s = (np.asarray(origin)[keep] - self.origin) @ self.direction
+    def add(self, origin: np.ndarray, axis: np.ndarray, range_m: np.ndarray, max_range_m: float) -> None:
+        """Observations of a scan (sensor origins (n, 2), beam axes (n, 2), ranges (n,), nan = no echo);
+        beams not pointing into the row, too far from it or off the row's extent are ignored."""
+        origin, axis, r = np.asarray(origin, float), np.asarray(axis, float), np.asarray(range_m, float)
+        depth = -(origin - self.origin) @ self.normal  # [m] sensor's distance before the line
+        gate = depth + self.p.probe_m  # [m] range to probe_m beyond the line
+        s = (origin - self.origin) @ self.direction
         k = np.floor(s / self.p.cell_m).astype(np.int64)
-        ok = (k >= 0) & (k < len(self.n_obs))
-        r = np.asarray(range_m)[keep][ok]
-        occ = np.isfinite(r) & (r < self.p.depth_gate_m)
-        np.add.at(self.n_obs, k[ok], 1)
-        np.add.at(self.n_occ, k[ok], occ.astype(np.int64))
+        keep = ((axis @ self.normal) >= np.cos(self.p.max_squint_rad)) & (depth >= -0.5) & (gate <= max_range_m)
+        keep &= (k >= 0) & (k < len(self.n_obs))
+        occ = np.isfinite(r) & (r < gate)
+        np.add.at(self.n_obs, k[keep], 1)
+        np.add.at(self.n_occ, k[keep], occ[keep].astype(np.int64))
 
     def occupancy(self) -> tuple[np.ndarray, np.ndarray]:
         """(observed, occupied) per cell after the run filters."""

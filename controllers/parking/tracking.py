@@ -41,7 +41,7 @@ class TrackingParams:
     stop_clearance_m: float = 0.15  # [m] ... to zero at this clearance
     k_e: float = 0.6  # [1/m^2] lateral-error gain
     k_th: float = 1.5  # [1/m] heading-error gain
-    k_v: float = 1.5  # [1/s] speed-error gain
+    k_v: float = 2.5  # [1/s] speed-error gain
     end_tol_m: float = 0.08  # [m] a segment is done within this distance of its end ...
     stop_mps: float = 0.12  # [m/s] ... at a standstill below this speed
 
@@ -145,10 +145,15 @@ def speed_limit(st: TrackState, clearance_m: float, p: TrackingParams) -> float:
 
 
 def speed_command(seg: Segment, st: TrackState, v_mps: float, clearance_m: float, p: TrackingParams) -> float:
-    """Acceleration [m/s^2] towards the signed speed limit (backs up after an overshoot)."""
+    """Acceleration [m/s^2] towards the signed speed limit (backs up after an overshoot).  While the
+    stopping profile ``sqrt(2 a_brake s_left)`` is the binding limit, its own deceleration is fed
+    forward (a proportional loop alone lags it by ``a_brake / k_v`` and overshoots the stop point)."""
     direction = seg.direction if st.s_left_m >= 0.0 else -seg.direction
-    v_ref = direction * speed_limit(st, clearance_m, p)
-    return float(np.clip(p.k_v * (v_ref - v_mps), -p.max_accel_mps2, p.max_accel_mps2))
+    limit = speed_limit(st, clearance_m, p)
+    v_ref = direction * limit
+    braking = limit >= math.sqrt(2.0 * p.brake_mps2 * abs(st.s_left_m)) - 1e-9 and direction * v_mps > 0.0
+    a_ff = -direction * p.brake_mps2 if braking and abs(st.s_left_m) > p.end_tol_m else 0.0
+    return float(np.clip(a_ff + p.k_v * (v_ref - v_mps), -p.max_accel_mps2, p.max_accel_mps2))
 
 
 def segment_done(st: TrackState, v_mps: float, p: TrackingParams) -> bool:

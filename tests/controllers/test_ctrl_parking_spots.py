@@ -28,12 +28,13 @@ def cars() -> np.ndarray:
 
 
 def drive(sp: RangeSensorParams, rng: np.random.Generator | None, step_m: float = 0.1) -> SlotDetector:
-    det = SlotDetector(np.array([0.0, 0.0]), np.array([1.0, 0.0]), -1, 60.0,
-                       DetectorParams(depth_gate_m=3.0, parallel_length_m=6.0))
+    # the kerb line 1.5 m right of the driving line; the cars' near sides are 0.2 m beyond it
+    det = SlotDetector(np.array([0.0, -1.5]), np.array([1.0, 0.0]), -1, 60.0,
+                       DetectorParams(probe_m=2.0, parallel_length_m=6.0))
     polys = cars()
     for x in np.arange(-5.0, 60.0, step_m):  # rear axle from -5 m: the sensors cover 0 .. 60 m
         sc = scan(sp, np.array([x, 0.0, 0.0]), polys, rng)
-        det.add(sc.origin, sc.side, sc.range_m)
+        det.add(sc.origin, sc.axis, sc.range_m, sc.max_range_m)
     return det
 
 
