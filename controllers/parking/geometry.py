@@ -84,23 +84,26 @@ class Obstacles:
         emin, emax = np.minimum(self.a, self.b), np.maximum(self.a, self.b)
         return np.flatnonzero(np.all((emax >= lo) & (emin <= hi), axis=1))
 
-    def collides_boxes(self, poses: np.ndarray, box: tuple[float, float, float, float]) -> np.ndarray:
+    def collides_boxes(self, poses: np.ndarray, box: tuple[float, float, float, float] | np.ndarray) -> np.ndarray:
         """Boolean (n,): does the rectangle ``box`` (x_min, x_max, y_min, y_max in each pose's
-        frame) at each pose (n, 3) meet any polygon?"""
+        frame; one for all poses or one row (n, 4) per pose) at each pose (n, 3) meet any polygon?"""
         poses = np.atleast_2d(np.asarray(poses, dtype=float))
         n = len(poses)
         if n == 0 or len(self.a) == 0:
             return np.zeros(n, dtype=bool)
-        x0, x1, y0, y1 = box
-        reach = float(np.hypot(max(abs(x0), abs(x1)), max(abs(y0), abs(y1))))
+        ext = np.broadcast_to(np.asarray(box, dtype=float), (n, 4))
+        x0, x1, y0, y1 = (ext[:, j:j + 1] for j in range(4))
+        reach = float(np.hypot(np.abs(ext[:, :2]).max(), np.abs(ext[:, 2:]).max()))
         lo, hi = poses[:, :2].min(axis=0) - reach, poses[:, :2].max(axis=0) + reach
         idx = self._near(lo, hi)
         # containment needs every edge of a polygon (parity), so whole polygons near the poses
         polys = np.flatnonzero(np.all((self._poly_hi >= lo) & (self._poly_lo <= hi), axis=1))
         if len(polys) == 0:
             return np.zeros(n, dtype=bool)
-        centre = np.array([[(x0 + x1) / 2, (y0 + y1) / 2]])
-        inside = self._contains(box_corners(poses, centre)[:, 0, :], np.flatnonzero(np.isin(self.owner, polys)))
+        cx, cy = (x0[:, 0] + x1[:, 0]) / 2, (y0[:, 0] + y1[:, 0]) / 2
+        c0, s0 = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        centre = np.column_stack([poses[:, 0] + c0 * cx - s0 * cy, poses[:, 1] + s0 * cx + c0 * cy])
+        inside = self._contains(centre, np.flatnonzero(np.isin(self.owner, polys)))
         if len(idx) == 0:
             return inside
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
@@ -108,7 +111,7 @@ class Obstacles:
         bx, by = self.b[idx, 0][None] - poses[:, 0:1], self.b[idx, 1][None] - poses[:, 1:2]
         pax, pay = c * ax + s * ay, -s * ax + c * ay  # edge ends in the vehicle frame
         pbx, pby = c * bx + s * by, -s * bx + c * by
-        hit = _segments_meet_box(pax, pay, pbx - pax, pby - pay, box)
+        hit = _segments_meet_box(pax, pay, pbx - pax, pby - pay, (x0, x1, y0, y1))
         return hit.any(axis=1) | inside
 
     def collides(self, poses: np.ndarray, vehicle: VehicleGeometry, margin_m: float = 0.0) -> np.ndarray:
@@ -129,7 +132,7 @@ class Obstacles:
 
 
 def _segments_meet_box(x: np.ndarray, y: np.ndarray, dx: np.ndarray, dy: np.ndarray,
-                       box: tuple[float, float, float, float]) -> np.ndarray:
+                       box: tuple[float | np.ndarray, ...]) -> np.ndarray:
     """Liang–Barsky: does segment (x, y) + t (dx, dy), t in [0, 1], meet the axis-aligned box?"""
     x0, x1, y0, y1 = box
     t_in, t_out = np.zeros_like(x), np.ones_like(x)

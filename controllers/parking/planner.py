@@ -13,12 +13,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corridor.controllers.parking import profile
+from corridor.controllers.parking import optimise, profile
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles, VehicleGeometry
 from corridor.controllers.parking.search import SearchFailed, hybrid_astar, merge, reverse
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
 SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
+MARGINS_M = (0.03, 0.08)  # corridor margins tried in turn by the optimisation
+DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
 
 
 class NoSolution(Exception):
@@ -86,9 +88,34 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
             raise NoSolution(f"the {name} pose is outside the bounds")
     segments = _search(tuple(s), tuple(g), obs, vehicle, lb, t0, time_limit_s)
     t_search = time.perf_counter() - t0
-    states = profile.sample(profile.phases(segments, vehicle), tuple(s), vehicle, dt_s)
+    states, stage = _optimise(segments, obs, vehicle, dt_s, deadline=t0 + time_limit_s)
     t_opt = time.perf_counter() - t0 - t_search
-    return _to_world(states, origin, t_search, t_opt, stage="search")
+    return _to_world(states, origin, t_search, t_opt, stage=stage)
+
+
+def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
+              deadline: float) -> tuple[dict[str, np.ndarray], str]:
+    """The optimised trajectory if IPOPT solves it and it is collision-free when sampled densely (a
+    second try with a wider margin otherwise); else the stop-and-steer search path, which meets every
+    limit by construction."""
+    for margin in MARGINS_M:
+        try:
+            sol = optimise.solve(segments, obs, vehicle, deadline, optimise.OptimiseParams(margin_m=margin))
+        except optimise.OptimiseFailed:
+            continue
+        states = optimise.sample(sol, vehicle, dt_s)
+        if not _collides_densely(states, obs, vehicle):
+            return states, "optimised"
+    return profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s), "search"
+
+
+def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: VehicleGeometry) -> bool:
+    x, y, th = states["x"], states["y"], states["theta"]
+    n = np.maximum(1, np.ceil(np.hypot(np.diff(x), np.diff(y)) / DENSE_M).astype(int))
+    k = np.repeat(np.arange(len(n)), n)
+    f = np.concatenate([np.arange(m) / m for m in n])
+    poses = np.column_stack([x[k] + f * np.diff(x)[k], y[k] + f * np.diff(y)[k], th[k] + f * np.diff(th)[k]])
+    return bool(obs.collides(np.vstack([poses, [[x[-1], y[-1], th[-1]]]]), vehicle).any())
 
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from corridor.controllers.parking import profile
 from corridor.controllers.parking.case import Case, read_case
 from corridor.controllers.parking.check import check
+from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles
 from corridor.controllers.parking.planner import NoSolution, Trajectory, plan
+from corridor.controllers.parking.search import hybrid_astar, merge
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "tpcap"
 
@@ -22,6 +26,7 @@ def solve(case: Case, **kw: float) -> Trajectory:
 def test_given_cases_pass_the_independent_check(name: str) -> None:
     case = read_case(DATA / f"{name}.csv")
     tr = solve(case)
+    assert tr.stage == "optimised"
     assert check(case, tr.as_array()) == []
     assert np.max(np.diff(tr.t)) <= 0.1 + 1e-9
     assert tr.length_m() > np.hypot(case.goal[0] - case.start[0], case.goal[1] - case.start[1]) - 1e-6
@@ -40,6 +45,23 @@ def test_a_case_far_from_the_origin_solves_identically() -> None:
     np.testing.assert_allclose(away.y - shift[1], near.y, atol=1e-5)
     np.testing.assert_allclose(away.theta, near.theta, atol=1e-6)
     assert check(far, away.as_array()) == []
+
+
+def test_the_fallback_time_parametrisation_meets_every_limit() -> None:
+    """The stop-and-steer search path (used when the optimisation fails) passes the checker as is,
+    and is slower than the optimised trajectory."""
+    case = read_case(DATA / "Case2.csv")
+    origin = np.array(case.start[:2])
+    polys = [p - origin for p in case.obstacles]
+    start = (0.0, 0.0, case.start[2])
+    goal = (case.goal[0] - origin[0], case.goal[1] - origin[1], case.goal[2])
+    obs = Obstacles(polys)
+    segs = merge(hybrid_astar(start, goal, obs, TPCAP_VEHICLE, (-40, 40, -40, 40), time.perf_counter() + 30))
+    st = profile.sample(profile.phases(segs, TPCAP_VEHICLE), start, TPCAP_VEHICLE, 0.1)
+    rows = np.column_stack([st[k] for k in ("t", "x", "y", "theta", "v", "a", "steer")])
+    rows[:, 1:3] += origin
+    assert check(case, rows) == []
+    assert rows[-1, 0] > solve(case).duration_s
 
 
 def walls_around(x: float, y: float, half: float = 6.0, thick: float = 0.5) -> list[np.ndarray]:
