@@ -217,11 +217,11 @@ class HighwayEnvParking(Backend):
         at = self.env.action_type
         a_max, s_max = float(at.acceleration_range[1]), float(at.steering_range[1])
         action = np.clip([self._u[0] / a_max, self._u[1] / s_max], -1.0, 1.0)
-        self._maybe_intruder(ctx)
-        self._env_step(action)
+        appeared = self._maybe_intruder(ctx)
+        if appeared or not self._standstill():  # a new object is checked by highway-env at once
+            self._env_step(action)
         self._t = ctx.t + self.period
-        obs = self.env.observation_type_parking.observe()
-        self.he_success = bool(self.env._is_success(obs["achieved_goal"], obs["desired_goal"]))
+        self.he_success = self.is_success()
         if self.he_success and not self.he_success_any:
             self.he_success_any, self.he_success_first_s = True, self._t
         self._collisions = []
@@ -230,6 +230,26 @@ class HighwayEnvParking(Backend):
             if v.crashed and vid not in self._crashed_seen and v is self.env.vehicle:
                 self._crashed_seen.add(vid)
                 self._collisions.append((self._t, vid, self._crash_partner(v), "highway-env crashed"))
+
+    def is_success(self) -> bool:
+        """highway-env's own criterion, ``ParkingEnv._is_success(achieved_goal, desired_goal)``, on the
+        goal observation built as its ``KinematicsGoalObservation.observe`` builds it (the ego's and
+        the goal's ``to_dict()`` features over the scales) without the pandas round trip."""
+        ot = self.env.observation_type_parking
+        v = self.env.vehicle
+        ego, goal = v.to_dict(), v.goal.to_dict()
+        achieved = np.array([ego[f] for f in ot.features], dtype=float) / ot.scales
+        desired = np.array([goal[f] for f in ot.features], dtype=float) / ot.scales
+        return bool(self.env._is_success(achieved, desired))
+
+    def _standstill(self) -> bool:
+        """Nothing would move this step: the ego stands (|v| < 1e-6 m/s) and is not told to accelerate
+        by more than 1e-6 m/s over the step, and every other vehicle is parked.  The step is then not
+        integrated (its motion would stay below a micrometre); a parked lot at the end of a run costs
+        nothing."""
+        v = self.env.vehicle
+        return (abs(v.speed) < 1e-6 and abs(self._u[0]) * self.period < 1e-6 and not v.crashed
+                and all(o.speed == 0.0 for o in self.env.road.vehicles))
 
     def _env_step(self, action: np.ndarray) -> None:
         """``AbstractEnv.step`` without what a run does not use (the reward, the RL observation and
@@ -251,10 +271,10 @@ class HighwayEnvParking(Backend):
         d[part.ids == EGO_ID] = np.inf
         return str(part.ids[int(np.argmin(d))])
 
-    def _maybe_intruder(self, ctx: RunContext) -> None:
+    def _maybe_intruder(self, ctx: RunContext) -> bool:
         p = self.p
         if p.intruder_t_s is None or self._intruder is not None or ctx.t + 1e-9 < p.intruder_t_s:
-            return
+            return False
         from highway_env.vehicle.objects import Obstacle
 
         lot = self.lot
@@ -269,6 +289,7 @@ class HighwayEnvParking(Backend):
         self._intruder = ob
         ctx.events.emit(ctx.t, self.name, "scene", f"a pedestrian-sized obstacle appears at "
                         f"({pos[0]:.1f}, {pos[1]:.1f})", x=float(pos[0]), y=float(pos[1]))
+        return True
 
     # ------------------------------------------------------------------ snapshot
     def snapshot_part(self) -> WorldSnapshot:

@@ -93,7 +93,8 @@ def test_success_criterion_and_crash_report() -> None:
     drive(b, ctx, 0.0, 0.0, 1)
     assert b.finish(ctx)["he_success"] == 0 and b.finish(ctx)["he_success_any"] == 1
     v.heading = lot.goal_heading
-    v.position = np.array([0.0, -20.0])  # into the wall
+    v.position = np.array([0.0, -20.0])  # into the wall (moving: a standstill is not integrated)
+    v.speed = 0.1
     drive(b, ctx, 0.0, 0.0, 1)
     ev = b.snapshot_part().road.events
     assert b.finish(ctx)["he_crashed"] == 1 and ev.collisions and ev.collisions[0][1] == EGO_ID
@@ -117,3 +118,28 @@ def test_intruder_appears_in_front_of_the_goal_bay() -> None:
 def test_bad_frequencies_are_refused() -> None:
     with pytest.raises(ValueError, match="whole multiple"):
         HighwayEnvParking.Params(policy_frequency_hz=10, simulation_frequency_hz=15)
+
+
+def test_success_without_pandas_equals_highway_envs_observation() -> None:
+    b, ctx = make(9, vehicles_count=3)
+    ot = b.env.observation_type_parking
+    for steps in (0, 5, 10):
+        drive(b, ctx, 0.8, -0.3, steps)
+        obs = ot.observe()
+        v = b.env.vehicle
+        ego, goal = v.to_dict(), v.goal.to_dict()
+        assert np.allclose(np.array([ego[f] for f in ot.features]) / ot.scales, obs["achieved_goal"], rtol=0, atol=0)
+        assert np.allclose(np.array([goal[f] for f in ot.features]) / ot.scales, obs["desired_goal"], rtol=0, atol=0)
+        assert b.is_success() == b.env._is_success(obs["achieved_goal"], obs["desired_goal"])
+    v.position = np.array(b.lot.goal_centre, dtype=float)
+    v.heading = b.lot.goal_heading
+    assert b.is_success()
+
+
+def test_standstill_is_not_integrated_but_motion_is() -> None:
+    b, ctx = make(9, vehicles_count=3)
+    steps0 = b.env.steps
+    drive(b, ctx, 0.0, 0.3, 3)  # standing, wheels turned: nothing moves
+    assert b.env.steps == steps0
+    drive(b, ctx, 0.5, 0.0, 1)
+    assert b.env.steps == steps0 + 2 and b.env.vehicle.speed == pytest.approx(0.05)
