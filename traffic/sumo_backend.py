@@ -208,7 +208,8 @@ class SumoBackend(Backend):
             depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid))
 
     def _new_lane(self, lane_id: str) -> int:
-        return self.tables.add_lane(lane_id, self._ls.lane.getMaxSpeed(lane_id))
+        # a parked vehicle (SUMO parking area) is on no lane: lane id "" with no speed limit
+        return self.tables.add_lane(lane_id, self._ls.lane.getMaxSpeed(lane_id) if lane_id else float("nan"))
 
     def _read_detectors(self) -> DetectorFrame | None:
         d = self._det

@@ -150,8 +150,9 @@ class ParkingManoeuvre:
     # ------------------------------------------------------------------ step
     def step(self, obs: ParkingObservation) -> tuple[float, float]:
         mode = self.ha.mode
-        if mode in ("slot_found", "replan") and not (self.plan_ok or self.plan_failed):
-            self._plan(obs, replan=mode == "replan")
+        standing = abs(obs.v_mps) < self.p.tracking.stop_mps
+        if mode in ("slot_found", "replan") and standing and not (self.plan_ok or self.plan_failed):
+            self._plan(obs, replan=mode == "replan")  # from a standstill (the planner starts at rest)
         if mode in FOLLOW:
             self._advance(obs)
             self.blocked = self._is_blocked(obs)

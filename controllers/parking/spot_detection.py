@@ -129,7 +129,7 @@ def true_slots(polygons: np.ndarray, origin: np.ndarray, direction: np.ndarray, 
     occ.sort()
     slots, cur = [], extent[0]
     for a, b in occ + [(extent[1], extent[1])]:
-        a, b = max(a, extent[0]), min(b, extent[1])
+        a, b = min(max(a, extent[0]), extent[1]), min(max(b, extent[0]), extent[1])
         if a - cur >= need_m:
             slots.append(Slot(cur, a))
         cur = max(cur, b)

@@ -85,3 +85,8 @@ def test_scan_ranges_closed_form() -> None:
     right = sc.side < 0
     assert sc.range_m[right][0] == pytest.approx(2.6 - 0.9 - 1.0)
     assert np.isnan(sc.range_m[~right]).all()
+
+
+def test_true_slots_only_within_the_extent() -> None:
+    gt = true_slots(cars(), np.array([0.0, 0.0]), np.array([1.0, 0.0]), -1, (1.0, 4.0), (10.0, 30.0), 6.0)
+    assert [(round(s.s0_m, 2), round(s.s1_m, 2)) for s in gt] == [(14.75, 21.75)]
