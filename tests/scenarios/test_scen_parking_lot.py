@@ -63,6 +63,21 @@ def test_obstacle_appearing_in_front_of_the_bay_triggers_a_replan() -> None:
     assert m["collisions"] == 0 and m["he_success"] == 1 and m["final_mode"] == "parked"
 
 
+def test_rerun_recording_with_lot_outlines_plan_and_sensor_overlays(tmp_path: Path) -> None:
+    """The recorder draws what the lot, the plan event and the controller offer (and never fails on it)."""
+    sc, _ = load(SCENARIO, ["duration=3"])
+    rrd = tmp_path / "lot.rrd"
+    sim = build(sc, 0, tmp_path, rerun_path=str(rrd))
+    sim.run()
+    ctrl = sim.ctx.components["parking"]
+    lot = sim.ctx.snapshot.road.tables.landmarks
+    assert set(lot.outlines()) == {"bays", "goal_bay", "walls"} and len(lot.outlines()["bays"]) == 28
+    kinds = dict(ctrl.overlays().values())
+    assert len(kinds["lines"]) == 6 and kinds["points"].shape[1] == 2  # six beams, their echoes
+    assert any(e.data.get("polyline") for e in sim.ctx.events.of_kind("plan"))
+    assert rrd.stat().st_size > 10_000
+
+
 @pytest.mark.slow
 def test_fifty_runs_all_park(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--runs", "50", "--workers", "2", "--out",
