@@ -39,6 +39,7 @@ lint: $(DEV_STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/kernel_overhead.py
+	$(BIN)/python benchmarks/parking_plan.py
 
 clean:
 	rm -rf $(VENV) results build *.egg-info .cache

@@ -78,11 +78,12 @@ class Obstacles:
         lo = np.array([p.min(axis=0) for p in self.polygons]) if self.polygons else np.zeros((0, 2))
         hi = np.array([p.max(axis=0) for p in self.polygons]) if self.polygons else np.zeros((0, 2))
         self._poly_lo, self._poly_hi = lo, hi
+        self._emin, self._emax = np.minimum(self.a, self.b), np.maximum(self.a, self.b)
+        self._onehot = (self.owner[:, None] == np.arange(self.n_polygons)[None]).astype(np.int32)
 
     def _near(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Indices of edges whose bounding box meets the box [lo, hi]."""
-        emin, emax = np.minimum(self.a, self.b), np.maximum(self.a, self.b)
-        return np.flatnonzero(np.all((emax >= lo) & (emin <= hi), axis=1))
+        return np.flatnonzero(np.all((self._emax >= lo) & (self._emin <= hi), axis=1))
 
     def collides_boxes(self, poses: np.ndarray, box: tuple[float, float, float, float] | np.ndarray) -> np.ndarray:
         """Boolean (n,): does the rectangle ``box`` (x_min, x_max, y_min, y_max in each pose's
@@ -103,7 +104,11 @@ class Obstacles:
         cx, cy = (x0[:, 0] + x1[:, 0]) / 2, (y0[:, 0] + y1[:, 0]) / 2
         c0, s0 = np.cos(poses[:, 2]), np.sin(poses[:, 2])
         centre = np.column_stack([poses[:, 0] + c0 * cx - s0 * cy, poses[:, 1] + s0 * cx + c0 * cy])
-        inside = self._contains(centre, np.flatnonzero(np.isin(self.owner, polys)))
+        in_bbox = np.all((centre[:, None] >= self._poly_lo[polys][None]) & (centre[:, None] <= self._poly_hi[polys][None]),
+                         axis=2).any(axis=1)
+        inside = np.zeros(n, dtype=bool)
+        if in_bbox.any():  # only centres within some polygon's bounding box can be inside it
+            inside[in_bbox] = self._contains(centre[in_bbox], np.flatnonzero(np.isin(self.owner, polys)))
         if len(idx) == 0:
             return inside
         c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
@@ -126,8 +131,7 @@ class Obstacles:
         with np.errstate(divide="ignore", invalid="ignore"):
             xc = ax[None] + (py - ay[None]) * (bx - ax)[None] / (by - ay)[None]
         cross = straddle & (px < xc)
-        onehot = self.owner[idx][:, None] == np.arange(self.n_polygons)[None]
-        counts = cross.astype(np.int32) @ onehot.astype(np.int32)
+        counts = cross.astype(np.int32) @ self._onehot[idx]
         return np.any(counts % 2 == 1, axis=1)
 
 
@@ -145,3 +149,69 @@ def _segments_meet_box(x: np.ndarray, y: np.ndarray, dx: np.ndarray, dy: np.ndar
         t_in = np.where(flat, t_in, np.maximum(t_in, np.minimum(ta, tb)))
         t_out = np.where(flat, t_out, np.minimum(t_out, np.maximum(ta, tb)))
     return ok & (t_in <= t_out)
+
+
+class FootprintChecker:
+    """Collision checks of the footprint for many poses, exact but mostly answered by a distance grid.
+
+    The footprint (grown by ``margin_m``) lies between three inscribed discs (radius = half-width)
+    and four covering discs along its axis. With the obstacles' distance field on a grid: a pose
+    whose covering discs all clear the obstacles (by the grid's error) is free; one with an inscribed
+    disc overlapping an obstacle collides; only the poses in between get the exact edge test.
+    """
+
+    def __init__(self, obstacles: Obstacles, vehicle: VehicleGeometry, margin_m: float,
+                 bounds: tuple[float, float, float, float], res_m: float = 0.1) -> None:
+        from matplotlib.path import Path as MplPath
+        from scipy import ndimage
+
+        self.obstacles, self.box, self.res_m = obstacles, vehicle.box(margin_m), res_m
+        x0, x1, y0, y1 = self.box
+        half_w, length = (y1 - y0) / 2, x1 - x0
+        self.inner_x = np.linspace(x0 + half_w, x1 - half_w, 3)
+        self.inner_r = half_w
+        seg = length / 4
+        self.outer_x = x0 + seg * (np.arange(4) + 0.5)
+        self.outer_r = float(np.hypot(seg / 2, half_w))
+        bx0, bx1, by0, by1 = bounds
+        pad = self.outer_r + 1.0
+        self.origin = np.array([bx0 - pad, by0 - pad])
+        nx = int(np.ceil((bx1 - bx0 + 2 * pad) / res_m)) + 1
+        ny = int(np.ceil((by1 - by0 + 2 * pad) / res_m)) + 1
+        occ = np.zeros((nx, ny), dtype=bool)
+        for poly in obstacles.polygons:
+            lo = np.clip(np.floor((poly.min(axis=0) - self.origin) / res_m).astype(int), 0, [nx - 1, ny - 1])
+            hi = np.clip(np.ceil((poly.max(axis=0) - self.origin) / res_m).astype(int), 0, [nx - 1, ny - 1])
+            gi, gj = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+            pts = self.origin + res_m * np.column_stack([gi.ravel(), gj.ravel()])
+            occ[gi.ravel(), gj.ravel()] |= MplPath(poly).contains_points(pts)
+            a, b = poly, np.roll(poly, -1, axis=0)
+            n = max(2, int(np.ceil(np.hypot(*(b - a).T).max() / (0.25 * res_m))) + 1)
+            t = np.linspace(0.0, 1.0, n)[None, :, None]
+            ij = np.rint(((a[:, None] + t * (b - a)[:, None]).reshape(-1, 2) - self.origin) / res_m).astype(int)
+            ok = (ij[:, 0] >= 0) & (ij[:, 0] < nx) & (ij[:, 1] >= 0) & (ij[:, 1] < ny)
+            occ[ij[ok, 0], ij[ok, 1]] = True
+        # distance from each cell centre to the nearest occupied cell centre; the true distance of a
+        # point to the obstacles differs by at most one cell diagonal
+        self.dist_m = ndimage.distance_transform_edt(~occ) * res_m
+        self.err_m = 1.5 * res_m * np.sqrt(2)
+        self.shape = (nx, ny)
+
+    def _dist(self, poses: np.ndarray, along: np.ndarray) -> np.ndarray:
+        c, s = np.cos(poses[:, 2])[:, None], np.sin(poses[:, 2])[:, None]
+        px, py = poses[:, 0:1] + c * along[None], poses[:, 1:2] + s * along[None]
+        i = np.rint((px - self.origin[0]) / self.res_m).astype(int)
+        j = np.rint((py - self.origin[1]) / self.res_m).astype(int)
+        inside = (i >= 0) & (i < self.shape[0]) & (j >= 0) & (j < self.shape[1])
+        d = self.dist_m[np.clip(i, 0, self.shape[0] - 1), np.clip(j, 0, self.shape[1] - 1)]
+        return np.where(inside, d, np.inf)  # off the grid: farther than the padding from everything
+
+    def __call__(self, poses: np.ndarray) -> np.ndarray:
+        poses = np.atleast_2d(np.asarray(poses, dtype=float))
+        free = np.all(self._dist(poses, self.outer_x) > self.outer_r + self.err_m, axis=1)
+        hit = np.any(self._dist(poses, self.inner_x) < self.inner_r - self.err_m, axis=1)
+        out = hit.copy()
+        unsure = ~free & ~hit
+        if unsure.any():
+            out[unsure] = self.obstacles.collides_boxes(poses[unsure], self.box)
+        return out

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from functools import lru_cache
 
 import casadi as ca
 import numpy as np
 
 from corridor.controllers.parking.geometry import Obstacles, VehicleGeometry, footprint
-from corridor.controllers.parking.search import Segment
 
 
 @dataclass(frozen=True)
@@ -26,11 +26,9 @@ class OptimiseParams:
     margin_m: float = 0.03  # footprint growth inside the corridor boxes
     grow_step_m: float = 0.1
     grow_max_m: float = 2.0  # per side
-    spacing_m: float = 0.25  # about one node per this much path
-    min_nodes: int = 40
-    max_nodes: int = 300
     effort_weight: float = 0.5  # on ∫ a² + 2 ω² dt, beside the manoeuvre time
-    warm_speed_mps: float = 1.5
+    jerk_weight: float = 0.05  # on ∫ (da/dt)² dt: no chattering of the speed about zero
+    max_iter: int = 150  # IPOPT iterations (deterministic, unlike its wall-time cap)
 
 
 class OptimiseFailed(Exception):
@@ -44,62 +42,10 @@ class Solution:
     inputs: np.ndarray  # (N, 2): a, ω
 
 
-def warm_start(segments: list[Segment], veh: VehicleGeometry, p: OptimiseParams) -> tuple[np.ndarray, float]:
-    """(N+1, 5) states at uniform times along the path and the total time T [s]: trapezoidal speed in
-    each run between direction changes, steering from the path's curvature."""
-    runs: list[list[Segment]] = []
-    for seg in segments:
-        if runs and np.sign(runs[-1][-1].length_m) == np.sign(seg.length_m):
-            runs[-1].append(seg)
-        else:
-            runs.append([seg])
-    total = sum(abs(s.length_m) for s in segments)
-    n = int(np.clip(np.ceil(total / p.spacing_m) + 8 * len(runs), p.min_nodes, p.max_nodes))
-    acc = 0.5 * veh.max_accel_mps2
-    durations = []
-    for run in runs:
-        L = sum(abs(s.length_m) for s in run)
-        vp = min(p.warm_speed_mps, np.sqrt(L * acc))
-        durations.append(2 * vp / acc + max(0.0, L - vp ** 2 / acc) / vp)
-    T = float(sum(durations))
-    t = np.linspace(0.0, T, n + 1)
-    out = np.zeros((n + 1, 5))
-    t0 = 0.0
-    for run, dur in zip(runs, durations, strict=True):
-        m = (t >= t0 - 1e-12) & (t <= t0 + dur + 1e-12)
-        L = sum(abs(s.length_m) for s in run)
-        vp = min(p.warm_speed_mps, np.sqrt(L * acc))
-        tau = np.clip(t[m] - t0, 0.0, dur)
-        r = vp / acc
-        s = np.where(tau < r, 0.5 * acc * tau ** 2, np.where(tau > dur - r, L - 0.5 * acc * (dur - tau) ** 2,
-                                                              0.5 * acc * r ** 2 + vp * (tau - r)))
-        v = np.where(tau < r, acc * tau, np.where(tau > dur - r, acc * (dur - tau), vp))
-        out[m] = _along(run, s, np.sign(run[0].length_m) * v, veh)
-        t0 += dur
-    out[0, 3:] = 0.0
-    out[-1, 3] = 0.0
-    return out, T
-
-
-def _along(run: list[Segment], s: np.ndarray, v: np.ndarray, veh: VehicleGeometry) -> np.ndarray:
-    """States at distances s along one run of same-direction segments."""
-    from corridor.controllers.parking import reeds_shepp as rs
-
-    ends = np.cumsum([abs(seg.length_m) for seg in run])
-    idx = np.clip(np.searchsorted(ends, s, side="left"), 0, len(run) - 1)
-    out = np.zeros((len(s), 5))
-    for i, seg in enumerate(run):
-        m = idx == i
-        if m.any():
-            local = s[m] - (ends[i] - abs(seg.length_m))
-            out[m, :3] = rs.arc(*seg.start, np.sign(seg.length_m) * local, seg.kappa)
-            out[m, 4] = np.arctan(seg.kappa * veh.wheelbase_m)
-    out[:, 3] = v
-    return out
-
-
-def corridors(states: np.ndarray, obstacles: Obstacles, veh: VehicleGeometry, p: OptimiseParams) -> np.ndarray:
-    """(N+1, 4) box extents (x_min, x_max, y_min, y_max) in the frame of each warm-start pose."""
+def corridors(states: np.ndarray, obstacles: Obstacles, veh: VehicleGeometry,
+              p: OptimiseParams) -> tuple[np.ndarray, np.ndarray]:
+    """(N+1, 4) box extents (x_min, x_max, y_min, y_max) in the frame of each warm-start pose, and
+    whether each box also holds the next node (False where the pair does not fit: own footprint only)."""
     poses = states[:, :3]
     nxt = np.vstack([poses[1:], poses[-1:]])
     corners = np.concatenate([footprint(poses, veh, p.margin_m), footprint(nxt, veh, p.margin_m)], axis=1)
@@ -124,55 +70,86 @@ def corridors(states: np.ndarray, obstacles: Obstacles, veh: VehicleGeometry, p:
             hit = obstacles.collides_boxes(poses[rows], trial)
             ext[rows[~hit]] = trial[~hit]
             active[rows[hit], j] = False
-    return ext
+    return ext, ~bad
 
 
-def solve(segments: list[Segment], obstacles: Obstacles, veh: VehicleGeometry, deadline: float,
+def solve(ws: np.ndarray, T0: float, obstacles: Obstacles, veh: VehicleGeometry, deadline: float,
           p: OptimiseParams | None = None) -> Solution:
-    """Optimal trajectory from the first segment's start to the last segment's end (local frame)."""
+    """Optimal trajectory from the warm start's first state to its last pose (local frame); ``ws`` is
+    (N+1, 5) states at uniform times over T0 [s]."""
     p = p or OptimiseParams()
-    ws, T0 = warm_start(segments, veh, p)
-    boxes = corridors(ws, obstacles, veh, p)
+    boxes, pair = corridors(ws, obstacles, veh, p)
     n = len(ws) - 1
-    X, U, T = ca.SX.sym("X", 5, n + 1), ca.SX.sym("U", 2, n), ca.SX.sym("T")
-    h = T / n
-    F = _rk4(veh)
-    g, lbg, ubg = [], [], []
-    nxt = ca.horzcat(*[F(X[:, k], U[:, k], h) for k in range(n)])
-    g.append(ca.vec(X[:, 1:] - nxt))
-    lbg += [0.0] * (5 * n)
-    ubg += [0.0] * (5 * n)
-    bx0, bx1, by0, by1 = veh.box(p.margin_m)
-    local = [(bx0, by0), (bx1, by0), (bx1, by1), (bx0, by1)]
-    for k in range(n + 1):
-        ck, sk = np.cos(ws[k, 2]), np.sin(ws[k, 2])
-        for j in (k, min(k + 1, n)):
-            for a, b in local:
-                px = X[0, j] + ca.cos(X[2, j]) * a - ca.sin(X[2, j]) * b - ws[k, 0]
-                py = X[1, j] + ca.sin(X[2, j]) * a + ca.cos(X[2, j]) * b - ws[k, 1]
-                g += [ck * px + sk * py, -sk * px + ck * py]
-                lbg += [boxes[k, 0], boxes[k, 2]]
-                ubg += [boxes[k, 1], boxes[k, 3]]
-    effort = ca.sumsqr(U[0, :]) + 2 * ca.sumsqr(U[1, :])
-    cost = T + p.effort_weight * effort * h
-    z = ca.vertcat(ca.vec(X), ca.vec(U), T)
-    lbx, ubx = _bounds(ws, n, veh, T0)
-    x0 = np.concatenate([ws.ravel(), np.zeros(2 * n), [T0]])
     remaining = deadline - time.perf_counter()
     if remaining <= 0.05:
         raise OptimiseFailed("no time left for the optimisation")
-    opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": 1000,
-            "ipopt.tol": 1e-6, "ipopt.max_wall_time": remaining, "ipopt.linear_solver": "mumps",
-            "ipopt.mu_strategy": "adaptive"}
-    nlp = ca.nlpsol("parking", "ipopt", {"x": z, "f": cost, "g": ca.vertcat(*g)}, opts)
-    res = nlp(x0=x0, lbx=lbx, ubx=ubx, lbg=np.asarray(lbg), ubg=np.asarray(ubg))
-    status = nlp.stats()["return_status"]
+    wall_s = max([w for w in WALL_BUCKETS_S if w <= remaining], default=remaining)
+    nlp = _nlp(n, veh, p.margin_m, p.effort_weight, p.jerk_weight, wall_s, p.max_iter)
+    par = np.concatenate([ws[:, 0], ws[:, 1], ws[:, 2]])
+    lo, hi = np.tile(boxes[:, [0, 2]], (1, 8)), np.tile(boxes[:, [1, 3]], (1, 8))
+    lo[~pair, 8:], hi[~pair, 8:] = -np.inf, np.inf  # the next node is not held in this box
+    lbg = np.concatenate([np.zeros(5 * n), lo.ravel()])
+    ubg = np.concatenate([np.zeros(5 * n), hi.ravel()])
+    lbx, ubx = _bounds(ws, n, veh, T0)
+    x0 = np.concatenate([ws.T.ravel(), np.diff(ws[:, 3]) / (T0 / n), np.diff(ws[:, 4]) / (T0 / n), [T0]])
+    res = nlp(x0=x0, p=par, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg)
+    stats = nlp.stats()
+    status = stats["return_status"]
+    LAST_STATS.clear()
+    LAST_STATS.update(iterations=stats.get("iter_count"), status=status, n=n)
     if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
         raise OptimiseFailed(f"IPOPT: {status}")
     zs = np.asarray(res["x"]).ravel()
-    states = zs[:5 * (n + 1)].reshape(n + 1, 5)
-    inputs = zs[5 * (n + 1):5 * (n + 1) + 2 * n].reshape(n, 2)
+    states = zs[:5 * (n + 1)].reshape(5, n + 1).T
+    inputs = zs[5 * (n + 1):5 * (n + 1) + 2 * n].reshape(2, n).T
     return Solution(h_s=float(zs[-1]) / n, states=states, inputs=inputs)
+
+
+# IPOPT's wall-time cap is fixed when the solver is built: the largest of these within the time left
+LINEAR_SOLVER = "mumps"  # of the two shipped with CasADi's IPOPT (mumps, spral)
+IPOPT_TOL = 1e-6
+LAST_STATS: dict = {}  # of the last solve (for benchmarks)
+WALL_BUCKETS_S = (0.5, 1.0, 2.0, 3.0, 5.0, 8.0, 13.0, 20.0, 30.0, 45.0, 60.0)
+
+
+@lru_cache(maxsize=16)
+def _nlp(n: int, veh: VehicleGeometry, margin_m: float, effort_weight: float, jerk_weight: float,
+         wall_s: float, max_iter: int) -> ca.Function:
+    """The NLP for n intervals, parametrised by the warm start's poses (the corridor frames); the boxes,
+    start and goal enter through the bounds. Cached: replanning with the same n reuses it."""
+    z = ca.MX.sym("z", 5 * (n + 1) + 2 * n + 1)  # x_0..x_n, y_0.., θ.., v.., δ.., a_0.., ω.., T
+    X = ca.reshape(z[:5 * (n + 1)], n + 1, 5).T
+    U = ca.reshape(z[5 * (n + 1):-1], n, 2).T
+    T = z[-1]
+    P = ca.MX.sym("P", 3 * (n + 1))
+    W = ca.horzcat(P[:n + 1], P[n + 1:2 * (n + 1)], P[2 * (n + 1):]).T  # (3, n+1) corridor frames
+    h = T / n
+    nxt = _rk4(veh).map(n)(X[:, :-1], U, h)
+    g = [ca.vec(X[:, 1:] - nxt)]
+    nodes1 = ca.horzcat(X[:3, 1:], X[:3, n])
+    g.append(ca.vec(_corners_in_frame(veh, margin_m).map(n + 1)(X[:3, :], nodes1, W)))  # 16 per node
+    effort = ca.sumsqr(U[0, :]) + 2 * ca.sumsqr(U[1, :])
+    jerk = ca.sumsqr(U[0, 1:] - U[0, :-1]) / h ** 2
+    opts = {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+            "ipopt.tol": IPOPT_TOL, "ipopt.max_wall_time": wall_s, "ipopt.linear_solver": LINEAR_SOLVER,
+            "ipopt.mu_strategy": "adaptive"}
+    return ca.nlpsol("parking", "ipopt", {"x": z, "p": P, "f": T + (effort_weight * effort + jerk_weight * jerk) * h,
+                                          "g": ca.vertcat(*g)}, opts)
+
+
+def _corners_in_frame(veh: VehicleGeometry, margin_m: float) -> ca.Function:
+    """Corners of two footprints (node k and k+1) in the frame of pose w: 16 values, (along, across)
+    pairs, node k's four corners first."""
+    q0, q1, w = ca.SX.sym("q0", 3), ca.SX.sym("q1", 3), ca.SX.sym("w", 3)
+    bx0, bx1, by0, by1 = veh.box(margin_m)
+    cw, sw = ca.cos(w[2]), ca.sin(w[2])
+    out = []
+    for q in (q0, q1):
+        c, s = ca.cos(q[2]), ca.sin(q[2])
+        for a, b in ((bx0, by0), (bx1, by0), (bx1, by1), (bx0, by1)):
+            px, py = q[0] + c * a - s * b - w[0], q[1] + s * a + c * b - w[1]
+            out += [cw * px + sw * py, -sw * px + cw * py]
+    return ca.Function("corners", [q0, q1, w], [ca.vertcat(*out)])
 
 
 def _rk4(veh: VehicleGeometry) -> ca.Function:
@@ -196,8 +173,8 @@ def _bounds(ws: np.ndarray, n: int, veh: VehicleGeometry, T0: float) -> tuple[np
     lo_x[-1, :4] = hi_x[-1, :4] = [ws[-1, 0], ws[-1, 1], ws[-1, 2], 0.0]
     lo_u = np.tile([-veh.max_accel_mps2, -veh.max_steer_rate_rps], (n, 1))
     hi_u = -lo_u
-    lbx = np.concatenate([lo_x.ravel(), lo_u.ravel(), [0.2 * T0]])
-    ubx = np.concatenate([hi_x.ravel(), hi_u.ravel(), [5.0 * T0]])
+    lbx = np.concatenate([lo_x.T.ravel(), lo_u.T.ravel(), [0.2 * T0]])
+    ubx = np.concatenate([hi_x.T.ravel(), hi_u.T.ravel(), [5.0 * T0]])
     return lbx, ubx
 
 

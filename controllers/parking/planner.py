@@ -9,17 +9,31 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from corridor.controllers.parking import optimise, profile
-from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles, VehicleGeometry
-from corridor.controllers.parking.search import SearchFailed, hybrid_astar, merge, reverse
+from corridor.controllers.parking import optimise, profile, warm_start
+from corridor.controllers.parking.geometry import TPCAP_VEHICLE, FootprintChecker, Obstacles, VehicleGeometry
+from corridor.controllers.parking.search import HybridAStar, SearchFailed, SearchParams, merge, reverse
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
+MIN_RUN_M = 0.01  # shortest run in one direction that counts in direction_changes
 SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
-MARGINS_M = (0.03, 0.08)  # corridor margins tried in turn by the optimisation
+# search resolutions, bounded by expansions so that results do not depend on the machine's load
+COARSE = SearchParams(heuristic_weight=3.0, max_expansions=4000)
+FINE = SearchParams(heuristic_weight=3.0, max_expansions=8000, xy_res_m=0.2, n_heading=144, step_m=0.5,
+                    short_step_m=0.15, check_m=0.1)
+SLICE = 100  # expansions per turn
+MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
+CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
+MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
+# warm starts tried in turn: (builder, node spacing in the warm start's time [s])
+TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.by_profile, 0.12))
+MIN_NODES, MAX_NODES = 40, 400
+REFINE_MAX = 2  # re-solves with corridors around the last solution ...
+REFINE_GAIN = 0.02  # ... while each shortens the manoeuvre by more than this share
+REFINE_ITER = 60  # IPOPT iterations of a re-solve (it starts from a solution)
 DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
 
 
@@ -43,9 +57,22 @@ class Trajectory:
     optimise_time_s: float
     stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback)
 
-    def direction_changes(self) -> int:
-        signs = np.sign(self.v[np.abs(self.v) > 1e-6])
-        return int(np.count_nonzero(signs[1:] != signs[:-1]))
+    def direction_changes(self, min_run_m: float = MIN_RUN_M) -> int:
+        """Changes between forward and reverse motion, counting only runs in one direction that
+        travel at least ``min_run_m`` (the optimiser's sub-centimetre shuffles while it turns the wheels
+        standing are not manoeuvres)."""
+        ds = self.v[:-1] * np.diff(self.t)  # signed distance of each step
+        sign = np.sign(self.v[:-1])
+        runs: list[tuple[float, float]] = []  # (direction, distance)
+        for sg, d in zip(sign, ds):
+            if sg == 0:
+                continue
+            if runs and runs[-1][0] == sg:
+                runs[-1] = (sg, runs[-1][1] + abs(d))
+            else:
+                runs.append((sg, abs(d)))
+        dirs = [sg for sg, d in runs if d >= min_run_m]
+        return int(sum(a != b for a, b in zip(dirs[:-1], dirs[1:])))
 
     def length_m(self) -> float:
         return float(np.hypot(np.diff(self.x), np.diff(self.y)).sum())
@@ -68,10 +95,20 @@ def _default_bounds(start: np.ndarray, goal: np.ndarray, polys: list[np.ndarray]
 def plan(start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Sequence[np.ndarray],
          vehicle: VehicleGeometry = TPCAP_VEHICLE, *, time_limit_s: float = 30.0, dt_s: float = 0.1,
          bounds: tuple[float, float, float, float] | None = None) -> Trajectory:
-    """A collision-free trajectory from ``start`` to ``goal`` (rear-axle poses), or raise NoSolution."""
+    """A collision-free, limit-respecting trajectory from ``start`` to ``goal`` (rear-axle poses x [m],
+    y [m], heading [rad]) around ``obstacles`` (polygons, (k, 2) vertices [m]), or raise NoSolution.
+
+    ``bounds`` (x_min, x_max, y_min, y_max) [m] is the area the search may use (default: the box
+    around start, goal and obstacles grown by `BOUNDS_PAD_M`). The trajectory starts at rest with
+    straight wheels exactly at ``start`` (theta continuous from ``start[2]``, so it ends at ``goal[2]``
+    modulo 2π) and stops at ``goal``; rows are ≤ ``dt_s`` apart. Planning stops at ``time_limit_s``
+    (60 % of it for the search); the reason then says so. Only the vehicle's geometry and limits
+    come from ``vehicle``."""
     t0 = time.perf_counter()
     if dt_s <= 0 or time_limit_s <= 0:
         raise NoSolution(f"dt_s and time_limit_s must be > 0 (got {dt_s}, {time_limit_s})")
+    if not np.all(np.isfinite([*start, *goal])):
+        raise NoSolution("start and goal must be finite numbers")
     origin = np.array([start[0], start[1]], dtype=np.float64)
     s = np.array([0.0, 0.0, float(start[2])])
     g = np.array([goal[0] - origin[0], goal[1] - origin[1], float(goal[2])])
@@ -90,23 +127,52 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
     t_search = time.perf_counter() - t0
     states, stage = _optimise(segments, obs, vehicle, dt_s, deadline=t0 + time_limit_s)
     t_opt = time.perf_counter() - t0 - t_search
+    # a path searched from the goal reaches the start's heading modulo 2π: start from it exactly
+    turns = np.round((float(start[2]) - states["theta"][0]) / (2 * np.pi))
+    states["theta"] = states["theta"] + 2 * np.pi * turns
     return _to_world(states, origin, t_search, t_opt, stage=stage)
 
 
 def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
               deadline: float) -> tuple[dict[str, np.ndarray], str]:
-    """The optimised trajectory if IPOPT solves it and it is collision-free when sampled densely (a
-    second try with a wider margin otherwise); else the stop-and-steer search path, which meets every
-    limit by construction."""
-    for margin in MARGINS_M:
-        try:
-            sol = optimise.solve(segments, obs, vehicle, deadline, optimise.OptimiseParams(margin_m=margin))
-        except optimise.OptimiseFailed:
-            continue
-        states = optimise.sample(sol, vehicle, dt_s)
-        if not _collides_densely(states, obs, vehicle):
-            return states, "optimised"
-    return profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s), "search"
+    """The optimised trajectory, else the stop-and-steer search path (which meets every limit by
+    construction). Warm starts are tried in turn (`TRIES`); a solution is accepted when it is
+    collision-free sampled densely, then refined while it improves: the corridors re-grown around it,
+    so the nodes are no longer tied to the warm start's timing."""
+    best = None
+    for build, node_dt in TRIES:
+        ws, T0 = build(segments, vehicle, node_dt, MIN_NODES, MAX_NODES)
+        best = _solve_checked(ws, T0, obs, vehicle, dt_s, deadline)
+        if best is not None:
+            break
+    if best is None:
+        states = profile.sample(profile.phases(segments, vehicle), segments[0].start, vehicle, dt_s)
+        if _collides_densely(states, obs, vehicle):  # the search's margin should make this impossible
+            raise NoSolution("the optimisation failed and the search path clips an obstacle between its checks")
+        return states, "search"
+    for _ in range(REFINE_MAX):
+        sol, _ = best
+        if time.perf_counter() > deadline - 0.5:
+            break
+        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, deadline,
+                                REFINE_ITER)
+        if better is None or better[0].h_s > sol.h_s * (1 - REFINE_GAIN):
+            if better is not None and better[0].h_s < sol.h_s:
+                best = better
+            break
+        best = better
+    return best[1], "optimised"
+
+
+def _solve_checked(ws: np.ndarray, T0: float, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
+                   deadline: float, max_iter: int = 150) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
+    try:
+        sol = optimise.solve(ws, T0, obs, vehicle, deadline,
+                             optimise.OptimiseParams(margin_m=MARGIN_M, max_iter=max_iter))
+    except optimise.OptimiseFailed:
+        return None
+    states = optimise.sample(sol, vehicle, dt_s)
+    return None if _collides_densely(states, obs, vehicle) else (sol, states)
 
 
 def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: VehicleGeometry) -> bool:
@@ -120,17 +186,62 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
             vehicle: VehicleGeometry, lb: tuple[float, ...], t0: float, time_limit_s: float) -> list:
-    """Search from the goal out (the tight end of a parking manoeuvre, where leaving is easier than
-    entering) and drive the path backwards; if that fails in half the search budget, search forward."""
-    budget = SEARCH_SHARE * time_limit_s
-    try:
-        return merge(reverse(hybrid_astar(g, s, obs, vehicle, lb, t0 + 0.5 * budget)))
-    except SearchFailed as exc:
-        first = str(exc)
-    try:
-        return merge(hybrid_astar(s, g, obs, vehicle, lb, t0 + budget))
-    except SearchFailed as exc:
-        raise NoSolution(f"{exc} (searched from the goal: {first}; time limit {time_limit_s:g} s)") from None
+    """Searches from both ends take turns (`SLICE` expansions each, the tighter end first: leaving a
+    bay is easier than entering it; a path found from the goal is driven backwards) until one finds a
+    path. A search that fails at `COARSE` resolution is replaced by one at `FINE` resolution from the
+    same end; one whose path clips an obstacle between its collision checks, by one with checks twice
+    as dense."""
+    end, reasons = t0 + SEARCH_SHARE * time_limit_s, []
+    goal_first = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
+    checkers: dict[float, FootprintChecker] = {}
+
+    def start_search(backwards: bool, params: SearchParams) -> HybridAStar | None:
+        checker = checkers.setdefault(params.margin_m, FootprintChecker(obs, vehicle, params.margin_m, lb))
+        try:
+            return HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker)
+        except SearchFailed as exc:
+            reasons.append(_reason(backwards, params, exc))
+            return None
+
+    searches = {b: start_search(b, COARSE) for b in (goal_first, not goal_first)}
+    while any(searches.values()) and time.perf_counter() < end:
+        for backwards, search in list(searches.items()):
+            if search is None:
+                continue
+            try:
+                path = search.run(SLICE, end)
+            except SearchFailed as exc:
+                reasons.append(_reason(backwards, search.p, exc))
+                finer = replace(FINE, check_m=min(FINE.check_m, search.p.check_m))
+                searches[backwards] = start_search(backwards, finer) if search.p.xy_res_m > FINE.xy_res_m else None
+                continue
+            if path is None:
+                continue
+            if not _path_clips(path, obs, vehicle):
+                return merge(reverse(path) if backwards else path)
+            reasons.append(_reason(backwards, search.p, "the path clipped an obstacle between checks"))
+            dense = replace(search.p, check_m=search.p.check_m / 2)
+            searches[backwards] = start_search(backwards, dense) if dense.check_m >= MIN_CHECK_M else None
+    head = (f"no path within the time limit of {time_limit_s:g} s" if time.perf_counter() >= end
+            else "no path: the search space is exhausted")
+    raise NoSolution(f"{head} ({'; '.join(reasons)})")
+
+
+def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
+    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells: {exc}"
+
+
+def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry) -> bool:
+    """Does the footprint, grown by the optimisation's margin, meet an obstacle anywhere along the
+    path (sampled every `DENSE_M`)?"""
+    poses = np.vstack([seg.poses(DENSE_M) for seg in segments])
+    return bool(obs.collides(poses, vehicle, MARGIN_M).any())
+
+
+def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: VehicleGeometry) -> float:
+    """The largest of `CLEARANCE_STEPS_M` by which the footprint can grow at ``pose`` (0 if none)."""
+    free = [m for m in CLEARANCE_STEPS_M if not obs.collides(np.asarray(pose)[None], vehicle, m)[0]]
+    return max(free, default=0.0)
 
 
 def _to_world(states: dict[str, np.ndarray], origin: np.ndarray, t_search: float, t_opt: float,

@@ -12,6 +12,7 @@ family that is wrong for some pose can only cost optimality, never a wrong path.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -234,19 +235,36 @@ def arc(x0: float, y0: float, th0: float, s: np.ndarray, kappa: float) -> np.nda
 def paths(start: tuple[float, float, float], goal: tuple[float, float, float], radius_m: float,
           max_paths: int = 48, tol_m: float = 1e-6) -> list[RsPath]:
     """All valid Reeds–Shepp paths from ``start`` to ``goal``, shortest first (each verified)."""
-    s, g = np.asarray(start, float)[None], np.asarray(goal, float)[None]
-    x, y, phi = _relative(s, g, radius_m)
+    x, y, phi = (float(v) for v in _relative(np.asarray(start, float), np.asarray(goal, float), radius_m))
     found: list[RsPath] = []
-    for ok, seg, word in _candidates(x, y, phi):
-        if ok[0] and np.all(np.isfinite(seg[0])):
-            found.append(RsPath(word, tuple(float(v) * radius_m for v in seg[0])))
+    for fam in FAMILIES:  # scalar evaluation: one pose, so no array overhead
+        for flip, refl in ((False, False), (True, False), (False, True), (True, True)):
+            ok, segs, word = fam(-x if flip else x, -y if refl else y, -phi if flip != refl else phi)
+            if not ok:
+                continue
+            lengths = tuple(float(v) * radius_m * (-1.0 if flip else 1.0) for v in segs)
+            if all(np.isfinite(lengths)):
+                found.append(RsPath(word.translate(_SWAP) if refl else word, lengths))
     found.sort(key=lambda p: p.length_m)
     good = []
     for p in found:
-        end = sample(start, p, radius_m, step_m=1e9)[0][-1]
+        end = _end(start, p, radius_m)
         dth = float(_mod2pi(np.asarray(end[2] - goal[2])))
         if np.hypot(end[0] - goal[0], end[1] - goal[1]) < max(tol_m, 1e-6 * radius_m) and abs(dth) < 1e-6:
             good.append(p)
             if len(good) >= max_paths:
                 break
     return good
+
+
+def _end(start: tuple[float, float, float], path: RsPath, radius_m: float) -> tuple[float, float, float]:
+    x, y, th = (float(v) for v in start)
+    for ch, seg in zip(path.word, path.lengths_m, strict=True):
+        k = {"L": 1.0, "S": 0.0, "R": -1.0}[ch] / radius_m
+        if k == 0.0:
+            x, y = x + seg * math.cos(th), y + seg * math.sin(th)
+        else:
+            th1 = th + k * seg
+            x, y = x + (math.sin(th1) - math.sin(th)) / k, y - (math.cos(th1) - math.cos(th)) / k
+            th = th1
+    return x, y, th

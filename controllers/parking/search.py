@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from corridor.controllers.parking import reeds_shepp as rs
-from corridor.controllers.parking.geometry import Obstacles, VehicleGeometry
+from corridor.controllers.parking.geometry import FootprintChecker, Obstacles, VehicleGeometry
 from corridor.controllers.parking.heuristic import HolonomicGrid, RsTable
 
 
@@ -28,15 +28,17 @@ class SearchParams:
     xy_res_m: float = 0.4
     n_heading: int = 72
     step_m: float = 0.8  # arc length of one primitive
+    short_step_m: float = 0.3  # ... and of the short ones, tried where a long one collides
     check_m: float = 0.2  # collision-check spacing along a primitive
     n_steer: int = 7  # steering angles per direction, spread over ±max
     reverse_weight: float = 1.0
     switch_cost_m: float = 4.0  # direction change
     steer_cost_m: float = 0.3  # per primitive at full lock
     steer_change_cost_m: float = 0.6  # per primitive, full-lock to straight
-    heuristic_weight: float = 1.5
+    heuristic_weight: float = 1.5  # weighted A* (> 1: faster, longer paths)
+    max_expansions: int = 1_000_000
     margin_m: float = 0.05  # footprint growth for the search (the optimiser keeps its own)
-    rs_every: int = 3  # try an analytic expansion every n expansions (when near)
+    rs_every: int = 4  # try an analytic expansion every n expansions (when near)
     rs_near_m: float = 25.0
 
 
@@ -61,13 +63,14 @@ class SearchFailed(Exception):
     pass
 
 
-def _primitives(vehicle: VehicleGeometry, p: SearchParams) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _primitives(vehicle: VehicleGeometry, p: SearchParams,
+                step_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Curvatures (P,), signed lengths (P,), local poses (P, m, 3) of the motion primitives."""
     steer = np.linspace(-vehicle.max_steer_rad, vehicle.max_steer_rad, p.n_steer)
     kap = np.tan(steer) / vehicle.wheelbase_m
     kappas = np.concatenate([kap, kap])
-    lengths = np.concatenate([np.full(p.n_steer, p.step_m), np.full(p.n_steer, -p.step_m)])
-    m = int(np.ceil(p.step_m / p.check_m))
+    lengths = np.concatenate([np.full(p.n_steer, step_m), np.full(p.n_steer, -step_m)])
+    m = int(np.ceil(step_m / p.check_m))
     local = np.stack([rs.arc(0.0, 0.0, 0.0, np.linspace(0, L, m + 1)[1:], k) for k, L in zip(kappas, lengths)])
     return kappas, lengths, local
 
@@ -78,81 +81,112 @@ def _compose(base: np.ndarray, local: np.ndarray) -> np.ndarray:
                      base[1] + s * local[..., 0] + c * local[..., 1], base[2] + local[..., 2]], axis=-1)
 
 
+class HybridAStar:
+    """One search from ``start`` to ``goal`` (local frame) that can be run in slices (`run`), so that
+    searches from both ends can take turns."""
+
+    def __init__(self, start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Obstacles,
+                 vehicle: VehicleGeometry, bounds: tuple[float, float, float, float],
+                 p: SearchParams | None = None, collides: FootprintChecker | None = None) -> None:
+        self.p = p = p or SearchParams()
+        self.goal, self.bounds = goal, bounds
+        self.collides = collides or FootprintChecker(obstacles, vehicle, p.margin_m, bounds)
+        for name, pose in (("start", start), ("goal", goal)):
+            if obstacles.collides_boxes(np.array([pose]), vehicle.box(0.0))[0]:
+                raise SearchFailed(f"the {name} pose collides with an obstacle")
+        self.radius = vehicle.min_turn_radius_m
+        self.grid = HolonomicGrid(obstacles.polygons, goal[:2], bounds, res_m=0.3, clearance_m=0.5,
+                                  free_xy=start[:2])
+        if not np.isfinite(self.grid(np.array([start[:2]]))[0]):
+            raise SearchFailed("start and goal are not connected around the obstacles (holonomic grid)")
+        self.rs_h = RsTable(goal, self.radius)
+        self.sets = (_primitives(vehicle, p, p.step_m), _primitives(vehicle, p, p.short_step_m))
+        self.steer_of = np.arctan(self.sets[0][0] * vehicle.wheelbase_m) / vehicle.max_steer_rad
+        s0 = np.asarray(start, float)
+        self.nodes = [(s0, 0.0, -1, 0.0, 0.0, 0.0)]  # pose, g, parent, kappa, length, steer (normalised)
+        self.heap = [(float(self._h(s0[None])[0]) * p.heuristic_weight, 0)]
+        self.best_g = {self._key(s0): 0.0}
+        self.expansions = 0
+
+    def _key(self, pose: np.ndarray) -> tuple[int, int, int]:
+        p = self.p
+        return (int(np.floor(pose[0] / p.xy_res_m)), int(np.floor(pose[1] / p.xy_res_m)),
+                int(np.floor((pose[2] % (2 * np.pi)) / (2 * np.pi / p.n_heading))) % p.n_heading)
+
+    def _h(self, poses: np.ndarray) -> np.ndarray:
+        return np.maximum(self.grid(poses[:, :2]), self.rs_h(poses))
+
+    def run(self, expansions: int, deadline: float) -> list[Segment] | None:
+        """Up to ``expansions`` more expansions: the path if found, None if not yet; SearchFailed when
+        the space is exhausted, the expansion limit is reached or the deadline has passed."""
+        p, goal = self.p, np.asarray(self.goal, float)
+        stop = self.expansions + expansions
+        while self.heap:
+            if time.perf_counter() > deadline:
+                raise SearchFailed(f"the search ran out of time after {self.expansions} expansions")
+            if self.expansions >= stop:
+                return None
+            _, ni = heapq.heappop(self.heap)
+            pose, g, _, _, length, steer = self.nodes[ni]
+            if g > self.best_g.get(self._key(pose), np.inf) + 1e-9:
+                continue
+            self.expansions += 1
+            if self.expansions > p.max_expansions:
+                raise SearchFailed(f"no path within {p.max_expansions} expansions")
+            if self.expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - goal[:2])) < p.rs_near_m:
+                tail = _analytic(pose, self.goal, self.collides, self.radius, self.bounds)
+                if tail is not None:
+                    return _backtrack(self.nodes, ni) + tail
+            self._expand(ni, pose, g, length, steer)
+        raise SearchFailed(f"the search space is exhausted after {self.expansions} expansions: no path")
+
+    def _expand(self, ni: int, pose: np.ndarray, g: float, length: float, steer: float) -> None:
+        p, (x0, x1, y0, y1) = self.p, self.bounds
+        for kappas, lengths, local in self.sets:
+            ends = _compose(pose, local)  # (P, m, 3)
+            flat = ends.reshape(-1, 3)
+            inb = (flat[:, 0] >= x0) & (flat[:, 0] <= x1) & (flat[:, 1] >= y0) & (flat[:, 1] <= y1)
+            bad = (self.collides(flat) | ~inb).reshape(ends.shape[:2]).any(axis=1)
+            child = ends[:, -1, :]
+            hc = self._h(child)
+            for k in np.flatnonzero(~bad & np.isfinite(hc)):
+                cost = abs(lengths[k]) * (1.0 if lengths[k] > 0 else p.reverse_weight)
+                cost += p.steer_cost_m * abs(self.steer_of[k]) + p.steer_change_cost_m * abs(self.steer_of[k] - steer) / 2
+                if length != 0.0 and np.sign(length) != np.sign(lengths[k]):
+                    cost += p.switch_cost_m
+                gk = g + cost
+                ck = self._key(child[k])
+                if gk < self.best_g.get(ck, np.inf) - 1e-9:
+                    self.best_g[ck] = gk
+                    self.nodes.append((child[k], gk, ni, kappas[k], lengths[k], self.steer_of[k]))
+                    heapq.heappush(self.heap, (gk + p.heuristic_weight * hc[k], len(self.nodes) - 1))
+            if not bad.any():
+                return  # open space: the long primitives are enough
+
+
 def hybrid_astar(start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Obstacles,
                  vehicle: VehicleGeometry, bounds: tuple[float, float, float, float], deadline: float,
                  p: SearchParams | None = None) -> list[Segment]:
     """Segments from ``start`` to ``goal`` (local frame), or raise SearchFailed with a reason."""
-    p = p or SearchParams()
-    box = vehicle.box(p.margin_m)
-    for name, pose in (("start", start), ("goal", goal)):
-        if obstacles.collides_boxes(np.array([pose]), vehicle.box(0.0))[0]:
-            raise SearchFailed(f"the {name} pose collides with an obstacle")
-    radius = vehicle.min_turn_radius_m
-    grid = HolonomicGrid(obstacles.polygons, goal[:2], bounds, res_m=0.3, clearance_m=0.5,
-                         free_xy=start[:2])
-    if not np.isfinite(grid(np.array([start[:2]]))[0]):
-        raise SearchFailed("the goal cannot be reached from the start (no free corridor around the obstacles)")
-    rs_h = RsTable(goal, radius)
-    kappas, lengths, local = _primitives(vehicle, p)
-    steer_of = np.arctan(kappas * vehicle.wheelbase_m) / vehicle.max_steer_rad
-    x0, x1, y0, y1 = bounds
-    yaw_res = 2 * np.pi / p.n_heading
-
-    def key(pose: np.ndarray) -> tuple[int, int, int]:
-        return (int(np.floor(pose[0] / p.xy_res_m)), int(np.floor(pose[1] / p.xy_res_m)),
-                int(np.floor((pose[2] % (2 * np.pi)) / yaw_res)) % p.n_heading)
-
-    def h(poses: np.ndarray) -> np.ndarray:
-        return np.maximum(grid(poses[:, :2]), rs_h(poses))
-
-    s0 = np.asarray(start, float)
-    # node: pose, g, parent, kappa, length, steer (normalised)
-    nodes = [(s0, 0.0, -1, 0.0, 0.0, 0.0)]
-    heap = [(float(h(s0[None])[0]) * p.heuristic_weight, 0)]
-    best_g = {key(s0): 0.0}
-    expansions = 0
-    while heap:
-        if time.perf_counter() > deadline:
-            raise SearchFailed(f"the search ran out of time after {expansions} expansions")
-        _, ni = heapq.heappop(heap)
-        pose, g, _, _, length, steer = nodes[ni]
-        if g > best_g.get(key(pose), np.inf) + 1e-9:
-            continue
-        expansions += 1
-        if expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - goal[:2])) < p.rs_near_m:
-            tail = _analytic(pose, goal, obstacles, box, radius, bounds)
-            if tail is not None:
-                return _backtrack(nodes, ni) + tail
-        ends = _compose(pose, local)  # (P, m, 3)
-        flat = ends.reshape(-1, 3)
-        inb = (flat[:, 0] >= x0) & (flat[:, 0] <= x1) & (flat[:, 1] >= y0) & (flat[:, 1] <= y1)
-        bad = (obstacles.collides_boxes(flat, box) | ~inb).reshape(ends.shape[:2]).any(axis=1)
-        child = ends[:, -1, :]
-        hc = h(child)
-        for k in np.flatnonzero(~bad & np.isfinite(hc)):
-            cost = abs(lengths[k]) * (1.0 if lengths[k] > 0 else p.reverse_weight)
-            cost += p.steer_cost_m * abs(steer_of[k]) + p.steer_change_cost_m * abs(steer_of[k] - steer) / 2
-            if length != 0.0 and np.sign(length) != np.sign(lengths[k]):
-                cost += p.switch_cost_m
-            gk = g + cost
-            ck = key(child[k])
-            if gk < best_g.get(ck, np.inf) - 1e-9:
-                best_g[ck] = gk
-                nodes.append((child[k], gk, ni, kappas[k], lengths[k], steer_of[k]))
-                heapq.heappush(heap, (gk + p.heuristic_weight * hc[k], len(nodes) - 1))
-    raise SearchFailed(f"the search space is exhausted after {expansions} expansions: no path")
+    search = HybridAStar(start, goal, obstacles, vehicle, bounds, p)
+    while True:
+        path = search.run(10_000, deadline)
+        if path is not None:
+            return path
 
 
-def _analytic(pose: np.ndarray, goal: tuple[float, float, float], obstacles: Obstacles,
-              box: tuple[float, float, float, float], radius: float,
+def _analytic(pose: np.ndarray, goal: tuple[float, float, float], collides: FootprintChecker, radius: float,
               bounds: tuple[float, float, float, float]) -> list[Segment] | None:
     """The shortest collision-free Reeds–Shepp path from ``pose`` to ``goal`` as segments, if any."""
     x0, x1, y0, y1 = bounds
-    for path in rs.paths(tuple(pose), goal, radius, max_paths=6):
+    for path in rs.paths(tuple(pose), goal, radius, max_paths=4):
+        coarse, _, _ = rs.sample(tuple(pose), path, radius, step_m=0.5)
+        if collides(coarse).any():  # most candidates fail here, cheaply
+            continue
         pts, _, _ = rs.sample(tuple(pose), path, radius, step_m=0.1)
         if np.any((pts[:, 0] < x0) | (pts[:, 0] > x1) | (pts[:, 1] < y0) | (pts[:, 1] > y1)):
             continue
-        if not obstacles.collides_boxes(pts, box).any():
+        if not collides(pts).any():
             segs, at = [], tuple(float(v) for v in pose)
             for ch, L in zip(path.word, path.lengths_m):
                 if abs(L) < 1e-9:

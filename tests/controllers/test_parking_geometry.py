@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from corridor.controllers.parking.geometry import Obstacles, VehicleGeometry, footprint
+from corridor.controllers.parking.geometry import FootprintChecker, Obstacles, VehicleGeometry, footprint
 
 V = VehicleGeometry()
 
@@ -46,3 +46,13 @@ def test_agrees_with_shapely_on_random_poses() -> None:
     theirs = shapely.intersects(fps, union)
     assert 50 < ours.sum() < 450
     np.testing.assert_array_equal(ours, theirs)
+
+
+def test_the_distance_grid_checker_agrees_with_the_exact_test() -> None:
+    rng = np.random.default_rng(4)
+    polys = [square(0, 0, 3), np.array([[6, 0], [9, 1], [7, 2], [8, 4], [5, 3]], float),
+             np.array([[-3, 5], [12, 5], [12, 5.2], [-3, 5.2]])]  # a thin wall
+    obs = Obstacles(polys)
+    fast = FootprintChecker(obs, V, 0.05, (-6, 14, -6, 10))
+    poses = rng.uniform([-6, -6, -np.pi], [14, 10, np.pi], size=(3000, 3))
+    np.testing.assert_array_equal(fast(poses), obs.collides(poses, V, 0.05))

@@ -28,6 +28,8 @@ def test_given_cases_pass_the_independent_check(name: str) -> None:
     tr = solve(case)
     assert tr.stage == "optimised"
     assert check(case, tr.as_array()) == []
+    assert (tr.x[0], tr.y[0], tr.theta[0]) == pytest.approx(case.start, abs=1e-9)  # exactly the start state
+    assert tr.v[0] == tr.steer[0] == 0.0
     assert np.max(np.diff(tr.t)) <= 0.1 + 1e-9
     assert tr.length_m() > np.hypot(case.goal[0] - case.start[0], case.goal[1] - case.start[1]) - 1e-6
     assert tr.direction_changes() >= 0 and tr.search_time_s > 0
@@ -85,8 +87,17 @@ def test_enclosed_goal_has_no_solution() -> None:
 
 
 def test_trajectory_counts_direction_changes_and_length() -> None:
-    t = np.arange(5) * 0.1
-    v = np.array([1.0, 0.0, -1.0, 0.0, 1.0])
-    tr = Trajectory(t, np.array([0, 3, 3, 3, 7.0]), np.array([0, 4, 4, 4, 4.0]), t * 0, v, t * 0, t * 0, 0.1, 0.2)
-    assert tr.direction_changes() == 2
-    assert tr.length_m() == pytest.approx(9.0)
+    t = np.arange(9) * 0.1
+    v = np.array([1.0, 1.0, 0.0, -1.0, -1.0, 0.0, 0.05, -1.0, 0.0])  # the 5 mm run forward is not counted
+    x = np.concatenate([[0.0], np.cumsum(v[:-1] * 0.1)])
+    tr = Trajectory(t, x, x * 0, t * 0, v, t * 0, t * 0, 0.1, 0.2)
+    assert tr.direction_changes() == 1
+    assert tr.direction_changes(min_run_m=0.001) == 3
+    assert tr.length_m() == pytest.approx(0.2 + 0.2 + 0.005 + 0.1)
+
+
+def test_a_time_limit_too_short_is_named_in_the_reason() -> None:
+    case = read_case(DATA / "Case10.csv")
+    with pytest.raises(NoSolution, match="time limit of 0.001 s") as err:
+        plan(case.start, case.goal, case.obstacles, time_limit_s=0.001)
+    assert "\n" not in str(err.value)

@@ -91,3 +91,11 @@ def test_checker_catches_limits_goal_and_kinematics() -> None:
     fast = tr.copy()
     fast[:, 1] *= 3  # positions that need 3 m/s
     assert any("speed from positions" in m for m in checker.check(parse_case("0,0,0,30,0,0,0"), fast))
+
+
+def test_checker_bad_input_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    bad = tmp_path / "t.csv"
+    bad.write_text("t,x,y\n0,0,0\n")
+    assert checker.main([str(DATA / "Case1.csv"), str(bad)]) == 2
+    assert checker.main([str(DATA / "Case1.csv"), str(tmp_path / "missing.csv")]) == 2
+    assert capsys.readouterr().err.count("\n") == 2
