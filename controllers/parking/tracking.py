@@ -67,8 +67,9 @@ def wrap(a: float | np.ndarray) -> float | np.ndarray:
 
 def split_segments(x: np.ndarray, y: np.ndarray, theta: np.ndarray, v: np.ndarray, steer: np.ndarray,
                    wheelbase_m: float, min_len_m: float = 0.05) -> list[Segment]:
-    """Cut a trajectory at its cusps (sign changes of the planned speed; zero speeds take the sign of
-    the motion that follows); segments shorter than ``min_len_m`` are dropped."""
+    """Cut a trajectory at its cusps (sign changes of the motion along the heading; standstill steps
+    take the direction before them).  Runs shorter than ``min_len_m`` are dropped (an optimiser's
+    shuffle while it turns the wheels standing) and the runs of one direction around them joined."""
     xy = np.column_stack([x, y])
     step = np.diff(xy, axis=0)
     heading = np.column_stack([np.cos(theta[:-1]), np.sin(theta[:-1])])
@@ -82,16 +83,25 @@ def split_segments(x: np.ndarray, y: np.ndarray, theta: np.ndarray, v: np.ndarra
     first = sign[np.flatnonzero(sign)[0]] if np.any(sign) else 1.0
     sign[sign == 0] = first
     kappa = np.tan(steer) / wheelbase_m
-    segs: list[Segment] = []
+    runs: list[tuple[int, int, int]] = []  # (direction, first index, last index)
     start = 0
     for k in range(1, len(sign) + 1):
         if k == len(sign) or sign[k] != sign[start]:
-            idx = np.arange(start, k + 1)
-            ds = np.hypot(*np.diff(xy[idx], axis=0).T)
-            s = np.concatenate([[0.0], np.cumsum(ds)])
-            if s[-1] >= min_len_m:
-                segs.append(Segment(xy[idx], theta[idx], s, kappa[idx], int(sign[start])))
+            runs.append((int(sign[start]), start, k))
             start = k
+    ds_all = np.concatenate([[0.0], np.cumsum(np.hypot(*step.T))])
+    runs = [r for r in runs if ds_all[r[2]] - ds_all[r[1]] >= min_len_m]  # a shuffle is no manoeuvre
+    merged: list[tuple[int, int, int]] = []
+    for r in runs:  # neighbours of one direction (a dropped shuffle between them) become one segment
+        if merged and merged[-1][0] == r[0]:
+            merged[-1] = (r[0], merged[-1][1], r[2])
+        else:
+            merged.append(r)
+    segs: list[Segment] = []
+    for direction, a, b in merged:
+        idx = np.arange(a, b + 1)
+        ds = np.hypot(*np.diff(xy[idx], axis=0).T)
+        segs.append(Segment(xy[idx], theta[idx], np.concatenate([[0.0], np.cumsum(ds)]), kappa[idx], direction))
     return segs
 
 

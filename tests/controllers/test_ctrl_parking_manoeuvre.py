@@ -171,3 +171,12 @@ def test_failed_plans_abort_and_stop_after_max_replans() -> None:
     assert dst == ["slot_found", "abort", "replan", "abort", "replan", "abort"]
     assert man.mode == "abort" and man.plan_failures == 3 and man.replans == 2 and abs(car.v) < 1e-9
     assert len(man.events.of_kind("plan")) == 3
+
+
+def test_a_shuffle_between_two_forward_runs_is_no_cusp() -> None:
+    """An optimiser's 1 cm back-and-forth while it turns the wheels standing is not a manoeuvre: the
+    forward runs around it are one segment."""
+    ref = arcs(np.zeros(3), [(1.0, 0.0, 3.0), (-0.1, 0.0, 0.1), (1.0, 0.2, 3.0), (-1.0, 0.0, 2.0)], 2.8)
+    segs = split_segments(ref.x, ref.y, ref.theta, ref.v, ref.steer, 2.8)
+    assert [s.direction for s in segs] == [1, -1]
+    assert segs[0].length_m == pytest.approx(3.0 + 0.01 + 3.0, abs=1e-3) and segs[1].length_m == pytest.approx(2.0, abs=1e-3)
