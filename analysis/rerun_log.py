@@ -1,6 +1,10 @@
 """Rerun recording of one run: lanes as line strips, every entity of a frame as one batched Boxes3D
-coloured by role, trails of aircraft, key scalars as time series, mode transitions and collisions as
-text log entries, and a default blueprint (3D view + time series + log).
+coloured by role, trails of aircraft and of controlled vehicles, key scalars as time series, mode
+transitions and collisions as text log entries, and a default blueprint (3D view + time series + log).
+Also drawn, when present: the outlines of the road's landmarks (``landmarks.outlines()``, e.g. a
+parking lot's bays and walls), the polyline an event carries (``data["polyline"]``: a planned path, at
+``world/events/<source>/<kind>``), and whatever a component offers through ``overlays()`` (name ->
+``("lines", [(k, 2)...])`` or ``("points", (n, 2))``: e.g. sensor beams and echoes).
 
 A recorder only reads the snapshot, signals and events: recording never changes a trajectory.
 """
@@ -66,6 +70,28 @@ class RerunRecorder(Component):
                 self.rec.log("world/road/lanes", rr.LineStrips3D(strips, colors=(120, 120, 120, 255), radii=0.08),
                              static=True)
 
+        marks = ctx.snapshot.road.tables.landmarks if ctx.snapshot.road is not None else None
+        outlines = getattr(marks, "outlines", None)
+        if callable(outlines):
+            for name, polys in outlines().items():
+                strips = [np.column_stack([np.vstack([q, q[:1]]), np.zeros(len(q) + 1)]) for q in polys]
+                self.rec.log(f"world/landmarks/{name}", rr.LineStrips3D(strips, radii=0.06), static=True)
+
+    def _log_overlays(self, ctx: RunContext) -> None:
+        rr = self.rr
+        for c in ctx.components.values():
+            fn = getattr(c, "overlays", None)
+            if not callable(fn):
+                continue
+            for name, (kind, data) in fn().items():
+                path = f"world/overlays/{c.name}/{name}"
+                if kind == "lines":
+                    self.rec.log(path, rr.LineStrips3D([np.column_stack([q, np.full(len(q), 0.5)]) for q in data],
+                                                       radii=0.03))
+                elif kind == "points":
+                    pts = np.asarray(data).reshape(-1, 2)
+                    self.rec.log(path, rr.Points3D(np.column_stack([pts, np.full(len(pts), 0.5)]), radii=0.08))
+
     def tick(self, ctx: RunContext) -> None:
         rr, rec, s = self.rr, self.rec, ctx.snapshot
         rec.set_time("sim_time", duration=ctx.t)
@@ -81,6 +107,7 @@ class RerunRecorder(Component):
                                                  colors=colors, labels=[str(i) for i in s.ids],
                                                  show_labels=False))
             self._log_trails(s)
+        self._log_overlays(ctx)
         for name in ctx.signals.names():
             t, v = ctx.signals.get(name)
             k = self._signals_seen.get(name, 0)
@@ -92,10 +119,15 @@ class RerunRecorder(Component):
             rec.set_time("sim_time", duration=ev.t)
             level = "ERROR" if ev.kind == "collision" else ("WARN" if ev.kind in ("fallback", "teleport") else "INFO")
             rec.log("events", rr.TextLog(f"[{ev.kind}] {ev.source}: {ev.message}", level=level))
+            line = ev.data.get("polyline")
+            if line is not None and len(line) > 1:
+                xy = np.asarray(line, dtype=float)
+                rec.log(f"world/events/{ev.source}/{ev.kind}",
+                        rr.LineStrips3D([np.column_stack([xy, np.full(len(xy), 0.05)])], radii=0.05))
         self._events_seen = len(ctx.events.events)
 
     def _log_trails(self, s: Any) -> None:
-        air = np.nonzero((s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT))[0]
+        air = np.nonzero((s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT) | (s.role == Role.CONTROLLED))[0]
         if not len(air):
             return
         for k in air:

@@ -149,8 +149,31 @@ class BeltwayLandmarks(Landmarks):
         return tuple(loops), tuple(areas), tuple(ic.origin_edge for ic in self.interchanges)
 
 
+class StreetParkingLandmarks(Landmarks):
+    """``parking_street``: a two-way street with a row of parking bays right of the eastbound lane
+    (beyond the kerb line y = ``kerb_y``); bay centres at (``bay_x[k]``, ``bay_y``), ``taken``: a SUMO
+    car parks there from the start (cars parked with heading ``parked_heading`` [rad])."""
+
+    kind: Literal["parking_street"] = "parking_street"
+    east_edge: str
+    west_edge: str
+    east_lane: str
+    east_lane_y: float  # [m]
+    kerb_y: float  # [m]
+    layout: str  # parallel | perpendicular
+    bay_length_m: float  # [m] along the street
+    bay_depth_m: float  # [m] across
+    bay_x: tuple[float, ...]  # [m]
+    bay_y: float  # [m]
+    parked_heading: float  # [rad]
+    taken: tuple[bool, ...]
+    length_m: float  # [m]
+    end_x: float  # [m] a counting line near the street's east end (``traffic_kpis``)
+
+
 LANDMARK_MODELS: dict[str, type[Landmarks]] = {
-    m.model_fields["kind"].default: m for m in (OnrampLandmarks, RuralLandmarks, BeltwayLandmarks)
+    m.model_fields["kind"].default: m
+    for m in (OnrampLandmarks, RuralLandmarks, BeltwayLandmarks, StreetParkingLandmarks)
 }
 
 

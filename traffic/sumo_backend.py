@@ -23,6 +23,7 @@ from corridor.traffic.road_spec import RoadSpec
 
 _CAR, _CONTROLLED = int(Kind.CAR), int(Role.CONTROLLED)  # plain ints for numpy (see _read_state)
 _RAMP, _MAINLINE = int(Role.RAMP), int(Role.MAINLINE)
+_OFF_NETWORK = -1e9  # [m] positions below this are SUMO's INVALID_DOUBLE_VALUE (-2**30)
 _NO_UIDS = np.zeros(0, dtype=np.int64)
 _NO_UIDS.flags.writeable = False
 
@@ -220,7 +221,8 @@ class SumoBackend(Backend):
             depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid))
 
     def _new_lane(self, lane_id: str) -> int:
-        return self.tables.add_lane(lane_id, self._ls.lane.getMaxSpeed(lane_id))
+        # a parked vehicle (SUMO parking area) is on no lane: lane id "" with no speed limit
+        return self.tables.add_lane(lane_id, self._ls.lane.getMaxSpeed(lane_id) if lane_id else float("nan"))
 
     def _read_detectors(self) -> DetectorFrame | None:
         d = self._det
@@ -245,8 +247,10 @@ class SumoBackend(Backend):
         """The step's subscription results -> this backend's snapshot part (one pass over the rows,
         then whole-array numpy; plain-int role/kind codes: numpy compares IntEnum members ~100x slower)."""
         P, S, A, ACC, LP, LN = self._read_vars
-        if any(not r[LN] for r in res.values()):  # teleporting vehicles still report: lane '', invalid values
-            res = {v: r for v, r in res.items() if r[LN]}  # off the road until SUMO re-inserts them
+        # a teleporting vehicle still reports (lane '', position INVALID_DOUBLE_VALUE = -2**30): it is off
+        # the road until SUMO re-inserts it.  A parked one (SUMO parking area) also has lane '' but a pose.
+        if any(not r[LN] and r[P][0] < _OFF_NETWORK for r in res.values()):
+            res = {v: r for v, r in res.items() if r[LN] or r[P][0] >= _OFF_NETWORK}
         ids = list(res)
         n = len(ids)
         self._ids = ids

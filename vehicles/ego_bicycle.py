@@ -125,6 +125,7 @@ class EgoBicycle(Backend):
         depart_speed_mps: float = Field(15.0, ge=0.0)  # [m/s]
         bicycle: BicycleParams = BicycleParams()
         companions: dict[str, CompanionSpec] = Field(default_factory=dict)
+        allow_reverse: bool = False  # a negative acceleration at standstill drives backwards (parking)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -160,7 +161,8 @@ class EgoBicycle(Backend):
                 return
             self._start(ctx.t)
         self.state = rk4_step(self.state, clip_input(self._u, self.p.bicycle), self.period, self.p.bicycle)
-        self.state[3] = max(float(self.state[3]), 0.0)  # brakes stop the car, never reverse it
+        if not self.p.allow_reverse:
+            self.state[3] = max(float(self.state[3]), 0.0)  # brakes stop the car, never reverse it
         fx, fy = self.front_bumper()
         sumo.apply([PlaceVehicle(self.vid, fx, fy, 90.0 - math.degrees(float(self.state[2])))], ctx)
 
