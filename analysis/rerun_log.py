@@ -3,6 +3,8 @@ coloured by role, trails of aircraft, key scalars as time series, mode transitio
 text log entries, and a default blueprint (3D view + time series + log).
 
 A recorder only reads the snapshot, signals and events: recording never changes a trajectory.
+A component may add its own layer by defining ``rerun_log(rec, rr, ctx)`` (read-only; called at each
+frame, e.g. the UAV cameras' footprints on the road, the ramp meters' rates).
 """
 
 from __future__ import annotations
@@ -81,6 +83,10 @@ class RerunRecorder(Component):
                                                  colors=colors, labels=[str(i) for i in s.ids],
                                                  show_labels=False))
             self._log_trails(s)
+        for c in ctx.components.values():
+            hook = getattr(c, "rerun_log", None)
+            if hook is not None and c is not self:
+                hook(rec, rr, ctx)
         for name in ctx.signals.names():
             t, v = ctx.signals.get(name)
             k = self._signals_seen.get(name, 0)
