@@ -31,7 +31,7 @@ class LoopFaults(BaseModel):
 
     share: float = Field(0.0, ge=0.0, le=1.0)  # of the loop stations
     modes: list[FaultMode] = Field(default_factory=lambda: ["stuck_zero", "dropout", "bias"], min_length=1)
-    start_s: tuple[float, float] = (60.0, 600.0)  # [s] failure time window (uniform)
+    start_s: tuple[float, float] = (30.0, 300.0)  # [s] failure time window (uniform): before and in the peak
     bias_factor: float = Field(0.4, ge=0.0)  # bias: reported = factor x true (occupancy, flow)
 
     @model_validator(mode="after")

@@ -12,11 +12,15 @@ over every segment and sample from ``start_s`` on (the loops have no interval be
 aggregation).  Coverage: the share of (segment, sample) pairs a camera observed at least
 ``min_observed_m`` of (``camera`` peer's last frame), so an avoidance that drives UAVs off their
 sectors shows up.  It reads peers' published values only and never refreshes them (an observer).
+
+``wall_per_sim_s``: wall-clock seconds per simulated second from this monitor's setup to the end (all
+components' work; a measurement of the machine, which varies between otherwise identical runs).
 """
 
 from __future__ import annotations
 
 import math
+import time
 from typing import Any, ClassVar
 
 import numpy as np
@@ -64,6 +68,7 @@ class SegmentWatch(Component):
         self.seg = RingSegments.build(lm, road_spec(ctx.scenario).network.params, 1)
         self.index = RingIndex(self.seg)
         self.n = self.seg.n
+        self._wall0 = time.perf_counter()
 
     def loops_density(self) -> np.ndarray:
         """[n_seg] the direct mapping of the loops (``estimate_state`` with one segment per link)."""
@@ -76,11 +81,15 @@ class SegmentWatch(Component):
                 out[dirn * self.n + k] = 0.5 * (a.occupancy_down_pct + b.occupancy_up_pct) * 10.0 / L
         return out
 
+    def _has_cameras(self) -> bool:
+        """A camera peer with UAVs (a road-only variant keeps an empty one: no coverage figure)."""
+        return self.camera is not None and bool(getattr(self.camera, "uav_ids", ())) and len(self.camera.observed_m) > 0
+
     def tick(self, ctx: RunContext) -> None:
         road = ctx.snapshot.road
         self.tts_vh += (len(road) if road is not None else 0) * self.period / 3600.0
         ctx.signals.record("tts_running_vh", ctx.t, self.tts_vh)
-        if self.camera is not None and len(self.camera.observed_m):
+        if self._has_cameras():
             self.covered += int(np.count_nonzero(self.camera.observed_m >= self.params.min_observed_m))
             self.n_cov += len(self.camera.observed_m)
             ctx.signals.record("coverage", ctx.t, float(np.mean(self.camera.observed_m >= self.params.min_observed_m)))
@@ -98,10 +107,11 @@ class SegmentWatch(Component):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         nan = math.nan
-        out: dict[str, Any] = {"rmse_loops": math.sqrt(self.sq_loops / self.n_err) if self.n_err else nan}
+        out: dict[str, Any] = {"rmse_loops": math.sqrt(self.sq_loops / self.n_err) if self.n_err else nan,
+                               "wall_per_sim_s": (time.perf_counter() - self._wall0) / max(ctx.t, 1e-9)}
         if self.fusion is not None:
             out["rmse_fused"] = math.sqrt(self.sq_fused / self.n_err) if self.n_err else nan
-        if self.camera is not None:
+        if self._has_cameras():
             out["coverage"] = self.covered / self.n_cov if self.n_cov else nan
             sent = self.camera.messages_sent
             got = self.fusion.uav_received if self.fusion is not None else 0
