@@ -7,6 +7,8 @@ parking lot's bays and walls), the polyline an event carries (``data["polyline"]
 ``("lines", [(k, 2)...])`` or ``("points", (n, 2))``: e.g. sensor beams and echoes).
 
 A recorder only reads the snapshot, signals and events: recording never changes a trajectory.
+A component may add its own layer by defining ``rerun_log(rec, rr, ctx)`` (read-only; called at each
+frame, e.g. the UAV cameras' footprints on the road, the ramp meters' rates).
 """
 
 from __future__ import annotations
@@ -108,6 +110,10 @@ class RerunRecorder(Component):
                                                  show_labels=False))
             self._log_trails(s)
         self._log_overlays(ctx)
+        for c in ctx.components.values():
+            hook = getattr(c, "rerun_log", None)
+            if hook is not None and c is not self:
+                hook(rec, rr, ctx)
         for name in ctx.signals.names():
             t, v = ctx.signals.get(name)
             k = self._signals_seen.get(name, 0)

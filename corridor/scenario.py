@@ -628,7 +628,9 @@ def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] =
             where = f"{table}.{_key(name)}"
             if spec.type not in registry:
                 close = difflib.get_close_matches(spec.type[:80], list(registry), n=1)
-                hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {', '.join(sorted(registry))}"
+                known = ", ".join(sorted(registry))  # bounded: the message must stay one short line
+                known = known if len(known) <= 120 else known[:known.rfind(", ", 0, 118)] + ", …"
+                hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {known}"
                 raise ScenarioError(f"{source}: {where}.type: unknown {registry.what} {clip(spec.type)}{hint}")
             params_model = getattr(registry.get(spec.type), "Params", None)
             if params_model is not None:

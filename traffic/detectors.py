@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import DetectorFrame
 from corridor.traffic.landmarks import BeltwayLandmarks, MeteredRamp
+from corridor.traffic.loop_faults import LoopFaults, Reading, StationFault, apply_fault, draw_faults
 from corridor.traffic.net_beltway import BeltwayParams
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.trips import road_frame
@@ -56,6 +57,8 @@ class RampMeasurement:
     halting_veh: float = 0.0  # of which halting [veh]
     demand_vph: float = 0.0  # arrivals at the ramp over the last interval (outflow + queue growth)
     t_loops: float = -math.inf  # [s] end of the loop interval the loop values belong to
+    ok_down: bool = True  # the downstream station's values of this interval arrived (False: held)
+    ok_up: bool = True
 
 
 @dataclass
@@ -77,6 +80,7 @@ class RampDetectors(Component):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
         period_s: float = Field(5.0, gt=0)  # [s] queue sampling period (a multiple of dt)
         aggregate_s: float | None = Field(None, gt=0)  # [s] loop interval; None = the network's
+        faults: LoopFaults = Field(default_factory=LoopFaults)  # failing loop stations (none by default)
 
     def __init__(self, name: str, params: Params | None = None, scenario: Any = None) -> None:
         super().__init__(name)
@@ -89,6 +93,9 @@ class RampDetectors(Component):
         self.passed_total: dict[str, int] = {}  # vehicles past each meter so far (completed intervals)
         self._queue_at_interval: dict[str, float] = {}
         self._next_aggregate_s = 0.0
+        self.faults: dict[str, StationFault] = {}  # station "{key}/{up|down}" -> its fault
+        self._failed_seen: set[str] = set()
+        self._ctx: RunContext | None = None
 
     def setup(self, ctx: RunContext) -> None:
         lm = road_frame(ctx).tables.landmarks
@@ -108,6 +115,9 @@ class RampDetectors(Component):
                 self.log.queue[key] = []
                 self._queue_at_interval[key] = 0.0
                 self.passed_total[key] = 0
+        stations = [f"{key}/{side}" for key in self.latest for side in ("down", "up")]
+        self.faults = draw_faults(self.p.faults, stations, ctx.rng(f"{self.name}/faults"))
+        self._ctx = ctx
 
     def ramp(self, key: str) -> MeteredRamp:
         """Landmarks (edges, detector ids) of ramp ``"{d}{k}"``."""
@@ -145,8 +155,13 @@ class RampDetectors(Component):
         span_h = self.aggregate_s / 3600.0
         for key, m in self.latest.items():
             r = self.ramp(key)
-            m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps = _loop_group(det, r.e1_downstream, span_h)
-            m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps = _loop_group(det, r.e1_upstream, span_h)
+            down = self._faulty(f"{key}/down", t, Reading(*_loop_group(det, r.e1_downstream, span_h)),
+                                Reading(m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps))
+            up = self._faulty(f"{key}/up", t, Reading(*_loop_group(det, r.e1_upstream, span_h)),
+                              Reading(m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
+            m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps, m.ok_down = (
+                down.occupancy_pct, down.flow_vph, down.speed_mps, down.ok)
+            m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps, m.ok_up = up.occupancy_pct, up.flow_vph, up.speed_mps, up.ok
             k = det.loop_index.get(r.e1_ramp)
             passed = int(det.loop_count[k]) if k is not None else 0
             m.ramp_flow_vph = passed / span_h
@@ -157,6 +172,21 @@ class RampDetectors(Component):
             m.t_loops = t
             self.history.append((t, key, "down", m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps))
             self.history.append((t, key, "up", m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
+
+
+    def _faulty(self, station: str, t: float, true: Reading, held: Reading) -> Reading:
+        """The station's values as the centre gets them (``loop_faults``); a failure is an event."""
+        fault = self.faults.get(station)
+        out = apply_fault(fault, t, true, held, self.p.faults.bias_factor)
+        if fault is not None and t >= fault.t_fail_s and station not in self._failed_seen:
+            self._failed_seen.add(station)
+            if self._ctx is not None:
+                self._ctx.events.emit(fault.t_fail_s, self.name, "loop_failure", f"{station}: {fault.mode}",
+                                      station=station, mode=fault.mode)
+        return out
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {"loops_failed": len(self.faults)} if self.p.faults.share > 0 else {}
 
 
 def _loop_group(det: DetectorFrame, ids: tuple[str, ...], span_h: float) -> tuple[float, float, float]:

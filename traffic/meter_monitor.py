@@ -12,11 +12,13 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Phase, RunContext
 from corridor.traffic.landmarks import BeltwayLandmarks
 from corridor.traffic.meters import DIRECTIONS, MeterOff, SetMeterRate
+from corridor.traffic.road_spec import road_spec
 from corridor.traffic.trips import road_frame
 
 
@@ -43,6 +45,22 @@ class RampMeters(Component):
         default = 3600.0 / (lm.meter.green_s + lm.meter.red_s)  # [veh/h] the network's own program
         self.rate_vph = {tls: min(default, self.p.open_rate_vph) for tls in self.key_of}
         self._every = max(1, round(self.p.period_s / ctx.dt))
+        self._angles = {ic.ramp(d).meter_tls: (float(ic.angle_rad), d) for ic in lm.interchanges for d in DIRECTIONS}
+        spec = road_spec(ctx.scenario) if ctx.scenario is not None else None
+        self._radius_m = spec.network.params.circumference_m / (2 * np.pi) if spec is not None else 0.0
+
+    def rerun_log(self, rec: Any, rr: Any, ctx: RunContext) -> None:
+        """Each meter as a point beside its on-ramp: green when open, red at the lowest rates (Rerun)."""
+        if not self._radius_m:
+            return
+        tls = list(self.rate_vph)
+        ang = np.array([self._angles[t][0] for t in tls])
+        r = self._radius_m + np.array([80.0 if self._angles[t][1] == "ccw" else -80.0 for t in tls])
+        share = np.clip(np.array([self.rate_vph[t] for t in tls]) / self.p.open_rate_vph, 0.0, 1.0)
+        colors = np.column_stack([255 * (1 - share), 255 * share, np.zeros(len(tls)), np.full(len(tls), 255)])
+        rec.log("world/meters", rr.Points3D(np.column_stack([r * np.cos(ang), r * np.sin(ang), np.full(len(tls), 2.0)]),
+                                            colors=colors.astype(np.uint8), radii=25.0,
+                                            labels=[f"{self.key_of[t]} {self.rate_vph[t]:.0f}" for t in tls]))
 
     def tick(self, ctx: RunContext) -> None:
         for c in ctx.commands:

@@ -472,3 +472,11 @@ def build_beltway(params: BeltwayParams, work_dir: Path) -> BuildOutput:
     return BuildOutput(
         additional_files=(add.name,), routes=_routes(params), landmarks=_landmarks(params, net, detector_ids)
     )
+
+
+def carriageway_arcs(p: BeltwayParams, d: str) -> tuple[float, float, list[float]]:
+    """(reference radius [m], travel sign (+1 ccw), merge angle [rad] of every interchange) of the
+    ``d`` carriageway: the ring link k runs from merge k to the next merge in the travel direction,
+    as the METANET model's links do (its segment boundaries; ``corridor.traffic.segments``)."""
+    g = _geometry(p, d)
+    return float(g["radius"]), float(g["sign"]), [_angles(p, d, k)["M"] for k in range(p.interchanges)]

@@ -101,6 +101,74 @@ class SwarmSpec(_Frozen):
     alt_jitter_m: float = Field(0.0, ge=0.0)  # [m] +-amplitude of a deterministic altitude pattern
 
 
+class PatrolSpec(_Frozen):
+    """``n`` patrol quadcopters over a ring road (centre at the origin), one sector of ``360 / n`` deg
+    each, plus a crossing c172x and an emergency medical drone (both priority traffic, seen through
+    ADS-B / Remote ID).  Sector j spans ``offset_deg + j 360 / n`` .. ``+ 360 / n``; its UAV starts at
+    ``start_frac`` of the sector.  The c172x passes ``aircraft_alt_offset_m`` above the patrol altitude
+    over the ring point at ``aircraft_cross_deg`` at ``aircraft_time_s``, on the course
+    ``aircraft_course_deg``.  The medical drone flies from ``medical_radius_m`` outside the ring at
+    ``medical_from_deg`` straight over the ring centre to the opposite side, at the patrol altitude."""
+
+    n: int = Field(6, ge=0, le=64)  # 0: no patrol (a road-only variant keeps the backend, empty)
+    ring_radius_m: float = Field(1591.5, gt=0.0)  # [m] the road's reference radius
+    alt_m: float = Field(60.0, gt=5.0)  # [m] ENU up
+    alt_step_m: float = Field(0.0, ge=0.0)  # [m] sector j flies at alt_m + (j % 2) alt_step_m
+    speed_mps: float = Field(7.0, gt=0.0)  # [m/s] patrol cruise
+    offset_deg: float = 0.0
+    start_frac: float = Field(0.5, ge=0.0, le=1.0)
+    aircraft: bool = True
+    aircraft_cross_deg: float = 45.0  # [deg] ring point the c172x passes over
+    aircraft_course_deg: float = 0.0  # [deg] ENU course
+    aircraft_time_s: float = Field(300.0, gt=0.0)  # [s] when it passes over that point
+    aircraft_alt_offset_m: float = 30.0  # [m] above alt_m
+    aircraft_speed_mps: float = Field(50.0, gt=0.0)
+    medical: bool = True
+    medical_from_deg: float = 200.0  # [deg] where it enters, outside the ring
+    medical_radius_m: float = Field(1900.0, gt=0.0)  # [m] start/end distance from the centre
+    medical_speed_mps: float = Field(8.0, gt=0.0)
+
+    def sector(self, j: int) -> tuple[float, float]:
+        """Sector j's start and end angle [rad] (counter-clockwise)."""
+        w = 2.0 * np.pi / self.n
+        a = np.radians(self.offset_deg) + j * w
+        return float(a), float(a + w)
+
+    def alt(self, j: int) -> float:
+        return self.alt_m + (j % 2) * self.alt_step_m
+
+
+def patrol_aircraft(s: PatrolSpec) -> list[AircraftSpec]:
+    """The patrol quads (goal: the far end of their sector), the c172x and the medical drone."""
+    out = []
+    r = s.ring_radius_m
+    for j in range(s.n):
+        a0, a1 = s.sector(j)
+        a = a0 + s.start_frac * (a1 - a0)
+        start = np.array([r * np.cos(a), r * np.sin(a), s.alt(j)])
+        goal = np.array([r * np.cos(a1), r * np.sin(a1), s.alt(j)])
+        out.append(AircraftSpec(id=f"patrol_{j}", start_enu=tuple(map(float, start)), goal_enu=tuple(map(float, goal)),
+                                yaw_deg=float(np.degrees(a) + 90.0), cruise_speed_mps=s.speed_mps))
+    if s.aircraft:
+        c = np.radians(s.aircraft_cross_deg)
+        over = np.array([r * np.cos(c), r * np.sin(c), s.alt_m + s.aircraft_alt_offset_m])
+        u = _unit(s.aircraft_course_deg)
+        start = over - u * s.aircraft_speed_mps * s.aircraft_time_s
+        end = over + u * s.aircraft_speed_mps * 600.0
+        out.append(AircraftSpec(id="c172", model="c172x", start_enu=tuple(map(float, start)),
+                                yaw_deg=float(s.aircraft_course_deg), speed_mps=s.aircraft_speed_mps,
+                                cruise_speed_mps=s.aircraft_speed_mps, waypoints_enu=[tuple(map(float, end))],
+                                role="piloted"))
+    if s.medical:
+        u = _unit(s.medical_from_deg)
+        start = u * s.medical_radius_m + np.array([0.0, 0.0, s.alt_m])
+        end = -u * s.medical_radius_m + np.array([0.0, 0.0, s.alt_m])
+        out.append(AircraftSpec(id="medical", start_enu=tuple(map(float, start)), yaw_deg=float(s.medical_from_deg + 180.0),
+                                cruise_speed_mps=s.medical_speed_mps, waypoints_enu=[tuple(map(float, end))],
+                                role="piloted"))
+    return out
+
+
 def _unit(deg: float) -> np.ndarray:
     a = np.radians(deg)
     return np.array([np.cos(a), np.sin(a), 0.0])
@@ -171,6 +239,7 @@ class AirBackend(Backend):
         aircraft: list[AircraftSpec] = Field(default_factory=list)
         encounter: EncounterSpec | None = None
         swarm: SwarmSpec | None = None
+        patrol: PatrolSpec | None = None
         rate_hz: float = Field(120.0, gt=0.0)  # [Hz] JSBSim integration rate
 
         @model_validator(mode="after")
@@ -181,12 +250,14 @@ class AirBackend(Backend):
             return self
 
         def expanded(self) -> list[AircraftSpec]:
-            """Explicit aircraft, then the encounter's, then the swarm's."""
+            """Explicit aircraft, then the encounter's, the swarm's, the patrol's."""
             out = list(self.aircraft)
             if self.encounter is not None:
                 out += encounter_aircraft(self.encounter)
             if self.swarm is not None:
                 out += swarm_aircraft(self.swarm)
+            if self.patrol is not None:
+                out += patrol_aircraft(self.patrol)
             return out
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
@@ -207,6 +278,12 @@ class AirBackend(Backend):
         """Aircraft id -> (start, goal) [m] of every aircraft that has a goal."""
         return {a.id: (np.asarray(a.start_enu, float), np.asarray(a.goal_enu, float))
                 for a in self.aircraft if a.goal_enu is not None}
+
+    def attitudes(self) -> dict[str, tuple[float, float]]:
+        """Aircraft id -> (roll, pitch) [rad] now (JSBSim body Euler angles): the seam through which
+        an onboard sensor (a camera's footprint) learns its own attitude; the snapshot carries yaw only."""
+        st = self.fleet.state()
+        return {str(i): (float(r), float(p)) for i, r, p in zip(st.ids, st.roll, st.pitch, strict=True)}
 
     # ---- Backend ---------------------------------------------------------------------------------
     def setup(self, ctx: RunContext) -> None:

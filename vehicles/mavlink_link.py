@@ -24,6 +24,7 @@ import math
 import socket
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from types import ModuleType
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -65,12 +66,13 @@ class MavlinkEndpoint:
     ``origin`` anchors the local NED frame and the geodetic conversion.
     """
 
-    def __init__(self, sysid: int, origin: Origin, compid: int = 1, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR):
+    def __init__(self, sysid: int, origin: Origin, compid: int = 1, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR,
+                 dialect: ModuleType | None = None):
         if not 1 <= sysid <= 255:
             raise ValueError(f"MAVLink sysid must be in 1..255, got {sysid}")
         self.sysid, self.compid, self.mav_type = sysid, compid, mav_type
         self.origin = origin
-        self.mav = mavlink2.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.mav = (dialect or mavlink2).MAVLink(None, srcSystem=sysid, srcComponent=compid)
 
     def pack(self, msg: Any) -> bytes:
         """Frame one message with this endpoint's ids and sequence number (MAVLink 2, 0xFD)."""
@@ -197,8 +199,8 @@ class MavlinkDecoder:
     ``decode_datagram`` parses one datagram on its own (incomplete frames are dropped and counted).
     """
 
-    def __init__(self) -> None:
-        self.mav = mavlink2.MAVLink(None)
+    def __init__(self, dialect: ModuleType | None = None) -> None:
+        self.mav = (dialect or mavlink2).MAVLink(None)  # a dialect generated from common.xml + its own messages
         self._counters = DecodeCounters()
         # copies whose parse was shared (MavlinkLink decodes a datagram once for all receivers):
         # counter values of that parse -> number of copies, folded into ``counters`` when read
@@ -275,16 +277,14 @@ def _decode_frame(mav: Any, frame: bytes, c: DecodeCounters) -> Any | None:
         return None
     try:
         m = mav.decode(bytearray(frame))
-    except mavlink2.MAVError as err:
-        if "CRC" in str(err.message):
+    except Exception as err:  # noqa: BLE001 - corrupted bytes must never crash the run
+        # MAVError of whichever dialect module decoded (each generated module has its own class)
+        if type(err).__name__ == "MAVError" and "CRC" in str(getattr(err, "message", err)):
             c.bad_crc += 1
         else:
             c.bad_data += 1
         return None
-    except Exception:  # noqa: BLE001 - corrupted bytes must never crash the run
-        c.bad_data += 1
-        return None
-    if isinstance(m, mavlink2.MAVLink_unknown | mavlink2.MAVLink_bad_data):
+    if type(m).__name__ in ("MAVLink_unknown", "MAVLink_bad_data"):
         c.bad_data += 1
         return None
     return m
@@ -460,6 +460,7 @@ class _Decoded:
     report: _ReportFields | None
     setpoints: tuple[Any, ...]
     counter_key: tuple[int, int, int, int]  # the counters' values (a copy's tally key)
+    estimates: tuple[Any, ...] = ()  # TRAFFIC_SEGMENT_ESTIMATE messages (dialect corridor_traffic)
 
     @staticmethod
     def of(msgs: list[Any], counters: DecodeCounters, origin: Origin) -> _Decoded:
@@ -473,7 +474,8 @@ class _Decoded:
                 report = _ReportFields(r.sysid, r.kind, r.t_meas_s, r.p_enu, r.v_enu, r.yaw_rad, tslc)
         sps = tuple(m for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED")
         key = (counters.messages, counters.bad_crc, counters.bad_data, counters.bytes_dropped)
-        return _Decoded(counters, report, sps, key)
+        est = tuple(m for m in msgs if m.get_type() == "TRAFFIC_SEGMENT_ESTIMATE")
+        return _Decoded(counters, report, sps, key, est)
 
 
 # ---------------------------------------------------------------------------------------------- link
@@ -535,8 +537,12 @@ class MavlinkLink:
         log_path: str | None = None,
         bit_error_rate: float = 0.0,
         rng: np.random.Generator | None = None,
+        dialect: ModuleType | None = None,
     ) -> None:
         self.channel = channel
+        self.dialect = dialect  # None: pymavlink's common; else a generated superset (mavlink_dialect)
+        # TRAFFIC_SEGMENT_ESTIMATE messages the ground station received: (t_recv [s], src, t_sent [s], msg)
+        self.estimates: list[tuple[float, str, float, Any]] = []
         self.origin = origin if isinstance(origin, Origin) else Origin(*origin)
         self.rates = rates or LinkRates()
         self.gcs_id = gcs_id
@@ -566,11 +572,12 @@ class MavlinkLink:
             raise ValueError(f"duplicate link member {id!r} / sysid {sysid}")
         self._fold_tallies()
         self._listen = None
-        self._nodes[id] = _Node(MavlinkEndpoint(sysid, self.origin, mav_type=mav_type), kind, **kw)
+        self._nodes[id] = _Node(MavlinkEndpoint(sysid, self.origin, mav_type=mav_type, dialect=self.dialect),
+                                kind, **kw)
         self._by_sysid[sysid] = id
         if listen:
             self.channel.attach(id)
-            self._decoders[id] = MavlinkDecoder()
+            self._decoders[id] = MavlinkDecoder(self.dialect)
         return sysid
 
     def _free_sysid(self) -> int:
@@ -669,6 +676,19 @@ class MavlinkLink:
         payload = gcs.set_position_target_local_ned(t_s, self.sysid(target_id), p_enu, v_enu, yaw_rad)
         self._send(t_s, self.gcs_id, payload, None, dst=target_id)
 
+    def send_to_gcs(self, t_s: float, src: str, messages: Iterable[Any], src_pos: np.ndarray | None = None) -> int:
+        """``src`` -> ground station: the given pymavlink messages (of this link's dialect) framed by
+        ``src``'s endpoint in one unicast datagram; returns its size [bytes] (0: nothing sent)."""
+        ep = self._nodes[src].endpoint
+        payload = b"".join(ep.pack(m) for m in messages)
+        if payload:
+            self._send(t_s, src, payload, src_pos, dst=self.gcs_id)
+        return len(payload)
+
+    def endpoint(self, id: str) -> MavlinkEndpoint:
+        """The MAVLink endpoint of link member ``id`` (its ``mav`` builds messages of the dialect)."""
+        return self._nodes[id].endpoint
+
     def inject(self, t_s: float, src: str, payload: bytes, dst: str | None = None) -> None:
         """Put raw bytes (garbage, a hand-made frame) on the channel as if ``src`` had sent them."""
         self._send(t_s, src, bytes(payload), None, dst=dst)
@@ -687,6 +707,8 @@ class MavlinkLink:
                 reports.setdefault(d.dst, []).append(decoded.report.received(d.src, d.t_sent_s, d.t_recv_s))
             if decoded.setpoints:
                 self._route_setpoints(inbox, d, decoded)
+            if decoded.estimates and d.dst == self.gcs_id:
+                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
         return inbox
 
     def receive_latest(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
@@ -727,6 +749,8 @@ class MavlinkLink:
                         pend[src] = ReceivedReport(t_meas, rep, src, t_sent, t_recv)
                 if hit.setpoints:
                     routed.append((t_recv, src, dst, b.seq, t_sent, hit))
+                if hit.estimates and dst == self.gcs_id:
+                    self.estimates.extend((t_recv, src, t_sent, m) for m in hit.estimates)
         inbox = Inbox()
         for t_recv, src, dst, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
             self._route_setpoints(inbox, _Copy(src, dst, t_sent, t_recv), hit)
@@ -777,11 +801,13 @@ class MavlinkLink:
                 t_meas = b.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
                 t_recv = b.t_recv_s[listen[b.dst_idx]]
                 table.offer(rows[keep], col, t_meas, t_recv[keep], rep.p_enu, rep.v_enu)
-            if hit.setpoints:
+            if hit.setpoints or hit.estimates:
                 names = self.channel.node_names
                 for i, t_recv in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
-                    if names[i] in self._decoders:
+                    if hit.setpoints and names[i] in self._decoders:
                         routed.append((t_recv, b.src, names[i], b.seq, b.t_sent_s, hit))
+                    if hit.estimates and names[i] == self.gcs_id:  # camera estimates for the ground station
+                        self.estimates.extend((t_recv, b.src, b.t_sent_s, m) for m in hit.estimates)
         inbox = Inbox()
         for t_recv, src, dst_id, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
             self._route_setpoints(inbox, _Copy(src, dst_id, t_sent, t_recv), hit)
@@ -798,6 +824,8 @@ class MavlinkLink:
                 table.offer(np.array([row]), col, t_meas, np.array([d.t_recv_s]), rep.p_enu, rep.v_enu)
             if decoded.setpoints:
                 self._route_setpoints(inbox, d, decoded)
+            if decoded.estimates and d.dst == self.gcs_id:
+                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
         return inbox.setpoints
 
     def _listening_nodes(self) -> np.ndarray:
@@ -831,6 +859,8 @@ class MavlinkLink:
                     pend[d.src] = ReceivedReport(t_meas, rep, d.src, d.t_sent_s, d.t_recv_s)
             if decoded.setpoints:
                 self._route_setpoints(inbox, d, decoded)
+            if decoded.estimates and d.dst == self.gcs_id:
+                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
         return inbox.setpoints
 
     def _received(self, t_s: float) -> list[tuple[Any, _Decoded]]:
@@ -871,7 +901,7 @@ class MavlinkLink:
 
     def _decode_once(self, payload: bytes) -> _Decoded:
         """Datagram decode + conversion (memoised within one receive for copies of the same bytes)."""
-        scratch = MavlinkDecoder()
+        scratch = MavlinkDecoder(self.dialect)
         msgs = scratch.decode_datagram(payload)
         return _Decoded.of(msgs, scratch.counters, self.origin)
 

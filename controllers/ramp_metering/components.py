@@ -197,6 +197,9 @@ class RampMpcParams(RampParams):
     #   if feasible and better than holding the rates, else ALINEA (1500 s run, seed 0: TTS 659.0 at
     #   1.5 s against 659.3 at 5 s; solve p95 1.48 s against 3.5 s)
     guidance: bool = True
+    # name of a ``segment_estimate`` component (``segment_fusion``: loops + UAV cameras) the MPC takes
+    # its density/speed state from; None: the loops by the direct mapping (``estimate_state``)
+    estimator: str | None = None
 
 
 def load_calibration(name: str | None) -> dict[str, float]:
@@ -360,6 +363,9 @@ class RampMpc(RampControl):
     """Coordinated ramp metering + route guidance by METANET MPC, ALINEA fallback on solver failure."""
 
     Params = RampMpcParams
+    needs: ClassVar[dict[str, Need]] = {**RampControl.needs,
+                                        "fusion": Need(role="segment_estimate", name_at="p.estimator", optional=True)}
+    fusion: Any = None
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -415,6 +421,8 @@ class RampMpc(RampControl):
         times = obs.t + np.arange(mpc.n) * self.p.model_step_s
         keys = [f"{SUMO_DIR_OF_MODEL[int(j) % 2]}{int(j) // 2}" for j in net.metered_idx]
         occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])
+        if self.fusion is not None:
+            x0, occ = self.fused_state(x0, keys, obs.t)
         res = mpc.solve(x0, self.forecast(times), self.u_prev, occupancy_pct=occ)
         if res.fallback:
             self.events.emit(obs.t, self.name, "fallback", f"MPC failed ({res.status}); ALINEA rates this step",
@@ -427,6 +435,23 @@ class RampMpc(RampControl):
                     self._ctx.signals.record(f"split_ccw_{k}", obs.t, s)
         cap = self.p.open_rate_vph
         return {key: (math.inf if r >= 0.97 * cap else float(r)) for key, r in zip(keys, res.rates_vph)}
+
+    def fused_state(self, x0: np.ndarray, keys: list[str], t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """The state with the estimator's densities and speeds (queues stay the ramp detectors'), and
+        the occupancy [%] downstream of each metered merge from the fused density (ALINEA fallback)."""
+        from corridor.traffic.metanet import equilibrium_speed
+
+        self.fusion.refresh(t_s)
+        net, ns = self.net, self.net.n_seg
+        rho = np.maximum(self.fusion.densities(), RHO_FLOOR)
+        v = self.fusion.speeds_kmh()
+        v = np.where(np.isfinite(v), v, equilibrium_speed(rho, net.v_free_kmh, net.rho_crit, net.a))
+        x = x0.copy()
+        x[:ns], x[ns:2 * ns] = rho, v
+        first = {f"{d}{k}": (dirn * self.n + k) * self.m_seg for dirn, d in enumerate(SUMO_DIR_OF_MODEL)
+                 for k in range(self.n)}
+        occ = np.array([rho[first[k]] * self.p.vehicle_length_m / 10.0 for k in keys])
+        return x, occ
 
     def guide(self, obs: RampObservation) -> list[Any]:
         if not self.targets:

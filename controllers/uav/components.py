@@ -58,6 +58,9 @@ class UavAvoidanceParams(BaseModel):
     # [m] slack of the relevance range (track sigma, report age, time to the next decision) on top of
     # the method's own reach; None: every reporting UAV may be tracked (nearest link max_tracks)
     relevance_margin_m: float | None = Field(15.0, ge=0.0)
+    # sector patrol (the air backend's ``patrol`` fleet): the goal is a point this far ahead along the
+    # UAV's sector arc, turning back at the sector ends; None: the fixed goal of each UAV
+    patrol_lookahead_m: float | None = Field(None, gt=0.0)
     # the methods' own parameters, typed so that a misspelt one fails at scenario load (not in every run);
     # control_tube.period_s defaults to the controller's period (see ControlTubeController.build_methods)
     potential_field: PotentialFieldParams = Field(default_factory=PotentialFieldParams)
@@ -95,8 +98,35 @@ class _UavController(Controller):
             self.cruise[uid] = float(specs[uid].cruise_speed_mps)
             self.mode[uid] = "cruise"
         self.uav_ids = list(ids)
+        self.patrol = self._patrol_sectors()
+        self.patrol_dir = {uid: 1.0 for uid in self.patrol}
         self.build_methods()
         super().setup(ctx)
+
+    def _patrol_sectors(self) -> dict[str, tuple[float, float, float, float]]:
+        """uid -> (ring radius [m], sector start, end [rad], altitude [m]) when patrolling."""
+        spec = getattr(self.backend.params, "patrol", None)
+        if self.params.patrol_lookahead_m is None or spec is None:
+            return {}
+        out = {}
+        for j in range(spec.n):
+            uid = f"patrol_{j}"
+            if uid in self.goal:
+                out[uid] = (spec.ring_radius_m, *spec.sector(j), spec.alt(j))
+        return out
+
+    def patrol_goal(self, uid: str, pos: np.ndarray) -> np.ndarray:
+        """The point ``patrol_lookahead_m`` ahead of the UAV's projection on its sector arc, in its
+        current patrol direction (reversed at a sector end, a ``patrol_turn`` event)."""
+        r, a0, a1, alt = self.patrol[uid]
+        theta = a0 + float(np.mod(np.arctan2(pos[1], pos[0]) - a0, 2.0 * np.pi))
+        if theta > a1 + 0.5 * (2.0 * np.pi - (a1 - a0)):  # behind the start: unwrap backwards
+            theta -= 2.0 * np.pi
+        d = self.patrol_dir[uid]
+        if (d > 0 and theta >= a1) or (d < 0 and theta <= a0):
+            self.patrol_dir[uid] = d = -d
+        target = float(np.clip(theta + d * self.params.patrol_lookahead_m / r, a0, a1))
+        return np.array([r * np.cos(target), r * np.sin(target), alt])
 
     def build_methods(self) -> None:
         """Create the per-UAV method objects (after goals and cruise speeds are known)."""
@@ -112,7 +142,8 @@ class _UavController(Controller):
             pictures = self.link.pictures(uids, ctx.t, pos, rel)
         else:
             pictures = [()] * len(uids)
-        return {u: AvoidanceObservation(ctx.t, pos[k].copy(), vel[k].copy(), self.goal[u], pictures[k])
+        goals = [self.patrol_goal(u, pos[k]) if u in self.patrol else self.goal[u] for k, u in enumerate(uids)]
+        return {u: AvoidanceObservation(ctx.t, pos[k].copy(), vel[k].copy(), goals[k], pictures[k])
                 for k, u in enumerate(uids)}
 
     def relevance(self, uid: str, own_vel: np.ndarray) -> Relevance | None:

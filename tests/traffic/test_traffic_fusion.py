@@ -1,0 +1,83 @@
+"""Segment fusion (loops + UAV camera estimates) and loop faults."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from corridor.traffic.fusion import FusionParams, SegmentFilter
+from corridor.traffic.loop_faults import LoopFaults, Reading, apply_fault, draw_faults
+
+
+def test_one_update_is_the_scalar_kalman_formula():
+    kf = SegmentFilter(1, FusionParams(rho_init=10.0, rho_init_sigma=5.0, loop_sigma=5.0))
+    kf.update_loop("a", 0, 30.0, math.nan)
+    # prior 10 +- 5, measurement 30 +- 5: the mean is halfway, the variance halves
+    assert kf.rho[0] == pytest.approx(20.0)
+    assert kf.P_rho[0] == pytest.approx(12.5)
+
+
+def test_age_of_information_inflates_a_camera_estimate():
+    fresh, old = SegmentFilter(1), SegmentFilter(1)
+    for kf in (fresh, old):
+        kf.update_loop("a", 0, 20.0, math.nan)
+        kf.predict(100.0)
+    fresh.update_uav(0, 100.0, 40.0, 4.0, math.nan, math.nan)
+    old.update_uav(0, 40.0, 40.0, 4.0, math.nan, math.nan)  # taken 60 s ago
+    assert 20.0 < old.rho[0] < fresh.rho[0] < 40.0
+
+
+def test_a_failed_loop_is_down_weighted():
+    """Two stations on one segment; one sticks at zero.  With camera estimates of the true density the
+    stuck station's weight falls and the fused density follows the truth, not the average."""
+    rng = np.random.default_rng(0)
+    kf = SegmentFilter(1)
+    truth = 30.0
+    for t in range(60, 1260, 60):
+        kf.predict(float(t))
+        kf.update_loops([("healthy", 0, truth + rng.normal(0, 3), 60.0), ("stuck", 0, 0.0, math.nan)])
+        for dt in range(5, 60, 10):  # a camera pass every 10 s
+            kf.predict(float(t + dt))
+            kf.update_uav(0, float(t + dt) - 2.0, truth + rng.normal(0, 3), 9.0, 60.0, 25.0)
+    assert kf.station_weight("stuck") < 0.05
+    assert kf.station_weight("healthy") > 0.5
+    assert kf.rho[0] == pytest.approx(truth, abs=3.0)
+
+
+def test_without_cameras_a_stuck_loop_drags_the_estimate():
+    """The counterpart: two stations alone can only out-vote each other (why the cameras matter)."""
+    kf = SegmentFilter(1)
+    for t in range(60, 1260, 60):
+        kf.predict(float(t))
+        kf.update_loops([("healthy", 0, 30.0, math.nan), ("stuck", 0, 0.0, math.nan)])
+    assert kf.rho[0] < 20.0  # truth 30: dragged towards the stuck station's zero
+
+
+def test_fault_draws_share_and_modes():
+    stations = [f"s{i}" for i in range(32)]
+    faults = draw_faults(LoopFaults(share=0.3), stations, np.random.default_rng(1))
+    assert len(faults) == round(0.3 * 32)
+    assert all(30.0 <= f.t_fail_s <= 300.0 for f in faults.values())
+    assert draw_faults(LoopFaults(share=0.0), stations, np.random.default_rng(1)) == {}
+    # the same stream gives the same faults (common random numbers across variants)
+    assert faults == draw_faults(LoopFaults(share=0.3), stations, np.random.default_rng(1))
+
+
+def test_fault_modes():
+    from corridor.traffic.loop_faults import StationFault
+
+    true, held = Reading(20.0, 1500.0, 25.0), Reading(5.0, 600.0, 30.0)
+    assert apply_fault(StationFault("stuck_zero", 100.0), 50.0, true, held, 0.4) == true  # before the failure
+    z = apply_fault(StationFault("stuck_zero", 100.0), 150.0, true, held, 0.4)
+    assert (z.occupancy_pct, z.flow_vph, math.isnan(z.speed_mps)) == (0.0, 0.0, True)
+    b = apply_fault(StationFault("bias", 100.0), 150.0, true, held, 0.4)
+    assert (b.occupancy_pct, b.flow_vph, b.speed_mps) == pytest.approx((8.0, 600.0, 25.0))
+    d = apply_fault(StationFault("dropout", 100.0), 150.0, true, held, 0.4)
+    assert (d.occupancy_pct, d.flow_vph, d.ok) == (5.0, 600.0, False)
+
+
+def test_fault_window_is_checked():
+    with pytest.raises(ValueError, match="start_s"):
+        LoopFaults(start_s=(600.0, 60.0))
