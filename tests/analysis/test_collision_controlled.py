@@ -21,7 +21,7 @@ import numpy as np
 
 from corridor.analysis.monitors import CollisionMonitor
 from corridor.engine import Backend, RunContext, Simulation
-from corridor.snapshot import Kind, Role, RoadEvents, RoadFrame, RoadTables, WorldSnapshot
+from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 
 DT = 0.1  # [s]
 LENGTH_M, WIDTH_M = 4.5, 1.8  # [m] ego and follower (SUMO boxes of parking.yaml)
