@@ -82,3 +82,56 @@ def test_real_overlap_of_controlled_ego_still_counted() -> None:
 def test_report_between_sumo_vehicles_still_counted() -> None:
     m, _ = run(SumoLike(Role.OTHER))  # no controlled row: SUMO's own report is the collision
     assert m["collisions"] == 1
+
+
+def _sumo_report_at_diagonal_pose(cache: str) -> tuple[list[tuple[str, str]], float]:
+    """Real SUMO (parking street of parking.yaml, sublane model): a follower stands on ``east_0`` and the
+    ego is put at the diagnosed diagonal pose with ``moveToXY``; SUMO's collision report and the real
+    boxes' overlap depth along the separating direction (negative: apart)."""
+    from pathlib import Path
+
+    import libsumo
+
+    from corridor.traffic.network import build_network
+
+    net = build_network("parking_street", {"occupancy": 0.0}, Path(cache))
+    libsumo.start(["sumo", "-n", str(net.net_file), "--no-step-log", "--no-warnings", "--step-length", "0.1",
+                   "--collision.action", "warn", "--collision.mingap-factor", "0", "--lateral-resolution", "0.8"])
+    try:
+        libsumo.route.add("r", ["east"])
+        libsumo.vehicle.add("f", "r", depart="0", departLane="0", departPos=f"{FOLLOWER_FRONT[0]:g}", departSpeed="0")
+        libsumo.vehicle.add("ego", "r", depart="0", departLane="0", departPos="90", departSpeed="0")
+        for vid in ("f", "ego"):
+            libsumo.vehicle.setLength(vid, LENGTH_M)
+            libsumo.vehicle.setWidth(vid, WIDTH_M)
+        libsumo.vehicle.setSpeedMode("ego", 0)
+        libsumo.simulationStep()
+        libsumo.vehicle.setSpeed("f", 0.0)
+        reports: list[tuple[str, str]] = []
+        for _ in range(3):
+            libsumo.vehicle.moveToXY("ego", "", -1, EGO_FRONT[0], EGO_FRONT[1], EGO_SUMO_ANGLE_DEG, 2)
+            libsumo.simulationStep()
+            reports += [(c.collider, c.victim) for c in libsumo.simulation.getCollisions()]
+        poses = [(libsumo.vehicle.getPosition(v), libsumo.vehicle.getAngle(v)) for v in ("ego", "f")]
+    finally:
+        libsumo.close()
+    from shapely.geometry import Polygon
+
+    from corridor.analysis.safety import box_corners
+
+    boxes = []
+    for front, angle in poses:
+        c, yaw = centre(front, angle)
+        corners = box_corners(np.array([c[:2]]), np.array([yaw]), np.array([LENGTH_M]), np.array([WIDTH_M]))[0]
+        boxes.append(Polygon(corners))
+    return reports, float(boxes[0].distance(boxes[1]))
+
+
+def test_sumo_reports_a_collision_the_real_boxes_do_not_have(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        reports, gap_m = pool.submit(_sumo_report_at_diagonal_pose, str(tmp_path)).result()
+    assert ("f", "ego") in reports  # SUMO: the follower ran into the lane-aligned box of the ego
+    assert gap_m > 0.5  # the real boxes are 0.77 m apart (0.9 m in the run: follower 0.1 m off its lane centre)
