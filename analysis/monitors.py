@@ -22,7 +22,14 @@ class CollisionMonitor(Component):
 
     The box check is continuous (``corridor.analysis.ccd``): besides the overlap at the tick, boxes
     that met between the previous and this tick (closest approach of the straight-line motion) count,
-    with the contact time inside the interval; a pair that overlaps at the tick keeps the tick's time."""
+    with the contact time inside the interval; a pair that overlaps at the tick keeps the tick's time.
+
+    A road backend's report of a pair that involves a ``CONTROLLED`` row (an ego placed into SUMO with
+    ``moveToXY``) is logged (``road_collision_report``) but not counted: SUMO checks vehicles on a lane
+    as lane-aligned boxes (lane position minus length, lateral offset of the front bumper +- half the
+    width), which is wrong for an ego standing at an angle to its lane (reversing into a bay: SUMO
+    reported a stopped follower inside the ego while the real boxes were 0.9 m apart, issue 14).  Such
+    pairs are decided by the oriented-box check, which sees every controlled row's real pose."""
 
     phase = Phase.DETECT
     period_source: ClassVar[str | None] = "dt"
@@ -38,9 +45,14 @@ class CollisionMonitor(Component):
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
         prev, self._prev = self._prev, None
-        if s.road is not None:
+        if s.road is not None and s.road.events.collisions:
+            controlled = {str(i) for i in s.ids[s.role == _CONTROLLED]}
             for t, a, v, kind in s.road.events.collisions:
-                self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
+                if a in controlled or v in controlled:  # decided by the exact box check below
+                    ctx.events.emit(t, self.name, "road_collision_report",
+                                    f"{a} x {v} [{s.road.source} ({kind}), lane-projected; not counted]", a=a, b=v)
+                else:
+                    self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
         if len(s) < 2 or (np.maximum.reduce(s.role) < _CONTROLLED and np.maximum.reduce(s.kind) <= _TRUCK):
             return  # only backend-driven road vehicles: their backend reports collisions
         special = np.flatnonzero((s.role == _CONTROLLED) | ((s.kind != _CAR) & (s.kind != _TRUCK)))

@@ -11,7 +11,8 @@ SUMO's collision check sees it (its SUMO length and width are set to the bicycle
 
 The snapshot holds the ego once: this backend emits no snapshot part; the SUMO row stands for it and
 is marked ``Role.CONTROLLED``, which makes the kernel's collision monitor box-check it against every
-other entity in addition to SUMO's own collision report (collisions are checked in both directions).
+other entity; SUMO's own report of a pair with the ego is only logged (SUMO checks the ego as a box
+aligned with its lane, which is wrong while it stands at an angle to the lane, e.g. parking).
 
 Coupling to SUMO goes only through the SUMO backend's documented seam (no libsumo, no backend
 state): its ``pre_step`` hook, ``apply`` with commands that carry ``apply_to_sumo`` (``InsertEgo``,
