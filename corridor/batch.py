@@ -121,6 +121,7 @@ class _Worker:
     fd: int
     serve: bool = False
     data: bytearray = field(default_factory=bytearray)
+    retiring: bool = False  # a server that said it will exit after its last frame: give it no work
 
 
 def _spawn(serve: bool) -> _Worker:
@@ -200,13 +201,16 @@ def _take_frame(w: _Worker) -> dict[str, Any] | None:
     """A server's finished row, once its whole frame has arrived."""
     if len(w.data) < FRAME.size:
         return None
-    n, code = FRAME.unpack_from(w.data)
+    n, code, retiring = FRAME.unpack_from(w.data)
     if len(w.data) < FRAME.size + n:
         return None
     data = bytes(w.data[FRAME.size:FRAME.size + n])
     del w.data[:FRAME.size + n]
     assert w.spec is not None
     row, w.spec = _row(w.spec, data, code), None
+    if retiring:
+        w.retiring = True
+        _close_stdin(w)
     return row
 
 
@@ -225,7 +229,7 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
         while True:
             busy = sum(1 for w in running.values() if w.spec is not None)
             while busy < workers and (spec := next(queue, None)) is not None:
-                idle = next((w for w in running.values() if w.spec is None), None)
+                idle = next((w for w in running.values() if w.spec is None and not w.retiring), None)
                 w = _start(spec, fork_server, idle)
                 running[w.fd] = w
                 busy += 1

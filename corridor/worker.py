@@ -30,7 +30,9 @@ import sys
 from typing import Any, BinaryIO
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
-FRAME = struct.Struct("<Qi")  # server -> parent: row length [bytes], run's wait status (0: exited 0)
+# server -> parent: row length [bytes], run's wait status (0: exited 0), whether the server retires
+# after this frame (the parent then sends it nothing more: a spec sent to a retiring server was lost)
+FRAME = struct.Struct("<Qi?")
 SPEC_LEN = struct.Struct("<Q")  # parent -> server: spec length [bytes]
 
 
@@ -145,10 +147,13 @@ def serve(fd: int, parent_pid: int) -> int:
         if body is None:
             break
         data, code = _fork_run(pickle.loads(body))
-        out.write(FRAME.pack(len(data), code) + data)
+        # a learned module started a thread (a Rust runtime, say): forking a multi-threaded process is
+        # unsafe, so retire, and say so in the frame, before the parent can hand this server more work
+        retire = _threads() > 1
+        out.write(FRAME.pack(len(data), code, retire) + data)
         out.flush()
-        if _threads() > 1:  # a learned module started a thread (a Rust runtime, say): forking a
-            break  # multi-threaded process is unsafe, so retire; the batch starts a fresh server
+        if retire:
+            break
     return 0
 
 

@@ -46,7 +46,7 @@ def _frame(w: batch._Worker) -> tuple[int, bytes]:
         chunk = os.read(w.fd, 1 << 20)
         assert chunk, "the server closed its pipe"
         data += chunk
-    n, code = FRAME.unpack_from(data)
+    n, code, _retiring = FRAME.unpack_from(data)
     return code, bytes(data[FRAME.size:FRAME.size + n])
 
 
@@ -76,3 +76,14 @@ def test_a_killed_run_costs_its_row_and_its_server_serves_on():
         os.kill(w.proc.pid, signal.SIGKILL)
         w.proc.wait()
         os.close(w.fd)
+
+
+def test_a_server_that_retires_loses_no_run(tmp_path):
+    """highway-env's import starts a native thread, so a fork server that learned the parking lot's
+    modules retires after its run.  It says so in its frame: the next spec goes to a fresh server (it
+    used to be sent to the retiring one and came back as 'worker process died (exit code 0)')."""
+    from corridor.api import run
+
+    res = run(str(ROOT / "scenarios" / "parking_lot.yaml"), runs=3, sets=["duration=2"], out=tmp_path / "b",
+              report=False, workers=1)
+    assert list(res.rows["status"]) == ["ok"] * 3, res.rows.get("error")
