@@ -179,17 +179,10 @@ class ParkingLotController(Controller):
         m = self.man
         if m is None:
             return {"final_mode": "none"}
-        wall = np.asarray(m.plan_wall_s) if m.plan_wall_s else np.full(1, np.nan)
         last = m.plans[-1] if m.plans else None
         return {
-            "final_mode": m.mode,
-            "replans": m.replans,
-            "aborts": sum(1 for h in m.ha.history if h[2] == "abort"),
-            "abort_reasons": "; ".join(m.reasons),
-            "plan_failures": m.plan_failures,
-            "plan_time_p50_s": float(np.percentile(wall, 50)),
-            "plan_time_p95_s": float(np.percentile(wall, 95)),
-            "plan_time_max_s": float(np.max(wall)),
+            **m.metrics(),
+            "plan_time_max_s": float(np.max(m.plan_wall_s)) if m.plan_wall_s else math.nan,
             "plan_search_s": float(getattr(last, "search_time_s", math.nan)) if last is not None else math.nan,
             "plan_optimise_s": float(getattr(last, "optimise_time_s", math.nan)) if last is not None else math.nan,
             "planned_direction_changes": int(last.direction_changes()) if last is not None else -1,

@@ -185,6 +185,20 @@ class ParkingManoeuvre:
                 return "straighten"
         return "position" if seg.direction > 0 else "reverse_in"
 
+    def metrics(self) -> dict[str, Any]:
+        """The run metrics every parking controller reports: final mode, re-plans, aborts and their
+        reasons, planner failures and planning wall time [s] (p50 / p95 over the calls)."""
+        wall = np.asarray(self.plan_wall_s) if self.plan_wall_s else np.full(1, np.nan)
+        return {
+            "final_mode": self.mode,
+            "replans": self.replans,
+            "aborts": sum(1 for h in self.ha.history if h[2] == "abort"),
+            "abort_reasons": "; ".join(self.reasons),
+            "plan_failures": self.plan_failures,
+            "plan_time_p50_s": float(np.percentile(wall, 50)),
+            "plan_time_p95_s": float(np.percentile(wall, 95)),
+        }
+
     def _on_enter(self, new: str, old: str, obs: ParkingObservation) -> None:
         if new == "abort":
             self.reasons.append(self.ha.history[-1][3])

@@ -177,16 +177,9 @@ class ParkingStreetController(Controller):
                             band_m=(0.0, self.marks.bay_depth_m))
         if m is None:
             return {"final_mode": "none"}
-        wall = np.asarray(m.plan_wall_s) if m.plan_wall_s else np.full(1, np.nan)
         last = m.plans[-1] if m.plans else None
         return {
-            "final_mode": m.mode,
-            "replans": m.replans,
-            "aborts": sum(1 for h in m.ha.history if h[2] == "abort"),
-            "abort_reasons": "; ".join(m.reasons),
-            "plan_failures": m.plan_failures,
-            "plan_time_p50_s": float(np.percentile(wall, 50)),
-            "plan_time_p95_s": float(np.percentile(wall, 95)),
+            **m.metrics(),
             "planned_direction_changes": int(last.direction_changes()) if last is not None else -1,
             "slot_found_s": next((h[0] for h in m.ha.history if h[2] == "slot_found"), math.nan),
             "mode_transitions": len(m.ha.history),
