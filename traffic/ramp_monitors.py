@@ -13,7 +13,8 @@ fairness across ramps and the MPC's solve times.
 * Fairness: mean wait per ramp by Little's law (time-mean queue / ramp outflow), reported as the
   spread (max - min) and standard deviation across ramps [s].
 * MPC solve times p50/p95 [s] and fallbacks, from any peer that keeps ``solve_times_s`` and
-  ``n_fallbacks`` (the ``ramp_mpc`` controller).
+  ``n_fallbacks`` (the ``ramp_mpc`` controller), the solves the CPU-time safety net ended
+  (``mpc_cpu_capped``) and the IPOPT iteration counts (``mpc_iter_p50`` / ``mpc_iter_max``).
 """
 
 from __future__ import annotations
@@ -132,8 +133,17 @@ class RampKpis(Component):
                 return {"mpc_solve_p50_s": float(np.percentile(t, 50)),
                         "mpc_solve_p95_s": float(np.percentile(t, 95)),
                         "mpc_solves": len(times), "mpc_fallbacks": int(getattr(c, "n_fallbacks", 0)),
-                        "mpc_suboptimal": int(getattr(c, "n_suboptimal", 0))}
+                        "mpc_suboptimal": int(getattr(c, "n_suboptimal", 0)),
+                        "mpc_cpu_capped": int(getattr(c, "n_cpu_capped", 0)),
+                        **_iterations(getattr(c, "iter_counts", None))}
         return {}
+
+
+def _iterations(counts: list[int] | None) -> dict[str, float]:
+    """Median and largest IPOPT iteration count of the solves (deterministic, unlike solve times)."""
+    if not counts:
+        return {}
+    return {"mpc_iter_p50": float(np.percentile(counts, 50)), "mpc_iter_max": float(max(counts))}
 
 
 def _kmh(speed_mps: float) -> float:

@@ -193,9 +193,16 @@ class RampMpcParams(RampParams):
     compliance: float = Field(1.0, ge=0, le=1)  # share of drivers with a real choice who follow guidance
     guidance_extra_hops: int = Field(0, ge=0, le=16)  # [interchanges] a trip has a choice if the other loop is <= this longer
     storage_frac: float = Field(0.8, gt=0, le=1)  # MPC queue limit = this x ramp storage
-    max_cpu_time_s: float = Field(1.5, gt=0, le=600)  # (at most 10 min) IPOPT time limit per solve [s]; beyond: the last iterate
-    #   if feasible and better than holding the rates, else ALINEA (1500 s run, seed 0: TTS 659.0 at
-    #   1.5 s against 659.3 at 5 s; solve p95 1.48 s against 3.5 s)
+    # The solve budget is IPOPT's iteration count, so the same seed gives the same rows on any load:
+    # beyond it the last iterate if feasible and better than holding the rates, else ALINEA.  The
+    # beltway's solves take 10-500 iterations (~5 ms each here; air_ground_watch loops_failed, seed
+    # 0, 900 s: median 84, max 491), so 500 ends practically none of them early.
+    max_iter: int = Field(500, ge=1, le=10000)
+    # CPU-time safety net per solve [s] (at most 10 min), far above a 500-iteration solve (~2.5 s);
+    # a solve it ends is logged (event ``mpc_cpu_cap``) and counted (``mpc_cpu_capped``), since the
+    # run then depends on the machine's load.  (It used to be the budget, 1.5 s: under load the MPC
+    # fell back to ALINEA on up to half of its steps, and rows differed between identical runs.)
+    max_cpu_time_s: float = Field(60.0, gt=0, le=600)
     guidance: bool = True
     # name of a ``segment_estimate`` component (``segment_fusion``: loops + UAV cameras) the MPC takes
     # its density/speed state from; None: the loops by the direct mapping (``estimate_state``)
@@ -395,7 +402,7 @@ class RampMpc(RampControl):
         cfg = MPCConfig(horizon_ctrl_steps=p.horizon_ctrl_steps, control_step_s=p.control_step_s,
                         weight_rate_change=p.weight_rate_change, weight_split_change=p.weight_split_change,
                         rate_min=p.rate_min_vph / p.open_rate_vph, rate_max=1.0,
-                        max_cpu_time_s=p.max_cpu_time_s, occupancy_eff_length_m=p.vehicle_length_m,
+                        max_iter=p.max_iter, max_cpu_time_s=p.max_cpu_time_s, occupancy_eff_length_m=p.vehicle_length_m,
                         alinea_gain_vph_per_pct=p.alinea_gain_vph_per_pct, alinea_override_frac=p.override_frac)
         self.mpc = RampMeteringMPC(self.net, cfg)
         self.forecast = DemandForecast(sc, n)
@@ -415,6 +422,14 @@ class RampMpc(RampControl):
     def n_suboptimal(self) -> int:
         return self.mpc.n_suboptimal if hasattr(self, "mpc") else 0
 
+    @property
+    def n_cpu_capped(self) -> int:
+        return self.mpc.n_cpu_capped if hasattr(self, "mpc") else 0
+
+    @property
+    def iter_counts(self) -> list[int]:
+        return self.mpc.iter_counts if hasattr(self, "mpc") else []
+
     def decide(self, obs: RampObservation) -> dict[str, float]:
         net, mpc = self.net, self.mpc
         x0 = estimate_state(net, obs.ramps, self.n, self.m_seg, self.p.vehicle_length_m, self.lanes)
@@ -423,7 +438,12 @@ class RampMpc(RampControl):
         occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])
         if self.fusion is not None:
             x0, occ = self.fused_state(x0, keys, obs.t)
+        capped = mpc.n_cpu_capped
         res = mpc.solve(x0, self.forecast(times), self.u_prev, occupancy_pct=occ)
+        if mpc.n_cpu_capped > capped:
+            self.events.emit(obs.t, self.name, "mpc_cpu_cap",
+                             f"IPOPT's CPU-time safety net ({self.p.max_cpu_time_s:g} s) ended the solve: "
+                             "this step depends on the machine's load", status=res.status, solve_s=res.solve_s)
         if res.fallback:
             self.events.emit(obs.t, self.name, "fallback", f"MPC failed ({res.status}); ALINEA rates this step",
                              status=res.status, solve_s=res.solve_s)

@@ -141,7 +141,8 @@ def test_missing_calibration_gives_defaults(tmp_path: Path) -> None:
 
 
 def test_mpc_solver_failure_falls_back_to_alinea_and_is_logged() -> None:
-    """An IPOPT time limit nobody can meet: every control step is an ALINEA fallback, logged and counted."""
+    """A CPU-time safety net nobody can meet: every control step is an ALINEA fallback, logged and counted,
+    and each solve the safety net ended is logged as machine-dependent."""
     from corridor.run import simulate
 
     sc, _ = load(SCENARIO, ["controllers.ramps={type: ramp_mpc, params: {max_cpu_time_s: 0.0001}}",
@@ -151,6 +152,7 @@ def test_mpc_solver_failure_falls_back_to_alinea_and_is_logged() -> None:
     assert metrics["mpc_solves"] == steps
     assert metrics["mpc_fallbacks"] == steps
     assert metrics["events_fallback"] == steps
+    assert metrics["mpc_cpu_capped"] == steps and len(ctx.events.of_kind("mpc_cpu_cap")) == steps
     assert all(e.source == "ramps" for e in ctx.events.of_kind("fallback"))
 
 
