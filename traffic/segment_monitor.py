@@ -14,7 +14,9 @@ aggregation).  Coverage: the share of (segment, sample) pairs a camera observed 
 sectors shows up.  It reads peers' published values only and never refreshes them (an observer).
 
 ``wall_per_sim_s``: wall-clock seconds per simulated second from this monitor's setup to the end (all
-components' work; a measurement of the machine, which varies between otherwise identical runs).
+components' work; a measurement of the machine, which varies between otherwise identical runs), and
+``cpu_per_sim_s``: the run process's CPU seconds over the same span (what the run would take of wall
+time on an idle core; far less sensitive to the other processes on a shared machine).
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ class SegmentWatch(Component):
         self.index = RingIndex(self.seg)
         self.n = self.seg.n
         self._wall0 = time.perf_counter()
+        self._cpu0 = time.process_time()
 
     def loops_density(self) -> np.ndarray:
         """[n_seg] the direct mapping of the loops (``estimate_state`` with one segment per link)."""
@@ -108,7 +111,8 @@ class SegmentWatch(Component):
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         nan = math.nan
         out: dict[str, Any] = {"rmse_loops": math.sqrt(self.sq_loops / self.n_err) if self.n_err else nan,
-                               "wall_per_sim_s": (time.perf_counter() - self._wall0) / max(ctx.t, 1e-9)}
+                               "wall_per_sim_s": (time.perf_counter() - self._wall0) / max(ctx.t, 1e-9),
+                               "cpu_per_sim_s": (time.process_time() - self._cpu0) / max(ctx.t, 1e-9)}
         if self.fusion is not None:
             out["rmse_fused"] = math.sqrt(self.sq_fused / self.n_err) if self.n_err else nan
         if self._has_cameras():

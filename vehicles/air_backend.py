@@ -25,7 +25,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.engine import Backend, RunContext
-from corridor.snapshot import Role, WorldSnapshot
+from corridor.snapshot import Kind, Role, WorldSnapshot
 
 from .autopilot import Command, HoldCommand, Hover, WaypointCommand
 
@@ -219,6 +219,16 @@ def swarm_aircraft(s: SwarmSpec) -> list[AircraftSpec]:
         dz = np.array([0.0, 0.0, s.alt_jitter_m * np.sin(3.0 * a)])
         out.append(_quad(f"uav_{k:02d}", c + r + dz, c - r + dz, s.speed_mps))
     return out
+
+
+_AIR_KINDS = (int(Kind.UAV), int(Kind.AIRCRAFT))  # plain ints: numpy compares IntEnum members slowly
+
+
+def air_rows(s: WorldSnapshot) -> dict[str, int]:
+    """id -> row of the snapshot's aircraft only (``WorldSnapshot.index`` maps every row, thousands
+    of road vehicles in a shared scenario, which the UAV components looked up every tick)."""
+    rows = np.flatnonzero((s.kind == _AIR_KINDS[0]) | (s.kind == _AIR_KINDS[1]))
+    return {str(s.ids[k]): int(k) for k in rows}
 
 
 @dataclass(frozen=True)

@@ -22,6 +22,7 @@ from corridor.traffic.landmarks import BeltwayLandmarks
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.segments import RingIndex, RingSegments
 
+from .air_backend import air_rows
 from .camera import CameraParams, observe, optical_axis
 
 
@@ -73,7 +74,7 @@ class UavCamera(Component):
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
-        index = s.index()
+        index = air_rows(s)
         if not self.uav_ids or index.get(self.uav_ids[0]) is None:
             return  # before the first air snapshot
         veh = self.index.vehicles(s)

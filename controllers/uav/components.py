@@ -38,7 +38,7 @@ from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.engine import Controller, Need, RunContext
-from corridor.vehicles.air_backend import AirBackend, AircraftCommand
+from corridor.vehicles.air_backend import AirBackend, AircraftCommand, air_rows
 from corridor.vehicles.air_link import AirLink, Relevance
 from corridor.vehicles.autopilot import VelocityCommand
 
@@ -133,7 +133,7 @@ class _UavController(Controller):
 
     def observe(self, ctx: RunContext) -> dict[str, AvoidanceObservation]:
         s = ctx.snapshot
-        index = s.index()
+        index = air_rows(s)
         uids = [u for u in self.uav_ids if u in index]
         rows = [index[u] for u in uids]
         pos, vel = s.position[rows], s.velocity[rows]

@@ -13,7 +13,7 @@ from corridor.run import simulate
 from corridor.scenario import apply_overrides, load, validate
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "air_ground_watch.yaml"
-MACHINE = {"wall_s", "rtf", "wall_per_sim_s", "mpc_solve_p50_s", "mpc_solve_p95_s", "tube_solve_ms_mean"}
+MACHINE = {"wall_s", "rtf", "wall_per_sim_s", "cpu_per_sim_s", "mpc_solve_p50_s", "mpc_solve_p95_s", "tube_solve_ms_mean"}
 
 
 def variant(name: str, duration_s: float, *sets: str):
