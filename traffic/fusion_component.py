@@ -93,7 +93,8 @@ class SegmentFusion(Component):
                 t_meas = msg.time_boot_ms / 1000.0
                 v = 3.6 * msg.speed if math.isfinite(msg.speed) else math.nan
                 v_var = 3.6**2 * msg.speed_var if math.isfinite(msg.speed_var) else math.nan
-                kf.update_uav(int(msg.segment), t_meas, msg.density, msg.density_var, v, v_var)
+                area = msg.observed_length / 1000.0 * self.lanes  # [km lane] the stretch the camera counted
+                kf.update_uav(int(msg.segment), t_meas, msg.density, msg.density_var, v, v_var, area)
                 age = max(t_s - t_meas, 0.0)
                 self.uav_received += 1
                 self.uav_age_sum_s += age
