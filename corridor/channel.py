@@ -50,7 +50,7 @@ receivers at once, and the Gilbert–Elliott states are an N×N boolean matrix i
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, NamedTuple
 
@@ -290,17 +290,29 @@ class Channel:
         return int(keep.sum())
 
     def send_many(
-        self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | None]]
+        self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | Sequence[str] | None]]
     ) -> list[int]:
         """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order,
         with the same random draws, statistics and result; under Bernoulli loss the messages
         (broadcasts of a fleet's periodic reports, unicasts, or both mixed) are handled in one
-        vectorised pass instead of message by message."""
-        messages = list(messages)
+        vectorised pass instead of message by message.
+
+        ``dst`` may also be a sequence of receivers (a multicast): the same as one unicast ``send``
+        per listed receiver, in order (the same draws and statistics), but the copies put in flight
+        form one sent message (one batch of ``deliver_batches``, one send order) and the result is
+        their total."""
+        orig = messages = list(messages)
+        multi = any(_is_multi(m[3]) for m in orig)
+        group = list(range(len(orig)))  # the entry of ``orig`` each (unicast or broadcast) message is part of
+        if multi:  # expand the multicasts into unicasts
+            group = [i for i, m in enumerate(orig) for _ in (m[3] if _is_multi(m[3]) else (None,))]
+            messages = [(src, payload, pos, d) for src, payload, pos, dst in orig
+                        for d in (dst if _is_multi(dst) else (dst,))]
         if not isinstance(self.cfg.loss, BernoulliLoss):
-            return [self.send(t_s, src, payload, src_pos=pos, dst=dst) for src, payload, pos, dst in messages]
+            sent = [self.send(t_s, src, payload, src_pos=pos, dst=dst) for src, payload, pos, dst in messages]
+            return _sum_groups(sent, group, len(orig))
         if not messages:
-            return []
+            return [0] * len(orig)
         self._refresh_receivers()
         src_idx = np.array([self._node(m[0]) for m in messages])
         nan3 = np.full(3, np.nan)  # unknown sender position: no range check (as in send)
@@ -332,9 +344,14 @@ class Channel:
         keep = self._admit(keep, t_recv)
         kept = np.bincount(msg[keep], minlength=len(messages)).tolist()
         kept_dst, kept_t = dst_idx[keep], t_recv[keep]  # message-major: one slice per message
+        if multi:  # one batch per multicast
+            counts_g, kept_g = _sum_groups(counts.tolist(), group, len(orig)), _sum_groups(kept, group, len(orig))
+            src_g, si_g = orig, [self._node(m[0]) for m in orig]
+        else:
+            counts_g, kept_g, src_g, si_g = counts.tolist(), kept, messages, src_idx.tolist()
         out = []
         t_sent, a = float(t_s), 0
-        for c, k, si, (src, payload, _, _) in zip(counts.tolist(), kept, src_idx.tolist(), messages, strict=True):
+        for c, k, si, (src, payload, _, _) in zip(counts_g, kept_g, si_g, src_g, strict=True):
             if c == 0:
                 out.append(0)
                 continue
@@ -582,6 +599,19 @@ class Channel:
         self._recv_idx = idx
         self._recv_pos = np.array([self._positions.get(self._names[i], nan3) for i in idx]).reshape(-1, 3)
         self._recv_dirty = False
+
+
+def _is_multi(dst: object) -> bool:
+    """A multicast destination: a sequence of receiver names (a plain name is a unicast)."""
+    return isinstance(dst, list | tuple)
+
+
+def _sum_groups(values: list[int], group: list[int], n_groups: int) -> list[int]:
+    """Per-group sums of ``values`` (``group[i]``: the group of value i, in ``range(n_groups)``)."""
+    out = [0] * n_groups
+    for v, g in zip(values, group, strict=True):
+        out[g] += v
+    return out
 
 
 def _rows3(points: list[Any]) -> np.ndarray:

@@ -35,6 +35,7 @@ class TrackPool:
         self.x = np.zeros((0, 2 * dim))
         self.P = np.zeros((0, 2 * dim, 2 * dim))
         self.t_s = np.zeros(0)  # [s] time of each row's state (= its newest measurement)
+        self._mats: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # (F, Q) by dt [ns]: intervals repeat
         self._grow(64)
 
     # -- receivers ------------------------------------------------------------------------------
@@ -98,7 +99,8 @@ class TrackPool:
         used[idx] = new | upd
         if upd.any():
             r, tu = rows[upd], t[upd]
-            x, p = cv_fuse(self.x[r], self.P[r], tu - self.t_s[r], z[idx[upd]], self._r, self.dim, self.q)
+            x, p = cv_fuse(self.x[r], self.P[r], tu - self.t_s[r], z[idx[upd]], self._r, self.dim, self.q,
+                           self._matrices)
             self.x[r], self.P[r], self.t_s[r] = x, p, tu
 
     def drop_stale(self, t_s: float) -> None:
@@ -124,10 +126,22 @@ class TrackPool:
         if known.any():
             r = np.array(rows)[known]
             a = np.maximum(0.0, t_s - self.t_s[r])
-            f, _ = cv_matrices(a, self.dim, self.q)
+            f, _ = self._matrices(a)
             x[known] = (f @ self.x[r][:, :, None])[:, :, 0]
             age[known] = a
         return known, x, age
+
+    def _matrices(self, dt_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``cv_matrices(dt_s)``, each distinct interval (to the nanosecond, as there) built once."""
+        mats = [self._mats.get(key) or self._build(key) for key in np.round(np.asarray(dt_s, float) * 1e9).tolist()]
+        return np.array([m[0] for m in mats]), np.array([m[1] for m in mats])
+
+    def _build(self, key_ns: float) -> tuple[np.ndarray, np.ndarray]:
+        if len(self._mats) > 4096:
+            self._mats.clear()
+        f, q = cv_matrices(np.array([key_ns * 1e-9]), self.dim, self.q)
+        self._mats[key_ns] = (f[0], q[0])
+        return f[0], q[0]
 
     # -- storage --------------------------------------------------------------------------------
     def _alloc(self) -> int:

@@ -13,6 +13,8 @@ dict keeps them). Measurements older than a track are rejected, as ``TrackTable.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -33,13 +35,15 @@ def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.nd
 
 
 def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
-            q: float) -> tuple[np.ndarray, np.ndarray]:
+            q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Stacked predict by ``dt_s`` (k,) [s] (where > 0) and update with ``z`` (k, 2d) = [position,
     velocity], measurement covariance ``r`` (2d, 2d): the equations of filterpy's
-    ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I. Returns the new (x, P)."""
+    ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I. Returns the new (x, P).
+    ``matrices(dt_s)``: the stacked (F, Q) (default :func:`cv_matrices`; a cache of it may be given)."""
     ahead = dt_s > 0.0
     if ahead.any():
-        f, qm = cv_matrices(dt_s[ahead], dim, q)
+        f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
         x[ahead] = (f @ x[ahead][:, :, None])[:, :, 0]
         p[ahead] = f @ p[ahead] @ f.transpose(0, 2, 1) + qm
     k = p @ np.linalg.inv(p + r)

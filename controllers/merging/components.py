@@ -223,12 +223,9 @@ class V2XMerging(Controller):
             self._listen[vid] = set(ahead)
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
-        copies: list[tuple[str, Any, np.ndarray, str]] = []  # one send_many: the same draws as send by send
-        for m in msgs:
-            src_pos = m.position_m
-            copies.append((m.sender_id, m, src_pos, RSU))
-            copies.extend((m.sender_id, m, src_pos, f) for f in followers.get(m.sender_id, ()))
-        self.channel.send_many(t, copies)
+        # one send_many, a multicast per CAM: the same draws as one unicast send per copy
+        self.channel.send_many(t, [(m.sender_id, m, m.position_m, [RSU, *followers.get(m.sender_id, ())])
+                                   for m in msgs])
         for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
