@@ -46,7 +46,8 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1, help="rounds over the seeds (best per run is kept)")
     args = ap.parse_args()
-    sc, raw = load(args.scenario, [f"duration={args.duration}", "outputs.signals=false"])
+    # warm-up only decides what the monitors count, not what runs: 0 lets any --duration through
+    sc, raw = load(args.scenario, [f"duration={args.duration}", "warmup=0", "outputs.signals=false"])
     plan = expand(sc, raw, args.scenario, args.seeds, variants=list(VARIANTS))
     runs = [(s.variant, s.seed, validate(apply_overrides(s.base, s.overrides), s.run_id)) for s in plan]
     tick_loop_cpu(runs[0][2], runs[0][1])  # warm the network cache and imports

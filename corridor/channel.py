@@ -50,7 +50,7 @@ receivers at once, and the Gilbert–Elliott states are an N×N boolean matrix i
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal, NamedTuple
 
@@ -210,6 +210,7 @@ class Channel:
         self._last_sent = np.zeros((0, 0))  # [dst, src] newest received send time, NaN = none
         self._positions: dict[str, np.ndarray] = {}
         self._recv_idx = np.zeros(0, dtype=np.int64)  # attached receivers, attach order
+        self._recv_row = np.zeros(0, dtype=np.int64)  # node index -> its row in _recv_idx (-1: none)
         self._recv_pos = np.zeros((0, 3))  # [m], NaN rows = unknown
         self._recv_dirty = True
         self._pending: list[_Batch] = []
@@ -290,33 +291,37 @@ class Channel:
         return int(keep.sum())
 
     def send_many(
-        self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | None]]
+        self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | Sequence[str] | None]]
     ) -> list[int]:
         """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order,
         with the same random draws, statistics and result; under Bernoulli loss the messages
         (broadcasts of a fleet's periodic reports, unicasts, or both mixed) are handled in one
-        vectorised pass instead of message by message."""
-        messages = list(messages)
+        vectorised pass instead of message by message.
+
+        ``dst`` may also be a sequence of receivers (a multicast): the same as one unicast ``send``
+        per listed receiver, in order (the same draws and statistics), but the copies put in flight
+        form one sent message (one batch of ``deliver_batches``, one send order) and the result is
+        their total."""
+        orig = list(messages)
+        # per entry, the receivers of its messages (None: a broadcast); a multicast is one message per receiver
+        dsts = [m[3] if _is_multi(m[3]) else (m[3],) for m in orig]
+        group = np.repeat(np.arange(len(orig)), [len(d) for d in dsts])  # the entry of each message
         if not isinstance(self.cfg.loss, BernoulliLoss):
-            return [self.send(t_s, src, payload, src_pos=pos, dst=dst) for src, payload, pos, dst in messages]
-        if not messages:
-            return []
+            sent = [self.send(t_s, src, payload, src_pos=pos, dst=d)
+                    for (src, payload, pos, _), ds in zip(orig, dsts, strict=True) for d in ds]
+            return np.bincount(group, weights=sent, minlength=len(orig)).astype(int).tolist()
+        if not group.size:
+            return [0] * len(orig)
         self._refresh_receivers()
-        src_idx = np.array([self._node(m[0]) for m in messages])
+        src_entry = np.array([self._node(m[0]) for m in orig])
         nan3 = np.full(3, np.nan)  # unknown sender position: no range check (as in send)
-        p_src = _rows3([pos if pos is not None else self._positions.get(src, nan3) for src, _, pos, _ in messages])
-        recv = self._recv_idx[None, :]
-        mask = recv != src_idx[:, None]  # (M, R): every receiver but the sender
-        if any(m[3] is not None for m in messages):  # a unicast goes to its receiver, if attached (send's
-            #   ``_targets``): the one column of the receivers that is that node (none if detached or unknown)
-            to = np.array([-1 if m[3] is None else self._index.get(m[3], -2) for m in messages])
-            uni = to != -1
-            mask[uni] &= recv == to[uni, None]
-        msg, col = np.nonzero(mask)  # the copies, message-major (send's order)
-        counts = np.bincount(msg, minlength=len(messages))
-        d2 = np.sum((self._recv_pos[None, :, :] - p_src[:, None, :]) ** 2, axis=2)
-        in_range = (np.isnan(d2) | (d2 <= self.cfg.range_m**2))[msg, col]
-        dst_idx = self._recv_idx[col]
+        p_entry = _rows3([pos if pos is not None else self._positions.get(src, nan3) for src, _, pos, _ in orig])
+        src_idx, p_src = src_entry[group], p_entry[group]
+        flat = [d for ds in dsts for d in ds]
+        if None in flat:
+            msg, counts, dst_idx, in_range = self._copies_mixed(src_idx, p_src, flat)
+        else:
+            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, flat)
         n = len(msg)
         # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
         u = self._rng.random(2 * n)
@@ -330,11 +335,12 @@ class Channel:
         self._n_oor += int(n - np.count_nonzero(in_range))
         self._n_lost += int(np.count_nonzero(lost))
         keep = self._admit(keep, t_recv)
-        kept = np.bincount(msg[keep], minlength=len(messages)).tolist()
-        kept_dst, kept_t = dst_idx[keep], t_recv[keep]  # message-major: one slice per message
+        kept_dst, kept_t = dst_idx[keep], t_recv[keep]  # message-major: one slice per entry
+        counts_g = np.bincount(group[msg], minlength=len(orig)).tolist()  # copies per entry
+        kept_g = np.bincount(group[msg[keep]], minlength=len(orig)).tolist()
         out = []
         t_sent, a = float(t_s), 0
-        for c, k, si, (src, payload, _, _) in zip(counts.tolist(), kept, src_idx.tolist(), messages, strict=True):
+        for c, k, si, (src, payload, _, _) in zip(counts_g, kept_g, src_entry.tolist(), orig, strict=True):
             if c == 0:
                 out.append(0)
                 continue
@@ -344,6 +350,34 @@ class Channel:
             self._seq += 1
             out.append(k)
         return out
+
+    def _copies_mixed(self, src_idx: np.ndarray, p_src: np.ndarray, dst: list[str | None]
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The copies of messages sent from nodes ``src_idx`` at ``p_src`` (M, 3) to ``dst`` (None: a
+        broadcast), message-major: their message, copies per message, receiver node and range flag."""
+        recv = self._recv_idx[None, :]
+        mask = recv != src_idx[:, None]  # (M, R): every receiver but the sender
+        if any(d is not None for d in dst):  # a unicast goes to its receiver, if attached (send's
+            #   ``_targets``): the one column of the receivers that is that node (none if detached or unknown)
+            to = np.array([-1 if d is None else self._index.get(d, -2) for d in dst])
+            uni = to != -1
+            mask[uni] &= recv == to[uni, None]
+        msg, col = np.nonzero(mask)
+        d2 = np.sum((self._recv_pos[None, :, :] - p_src[:, None, :]) ** 2, axis=2)
+        in_range = (np.isnan(d2) | (d2 <= self.cfg.range_m**2))[msg, col]
+        return msg, np.bincount(msg, minlength=len(dst)), self._recv_idx[col], in_range
+
+    def _copies_unicast(self, src_idx: np.ndarray, p_src: np.ndarray, dst: list[str]
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`_copies_mixed` when every message is a unicast: at most one copy each, found
+        without the (messages x receivers) matrices."""
+        to = np.array([self._index.get(d, -1) for d in dst])
+        ok = (to >= 0) & (to != src_idx)  # a known receiver other than the sender ...
+        ok[ok] = self._attached[to[ok]]  # ... that is attached (send's ``_targets``)
+        msg = np.flatnonzero(ok)
+        dst_idx = to[msg]
+        d2 = np.sum((self._recv_pos[self._recv_row[dst_idx]] - p_src[msg]) ** 2, axis=1)
+        return msg, ok.astype(np.int64), dst_idx, np.isnan(d2) | (d2 <= self.cfg.range_m**2)
 
     def _admit(self, keep: np.ndarray, t_recv: np.ndarray) -> np.ndarray:
         """The copies of ``keep`` that go in flight: those arriving after the run's end are dropped,
@@ -580,8 +614,15 @@ class Channel:
         idx = np.flatnonzero(self._attached)
         nan3 = np.full(3, np.nan)
         self._recv_idx = idx
+        self._recv_row = np.full(len(self._attached), -1, dtype=np.int64)  # node -> row of _recv_pos
+        self._recv_row[idx] = np.arange(len(idx))
         self._recv_pos = np.array([self._positions.get(self._names[i], nan3) for i in idx]).reshape(-1, 3)
         self._recv_dirty = False
+
+
+def _is_multi(dst: object) -> bool:
+    """A multicast destination: a sequence of receiver names (a plain name is a unicast)."""
+    return isinstance(dst, list | tuple)
 
 
 def _rows3(points: list[Any]) -> np.ndarray:

@@ -13,6 +13,8 @@ dict keeps them). Measurements older than a track are rejected, as ``TrackTable.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 
@@ -32,6 +34,25 @@ def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.nd
     return f, qm
 
 
+def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
+            q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Stacked predict by ``dt_s`` (k,) [s] (where > 0) and update with ``z`` (k, 2d) = [position,
+    velocity], measurement covariance ``r`` (2d, 2d): the equations of filterpy's
+    ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I. Returns the new (x, P).
+    ``matrices(dt_s)``: the stacked (F, Q) (default :func:`cv_matrices`; a cache of it may be given)."""
+    ahead = dt_s > 0.0
+    if ahead.any():
+        f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
+        x[ahead] = (f @ x[ahead][:, :, None])[:, :, 0]
+        p[ahead] = f @ p[ahead] @ f.transpose(0, 2, 1) + qm
+    k = p @ np.linalg.inv(p + r)
+    x = x + (k @ (z - x)[:, :, None])[:, :, 0]
+    i_k = np.eye(2 * dim) - k
+    p = i_k @ p @ i_k.transpose(0, 2, 1) + k @ r @ k.transpose(0, 2, 1)
+    return x, p
+
+
 class TrackStack:
     """CV tracks of ``n_rx`` receivers x ``n_src`` sources (struct of arrays, see the module doc).
 
@@ -48,7 +69,6 @@ class TrackStack:
         self.order = np.zeros((n_rx, n_src), dtype=np.int64)
         r = np.r_[np.full(dim, float(meas_noise) ** 2), np.full(dim, float(vel_noise) ** 2)]
         self._r = np.diag(r)
-        self._eye = np.eye(n)
 
     def fuse(self, rows: np.ndarray, cols: np.ndarray, t_s: np.ndarray, z: np.ndarray, order: np.ndarray) -> np.ndarray:
         """Fuse measurement ``z`` (k, 2d) = [position, velocity] taken at ``t_s`` (k,) into pairs
@@ -70,19 +90,8 @@ class TrackStack:
         return used
 
     def _update(self, r: np.ndarray, c: np.ndarray, t_s: np.ndarray, z: np.ndarray) -> None:
-        """Predict to ``t_s`` (where later than the track) and update: the equations of filterpy's
-        ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I, stacked."""
-        x, p = self.x[r, c], self.P[r, c]
-        dt = t_s - self.t_s[r, c]
-        ahead = dt > 0.0
-        if ahead.any():
-            f, q = cv_matrices(dt[ahead], self.dim, self.q)
-            x[ahead] = (f @ x[ahead][:, :, None])[:, :, 0]
-            p[ahead] = f @ p[ahead] @ f.transpose(0, 2, 1) + q
-        k = p @ np.linalg.inv(p + self._r)
-        x = x + (k @ (z - x)[:, :, None])[:, :, 0]
-        i_k = self._eye - k
-        p = i_k @ p @ i_k.transpose(0, 2, 1) + k @ self._r @ k.transpose(0, 2, 1)
+        """Predict to ``t_s`` (where later than the track) and update (see :func:`cv_fuse`)."""
+        x, p = cv_fuse(self.x[r, c], self.P[r, c], t_s - self.t_s[r, c], z, self._r, self.dim, self.q)
         self.x[r, c], self.P[r, c], self.t_s[r, c] = x, p, t_s
 
     def kill(self, mask: np.ndarray) -> None:

@@ -3,8 +3,9 @@ times; connected vehicles follow energy-optimal trajectories to them, under a sa
 
 Per tick (period 0.1 s), in pipeline order:
 1. *communicate*: connected vehicles near the merge broadcast CAMs over the lossy, delayed channel;
-   the RSU and every controlled vehicle update filterpy Kalman tracks (1-D: distance to the merge
-   point) from what arrived; the RSU's sensors see human-driven vehicles with noise.
+   the RSU and every controlled vehicle update Kalman tracks (1-D: distance to the merge point)
+   from what arrived, all of a tick's messages in one stacked pass (``TrackPool``: filterpy's
+   equations, bit for bit); the RSU's sensors see human-driven vehicles with noise.
 2. *coordinate*: the RSU gives every vehicle in the control zone a crossing time of the conflict
    point (part-way along the acceleration lane, ``merge_point_frac``) by ``fifo`` or ``cps``
    (constrained position shifting), anchored on the measured crossings, and unicasts (time,
@@ -53,7 +54,7 @@ from corridor.snapshot import RoadTables, Role
 from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
-from corridor.vehicles.tracking import TrackTable
+from corridor.vehicles.track_pool import TrackPool
 
 RSU = "rsu"
 HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, cooperative, speed gain,
@@ -115,7 +116,7 @@ class V2XMerging(Controller):
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
-        self.tracks: dict[str, TrackTable] = {}  # per controlled vehicle (and the RSU)
+        self.tracks: TrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._senders: set[str] = set()
@@ -144,11 +145,9 @@ class V2XMerging(Controller):
         self.channel.attach(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
-        self.tracks[RSU] = self._new_table()
-
-    def _new_table(self) -> TrackTable:
-        return TrackTable(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5,
-                          stale_after_s=self.p.stale_after_s, vel_noise=0.3)
+        self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
+                                stale_after_s=self.p.stale_after_s)
+        self.tracks.add_receiver(RSU)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -195,11 +194,11 @@ class V2XMerging(Controller):
             vid = ids[k]
             if vid not in self.tracks:
                 self.channel.attach(vid)
-                self.tracks[vid] = self._new_table()
+                self.tracks.add_receiver(vid)
         listening = {ids[k] for k in np.flatnonzero(in_zone)}
-        for vid in [v for v in self.tracks if v != RSU and v not in listening]:
+        for vid in [v for v in self.tracks.receivers if v != RSU and v not in listening]:
             self.channel.detach(vid)
-            del self.tracks[vid]
+            self.tracks.remove_receiver(vid)
             self.assigned.pop(vid, None)
         pos = s["pos"]
         self.channel.set_positions({RSU: np.array([self.x_merge, self.y_rsu, 0.0]),
@@ -224,24 +223,36 @@ class V2XMerging(Controller):
             self._listen[vid] = set(ahead)
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
-        copies: list[tuple[str, Any, np.ndarray, str]] = []  # one send_many: the same draws as send by send
-        for m in msgs:
-            src_pos = m.position_m
-            copies.append((m.sender_id, m, src_pos, RSU))
-            copies.extend((m.sender_id, m, src_pos, f) for f in followers.get(m.sender_id, ()))
-        self.channel.send_many(t, copies)
+        # one send_many, a multicast per CAM: the same draws as one unicast send per copy
+        self.channel.send_many(t, [(m.sender_id, m, m.position_m, [RSU, *followers.get(m.sender_id, ())])
+                                   for m in msgs])
         for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
-        for d in self.channel.deliver(t):
-            m = d.payload
-            if isinstance(m, CamMessage) and d.dst in self.tracks and self._tracks_sender(d.dst, m.sender_id):
-                self.tracks[d.dst].update(m.sender_id, m.t_sent_s, np.array([-m.dist_to_merge_m]),
-                                          np.array([m.speed_mps]))
+        self._receive(t)
+        self.tracks.drop_stale(t)
+
+    def _receive(self, t: float) -> None:
+        """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each
+        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
+        names = self.channel.node_names
+        cams: list[tuple[float, int, str, CamMessage]] = []
+        assignments: list[tuple[float, int, str, Assignment]] = []
+        for b in self.channel.deliver_indexed(t):
+            m = b.payload
+            copies = zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True)
+            if isinstance(m, CamMessage):
+                cams.extend((tr, b.seq, names[di], m) for di, tr in copies
+                            if names[di] in self.tracks and self._tracks_sender(names[di], m.sender_id))
             elif isinstance(m, Assignment):
-                self.assigned[d.dst] = (d.t_recv_s, m)
-        for table in self.tracks.values():
-            table.drop_stale(t)
+                assignments.extend((tr, b.seq, names[di], m) for di, tr in copies)
+        assignments.sort(key=lambda c: (c[0], c[1]))
+        for tr, _, dst, m in assignments:  # a vehicle keeps the last one delivered
+            self.assigned[dst] = (tr, m)
+        if cams:
+            cams.sort(key=lambda c: (c[0], c[1]))
+            self.tracks.fuse([c[2] for c in cams], [c[3].sender_id for c in cams], np.array([c[3].t_sent_s for c in cams]),
+                             np.array([(-c[3].dist_to_merge_m, c[3].speed_mps) for c in cams]))
 
     def _tracks_sender(self, dst: str, src: str) -> bool:
         """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
@@ -252,17 +263,17 @@ class V2XMerging(Controller):
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
         candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"])
-        rsu = self.tracks[RSU]
-        tracked = rsu.predict_all(t)
+        cand = np.flatnonzero(candidates).tolist()
+        heard, est, _ = self.tracks.predict_states(RSU, [ids[k] for k in cand], t)
+        heard, est = heard.tolist(), est.tolist()
         zone: list[ZoneVehicle] = []
         index: dict[str, int] = {}
-        for k in np.flatnonzero(candidates):
+        for j, k in enumerate(cand):
             vid = ids[k]
             if s["connected"][k]:
-                trk = tracked.get(vid)
-                if trk is None:
+                if not heard[j]:
                     continue  # the RSU has not heard from it (yet): not coordinated
-                d, v = -float(trk.pos[0]), max(float(trk.vel[0]), 0.1)
+                d, v = -est[j][0], max(est[j][1], 0.1)
             else:
                 d = float(dist[k] + self.sensor_rng.normal(0, self.p.sensor_noise_m))
                 v = float(max(speed[k] + self.sensor_rng.normal(0, self.p.sensor_noise_mps), 0.1))
@@ -278,8 +289,8 @@ class V2XMerging(Controller):
             zone.append(ZoneVehicle(vid, "ramp" if s["ramp"][k] else "main", d, v, earliest, self.entered[vid]))
             index[vid] = k
         for z in zone:  # age of information at the RSU, sampled per tick over coordinated vehicles
-            if z.id in rsu:
-                age = t - rsu.last_update_s(z.id)
+            if self.tracks.has_track(RSU, z.id):
+                age = t - self.tracks.last_update_s(RSU, z.id)
                 self._aoi_sum += age
                 self._aoi_n += 1
                 self._aoi_max = max(self._aoi_max, age)
@@ -342,18 +353,19 @@ class V2XMerging(Controller):
             else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
                 acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
             if near_merge and cross_pred:
-                trk = self.tracks[vid].predict_all(t).get(a.pred) if vid in self.tracks else None
-                if trk is None or trk.age_s > self.p.stale_after_s:
+                known, est, ages = self.tracks.predict_states(vid, [a.pred], t)
+                if not known[0] or ages[0] > self.p.stale_after_s:
                     self._fallback(t, vid, cmds)
                     continue
+                pos_lead, vel_lead, age_s = float(est[0, 0]), float(est[0, 1]), float(ages[0])
                 lead_len = float(length[live[a.pred]]) if a.pred in live else 5.0
-                gap = float(dist[k]) + float(trk.pos[0]) - lead_len  # both projected on the merge point
+                gap = float(dist[k]) + pos_lead - lead_len  # both projected on the merge point
                 if gap > -lead_len:  # the predecessor is ahead of (or beside) the ego: keep a safe gap
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
-                    v_lead = max(float(trk.vel[0]), 0.0)
-                    if trk.age_s > self.period:  # unheard since: assume it braked as hard as it can
-                        x_last = gap - v_lead * trk.age_s
-                        gap, v_lead = worst_case_leader(x_last, v_lead, trk.age_s, self.p.safety.b_lead_mps2)
+                    v_lead = max(vel_lead, 0.0)
+                    if age_s > self.period:  # unheard since: assume it braked as hard as it can
+                        x_last = gap - v_lead * age_s
+                        gap, v_lead = worst_case_leader(x_last, v_lead, age_s, self.p.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
                     acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)

@@ -258,6 +258,43 @@ def test_send_many_unicasts_and_broadcasts_mixed_equal_send_after_send() -> None
     assert ref.stats() == new.stats() and ref.stats().out_of_range > 0 and ref.stats().lost_random > 0
 
 
+@pytest.mark.parametrize("with_broadcasts", [True, False])  # False: the unicast-only path
+def test_send_many_multicast_equals_unicasts_send_after_send_as_one_message(with_broadcasts: bool) -> None:
+    """A multicast entry (a list of receivers, including detached, unknown, repeated-free, the sender
+    itself, and an empty list) draws, counts and delivers what one unicast send per listed receiver
+    does, in order; its copies in flight form one batch (one message of deliver_batches)."""
+    ref, ids = _fleet_channel(13)
+    new, _ = _fleet_channel(13)
+    for ch in (ref, new):
+        ch.detach("v3")
+    rng = np.random.default_rng(8)
+    pool = [*ids, "listener", "nobody"]
+    got_ref, got_new, batches_seen = [], [], 0
+    for k in range(30):
+        t = 0.1 * k
+        pos = np.c_[np.linspace(0.0, 400.0, 12) + 3.0 * t, np.zeros(12)]
+        ref.set_positions_arrays(ids, pos)
+        new.set_positions_arrays(ids, pos)
+        msgs = []
+        for m, j in enumerate(rng.integers(0, 12, 15)):
+            dst = [str(d) for d in rng.choice(pool, size=int(rng.integers(0, 5)), replace=False)]
+            single = dst[:1] or None if with_broadcasts else (dst[:1] or ["nobody"])[0]
+            msgs.append((ids[j], (j, k, m), pos[j] if m % 3 else None, dst if m % 4 else single))
+        counts = [sum(ref.send(t, src, payload, src_pos=p, dst=d) for d in (dst if isinstance(dst, list) else [dst]))
+                  for src, payload, p, dst in msgs]
+        assert new.send_many(t, msgs) == counts
+        got_ref += ref.deliver(t + 0.1)
+        batches = new.deliver_batches(t + 0.1)
+        assert len({b.payload for b in batches}) == len(batches)  # one batch per sent message
+        batches_seen += sum(len(b.dst) > 1 for b in batches)
+        got_new += [(b.src, d, b.t_sent_s, tr, b.payload, b.seq)
+                    for b in batches for d, tr in zip(b.dst, b.t_recv_s, strict=True)]
+    ordered = sorted(got_new, key=lambda c: (c[3], c[0], c[1], c[5]))
+    assert [(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.payload) for d in got_ref] == [c[:5] for c in ordered]
+    assert len(got_ref) > 200 and batches_seen > 50
+    assert ref.stats() == new.stats() and ref.stats().out_of_range > 0 and ref.stats().lost_random > 0
+
+
 def test_send_many_falls_back_to_send_for_bursty_loss() -> None:
     loss = GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3)
     a, b = (_pair_channel(ChannelConfig(loss=loss), seed=2) for _ in range(2))
