@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from corridor.analysis.rare.ce import CrossEntropy
-from corridor.analysis.rare.splitting import SubsetSimulation
+from corridor.analysis.rare.splitting import SubsetSimulation, level_size
 from corridor.cli import main
 from corridor.errors import CorridorError
 from corridor.rare_api import estimate, falsify
@@ -104,6 +104,18 @@ def _core(cls: type, seed: int) -> dict:
         level = np.abs(75.48 - 10 * z[:, 0]) - 30.48
         m.tell(level, level < 0)
     return m.result()
+
+
+def test_splitting_chain_levels_drop_the_seeds() -> None:
+    """Each chain takes burn + 1/p0 - 1 steps and keeps its last 1/p0 states: a chain level costs
+    n runs and holds n samples, none of them a seed (the previous level's extreme samples)."""
+    res = _core(SubsetSimulation, 3)
+    n = res["runs_per_level"]
+    assert res["burn"] == 1 and n == level_size(2000, 0.1, 1) == 330
+    totals = [lv["runs_total"] for lv in res["path"]]
+    assert totals[0] == n and all(b - a == n for a, b in zip(totals, totals[1:])) and totals[-1] <= 2000
+    old = SubsetSimulation(1, 2000, 3, burn=0)  # the seed kept as a sample: 9 new runs per chain
+    assert old.n == level_size(2000, 0.1, 0) == 360 and old.steps == 9
 
 
 @pytest.mark.parametrize("cls,coverage", [(CrossEntropy, 18), (SubsetSimulation, 17)])
