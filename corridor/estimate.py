@@ -95,14 +95,21 @@ def run_stage(st: Setup, stage: int, z: np.ndarray, tag: str, executor: str, wor
     if executor == "inline":  # in this process, one run after the other (tests: no process start per run)
         from corridor.run import execute
 
+        # every row is written to the store as it finishes (resume as with the other executors); the
+        # rows run here are used as they are, only a resumed stage's earlier rows are read back
         done = store.finished()
+        fresh = {}
         for spec in specs:
             if spec.run_id not in done:
-                store.write(execute(spec))
+                row = execute(spec)
+                store.write(row)
+                fresh[spec.run_id] = {k: (json.dumps(v) if isinstance(v, dict | list) else v) for k, v in row.items()}
+        by_id = {r["run_id"]: r for r in store.read().to_dict("records")} if done else {}
+        by_id.update(fresh)
     else:
         batch.run_batch(specs, store, executor, workers, address, progress=progress)
-    df = store.compact([s.run_id for s in specs])
-    by_id = {r["run_id"]: r for r in df.to_dict("records")}
+        df = store.compact([s.run_id for s in specs])
+        by_id = {r["run_id"]: r for r in df.to_dict("records")}
     rows = [by_id.get(s.run_id, {"run_id": s.run_id, "status": "error", "error": "no row"}) for s in specs]
     for spec, r in zip(specs, rows):  # a resumed stage must hold this stage's runs, not another estimate's
         if r.get("status") == "ok" and any(r.get(f"draw.{p}") != v for p, v in spec.draws.items()):
