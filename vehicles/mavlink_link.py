@@ -726,16 +726,11 @@ class MavlinkLink:
         if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_batches"):
             return self._receive_latest_copies(t_s, latest)
         self._cache.clear()
-        cache, decoders, routed = self._cache, self._decoders, []
+        decoders, routed = self._decoders, []
         for b in self.channel.deliver_batches(t_s):
-            payload = b.payload
-            if not isinstance(payload, bytes | bytearray):
-                continue
-            if type(payload) is not bytes:
-                payload = bytes(payload)
-            hit = cache.get(payload)
+            hit = self._decoded(b.payload)
             if hit is None:
-                hit = cache[payload] = self._decode_once(payload)
+                continue
             key, rep, src, t_sent = hit.counter_key, hit.report, b.src, b.t_sent_s
             t_meas = (t_sent - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s) if rep is not None else 0.0
             for dst, t_recv in zip(b.dst, b.t_recv_s, strict=True):
@@ -775,20 +770,15 @@ class MavlinkLink:
         if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_indexed"):
             return self._receive_latest_table_copies(t_s, table)
         self._cache.clear()
-        cache, routed, listen = self._cache, [], self._listening_nodes()
+        routed, listen = [], self._listening_nodes()
         if self._rx_of_node.size < listen.size:  # nodes the channel learnt after latest_table
             self._rx_of_node = np.r_[self._rx_of_node, np.full(listen.size - self._rx_of_node.size, -1)]
         rx_of = self._rx_of_node
         tally = self._tally
         for b in self.channel.deliver_indexed(t_s):
-            payload = b.payload
-            if not isinstance(payload, bytes | bytearray):
-                continue
-            if type(payload) is not bytes:
-                payload = bytes(payload)
-            hit = cache.get(payload)
+            hit = self._decoded(b.payload)
             if hit is None:
-                hit = cache[payload] = self._decode_once(payload)
+                continue
             dst = b.dst_idx[listen[b.dst_idx]]
             counts = tally.get(hit.counter_key)
             if counts is None:
@@ -867,20 +857,13 @@ class MavlinkLink:
         """Every delivered copy for a listening member with its (shared) decode, in delivery order;
         each copy's counters are added to its receiver's decoder."""
         self._cache.clear()
-        cache, decoders, out = self._cache, self._decoders, []
+        decoders, out = self._decoders, []
         corrupt = self.bit_error_rate > 0.0
         for d in self.channel.deliver(t_s):
             dec = decoders.get(d.dst)
-            payload = d.payload
-            if dec is None or not isinstance(payload, bytes | bytearray):
-                continue
-            if type(payload) is not bytes:
-                payload = bytes(payload)
-            if corrupt:
-                payload = self._corrupt(payload)
-            hit = cache.get(payload)
+            hit = None if dec is None else self._decoded(d.payload, corrupt)
             if hit is None:
-                hit = cache[payload] = self._decode_once(payload)
+                continue
             key = hit.counter_key
             dec._shared[key] = dec._shared.get(key, 0) + 1
             out.append((d, hit))
@@ -898,6 +881,20 @@ class MavlinkLink:
         for b in self._rng.choice(n_bits, size=k, replace=False):
             buf[b // 8] ^= 1 << (b % 8)
         return bytes(buf)
+
+    def _decoded(self, payload: Any, corrupt: bool = False) -> _Decoded | None:
+        """The decode of a datagram's bytes (after bit errors if ``corrupt``), memoised within one
+        receive for copies of the same bytes; None if the payload is not bytes."""
+        if not isinstance(payload, bytes | bytearray):
+            return None
+        if type(payload) is not bytes:
+            payload = bytes(payload)
+        if corrupt:
+            payload = self._corrupt(payload)
+        hit = self._cache.get(payload)
+        if hit is None:
+            hit = self._cache[payload] = self._decode_once(payload)
+        return hit
 
     def _decode_once(self, payload: bytes) -> _Decoded:
         """Datagram decode + conversion (memoised within one receive for copies of the same bytes)."""
