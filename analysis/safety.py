@@ -71,13 +71,36 @@ def _edge_normals(corners: np.ndarray) -> np.ndarray:
     return np.stack([e1, e2], axis=1)  # rectangle: two edge directions are the two axes
 
 
-def lane_leaders(code: np.ndarray, lane_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(follower, leader) row indices of consecutive vehicles on the same lane (integer lane codes)."""
+def lane_leaders(code: np.ndarray, lane_pos: np.ndarray,
+                 group: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(follower, leader) row indices of consecutive vehicles on the same lane (integer lane codes
+    >= 0); with ``group`` (integers >= 0, e.g. the tick of each row of several ticks' rows), within
+    the same group only.  Rows at the same position on a lane keep their row order."""
     if len(code) < 2:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-    order = np.lexsort((lane_pos, code))
-    same = code[order[:-1]] == code[order[1:]]
+    if group is None:
+        order = np.lexsort((lane_pos, code))
+        same = code[order[:-1]] == code[order[1:]]
+        return order[:-1][same], order[1:][same]
+    key = group * (int(np.maximum.reduce(code)) + 1) + code  # (group, lane) as one integer
+    order = _lane_order(key, lane_pos)
+    k = key[order]
+    same = k[:-1] == k[1:]
     return order[:-1][same], order[1:][same]
+
+
+def _lane_order(key: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """``np.lexsort((pos, key))``, 5-10x faster on thousands of rows: numpy's SIMD quicksort of the
+    positions, then a stable sort of the integer keys (a radix sort when they fit 16 bits).  The
+    quicksort orders equal positions arbitrarily; if a lane has any, lexsort's row order is used."""
+    order = np.argsort(pos)
+    top = int(np.maximum.reduce(key))
+    k = key.astype(np.uint16) if top < 2**16 else key
+    order = order[np.argsort(k[order], kind="stable")]
+    same = key[order[:-1]] == key[order[1:]]
+    if np.any(same & (pos[order[:-1]] == pos[order[1:]])) or np.isnan(pos).any():
+        return np.lexsort((pos, key))
+    return order
 
 
 def ttc_drac(gap_m: np.ndarray, v_follow: np.ndarray, v_lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

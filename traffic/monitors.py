@@ -12,16 +12,21 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Need, Phase, RunContext
-from corridor.snapshot import RoadFrame, Role
+from corridor.snapshot import RoadTables, Role
+from corridor.traffic.tick_block import TickBlock
 from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
 
 class SurrogateSafety(Component):
-    """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events."""
+    """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events.
+
+    The ticks are processed in blocks of ``block_ticks`` (``corridor.traffic.tick_block``; the
+    ``min_ttc`` signal is recorded when a block is processed, each value with its own tick's time)."""
 
     phase = Phase.DETECT
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
+    block_ticks: ClassVar[int] = 100
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -34,37 +39,61 @@ class SurrogateSafety(Component):
         self.warmup = scenario.warmup
         self.min_ttc, self.max_drac, self.tet = np.inf, 0.0, 0.0
         self.hard_brakes = 0
-        self._braking = np.zeros(0, dtype=bool)  # per uid: was braking hard at the previous tick
+        self._braking = np.zeros(0, dtype=bool)  # per uid: was braking hard at its previous tick
+        self._block = TickBlock(self.block_ticks)
 
     def setup(self, ctx: RunContext) -> None:
         road_frame(ctx)  # fails early without a road
 
     def tick(self, ctx: RunContext) -> None:
-        snap = ctx.snapshot
         r = road_frame(ctx)
-        n_uids = r.tables.n_uids
+        vel, sl = ctx.snapshot.velocity, r.sl
+        if self._block.add(ctx.t, r.uid, r.lane, r.lane_pos, r.accel, vel[sl, 0], vel[sl, 1],
+                           ctx.snapshot.size[sl, 0]):
+            self._process(ctx)
+
+    def _process(self, ctx: RunContext) -> None:
+        b = self._block.take()
+        if b is None:
+            return
+        uid, lane, lane_pos, accel, vx, vy, length = b.cols
+        counting = b.t >= self.warmup  # per tick
+        self._hard_brakes(uid, accel < self.p.hard_brake_mps2, counting[b.tick], road_frame(ctx).tables.n_uids)
+        f, lead = lane_leaders(lane, lane_pos, group=b.tick)  # the pairs of each tick, in its order
+        speed = np.hypot(vx, vy)  # [m/s] (WorldSnapshot.speed)
+        ttc, drac = ttc_drac(lane_pos[lead] - length[lead] - lane_pos[f], speed[f], speed[lead])
+        at = b.tick[f]
+        ttc_now = np.full(len(b), np.inf)
+        np.minimum.at(ttc_now, at, ttc)
+        counted = counting[at]
+        if counted.any():
+            self.min_ttc = min(self.min_ttc, float(np.minimum.reduce(ttc[counted])))
+            self.max_drac = max(self.max_drac, float(np.maximum.reduce(drac[counted])))
+            exposed = np.bincount(at[ttc < self.p.ttc_threshold_s], minlength=len(b))
+            for k in exposed[counting & (exposed > 0)].tolist():  # tick by tick, as the sum was taken
+                self.tet += float(k) * self.period
+        ctx.signals.record_many("min_ttc", b.t, np.minimum(ttc_now, 99.0))
+
+    def _hard_brakes(self, uid: np.ndarray, braking: np.ndarray, counting: np.ndarray, n_uids: int) -> None:
+        """Count the rows where a vehicle starts braking hard (not braking at its previous tick)."""
         if len(self._braking) < n_uids:
             self._braking = np.concatenate([self._braking, np.zeros(n_uids + 256, dtype=bool)])
-        braking = r.accel < self.p.hard_brake_mps2
-        counting = ctx.t >= self.warmup
-        if counting:
-            self.hard_brakes += int(np.count_nonzero(braking > self._braking[r.uid]))  # started braking
-        self._braking[r.uid] = braking
-        f, lead = lane_leaders(r.lane, r.lane_pos)
-        ttc_now = np.inf
-        if len(f):
-            sl = r.sl
-            speed = np.hypot(snap.velocity[sl, 0], snap.velocity[sl, 1])  # [m/s] (WorldSnapshot.speed)
-            gap = r.lane_pos[lead] - snap.size[sl, 0][lead] - r.lane_pos[f]
-            ttc, drac = ttc_drac(gap, speed[f], speed[lead])
-            ttc_now = float(np.minimum.reduce(ttc))  # ufunc reductions: no ndarray.min wrapper overhead
-            if counting:
-                self.min_ttc = min(self.min_ttc, ttc_now)
-                self.max_drac = max(self.max_drac, float(np.maximum.reduce(drac)))
-                self.tet += float(np.count_nonzero(ttc < self.p.ttc_threshold_s)) * self.period
-        ctx.signals.record("min_ttc", ctx.t, min(ttc_now, 99.0))
+        if not len(uid):
+            return
+        order = np.argsort(uid, kind="stable")  # each vehicle's rows in tick order
+        u, now = uid[order], braking[order]
+        first = np.empty(len(u), dtype=bool)
+        first[0], first[1:] = True, u[1:] != u[:-1]
+        before = np.empty(len(u), dtype=bool)
+        before[0], before[1:] = False, now[:-1]
+        before[first] = self._braking[u[first]]
+        self.hard_brakes += int(np.count_nonzero(now & ~before & counting[order]))
+        last = np.empty(len(u), dtype=bool)
+        last[:-1], last[-1] = first[1:], True
+        self._braking[u[last]] = now[last]
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._process(ctx)
         return {"min_ttc_s": min(self.min_ttc, 99.0), "max_drac_mps2": self.max_drac,
                 "ttc_exposed_s": self.tet, "hard_brakes": self.hard_brakes}
 
@@ -92,6 +121,7 @@ class TrafficKpis(Component):
     phase = Phase.DETECT
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD, "trips": NEEDS_TRIPS}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
+    block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.traffic.tick_block)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -109,6 +139,7 @@ class TrafficKpis(Component):
         self.in_area = np.zeros(0, dtype=bool)  # per uid: was seen inside it
         self.count = 0
         self.tts_vh = 0.0
+        self._block = TickBlock(self.block_ticks)
 
     def setup(self, ctx: RunContext) -> None:
         lm = road_frame(ctx).tables.landmarks
@@ -117,43 +148,53 @@ class TrafficKpis(Component):
         self.area_x = (lm.x(a.start_landmark) - a.before_m, lm.x(a.end_landmark) + a.after_m) if a else None
 
     def tick(self, ctx: RunContext) -> None:
-        snap = ctx.snapshot
         r = road_frame(ctx)
         n = len(r)
         if ctx.t >= self.warmup:
             self.tts_vh += (n + r.events.backlog) * self.period / 3600.0
         if n == 0:
             return
-        if len(self.passed) < r.tables.n_uids:
-            grow = r.tables.n_uids + 256
+        pos, vel, sl = ctx.snapshot.position, ctx.snapshot.velocity, r.sl
+        if self._block.add(ctx.t, r.uid, r.lane, r.accel, pos[sl, 0], vel[sl, 0], vel[sl, 1]):
+            self._process(ctx)
+
+    def _process(self, ctx: RunContext) -> None:
+        """The held ticks (with vehicles) at once; every per-uid sum is added in tick order."""
+        b = self._block.take()
+        if b is None:
+            return
+        tb = road_frame(ctx).tables
+        if len(self.passed) < tb.n_uids:
+            grow = tb.n_uids + 256
             self.passed = np.concatenate([self.passed, np.zeros(grow, dtype=bool)])
             self.energy = np.concatenate([self.energy, np.zeros(grow)])
             self.area_loss = np.concatenate([self.area_loss, np.zeros(grow)])
             self.in_area = np.concatenate([self.in_area, np.zeros(grow, dtype=bool)])
-        sl, uid = r.sl, r.uid
-        x = snap.position[sl, 0]
-        speed = np.hypot(snap.velocity[sl, 0], snap.velocity[sl, 1])  # [m/s] (WorldSnapshot.speed)
-        if ctx.t >= self.warmup:
-            self.energy[uid] += r.accel * r.accel * self.period
+        uid, lane, accel, x, vx, vy = b.cols
+        counting = (b.t >= self.warmup)[b.tick]  # per row
+        speed = np.hypot(vx, vy)  # [m/s] (WorldSnapshot.speed)
+        np.add.at(self.energy, uid[counting], (accel * accel * self.period)[counting])  # sequential: tick order
         if self.area_x is not None:
-            self._merge_area_loss(r, x, speed)
-        new = (x > self.line_x) > self.passed[uid]  # past the line and not counted yet
-        self.passed[uid[new]] = True
-        if ctx.t >= self.warmup:
-            self.count += int(np.count_nonzero(new))
-        ctx.signals.record("vehicles", ctx.t, n)
-        ctx.signals.record("mean_speed", ctx.t, float(np.add.reduce(speed)) / n)  # = speed.mean()
+            self._merge_area_loss(tb, uid, lane, x, speed)
+        past = np.flatnonzero(x > self.line_x)
+        seen, first = np.unique(uid[past], return_index=True)  # each vehicle's first row past the line
+        new = past[first[~self.passed[seen]]]  # ... unless it was counted in an earlier block
+        self.passed[seen] = True
+        self.count += int(np.count_nonzero(counting[new]))
+        ctx.signals.record_many("vehicles", b.t, b.rows)
+        ctx.signals.record_many("mean_speed", b.t, [float(np.add.reduce(speed[k:k + n])) / n  # = speed.mean()
+                                                    for k, n in zip(b.starts.tolist(), b.rows.tolist(), strict=True)])
 
-    def _merge_area_loss(self, r: RoadFrame, x: np.ndarray, speed: np.ndarray) -> None:
+    def _merge_area_loss(self, tb: RoadTables, uid: np.ndarray, lane: np.ndarray, x: np.ndarray,
+                         speed: np.ndarray) -> None:
         """SUMO's time loss, dt·(1 − v / v_desired), of every vehicle inside the merge area; v_desired
         is its own desired speed on its lane, min(top speed, limit · speed factor)."""
         inside = np.flatnonzero((x >= self.area_x[0]) & (x <= self.area_x[1]))
         if not len(inside):
             return
-        tb = r.tables
-        uid, code = r.uid[inside], r.lane[inside]
+        uid, code = uid[inside], lane[inside]
         v_des = np.minimum(tb.max_speed[uid], tb.lane_speed_limit[code] * tb.speed_factor[uid])
-        self.area_loss[uid] += self.period * np.minimum(np.maximum(1.0 - speed[inside] / v_des, 0.0), 1.0)  # clip
+        np.add.at(self.area_loss, uid, self.period * np.minimum(np.maximum(1.0 - speed[inside] / v_des, 0.0), 1.0))
         self.in_area[uid] = True
 
     def _area_metrics(self) -> dict[str, float]:
@@ -177,6 +218,7 @@ class TrafficKpis(Component):
         return frozenset(self.p.prefix + c for c in self.SHARED)
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._process(ctx)
         out = self._finish(ctx)
         return {self.p.prefix + k: v for k, v in out.items()} if self.p.prefix else out
 

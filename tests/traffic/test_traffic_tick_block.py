@@ -1,0 +1,65 @@
+"""The road monitors process ticks in blocks (``corridor.traffic.tick_block``); any block size gives
+the figures of tick-by-tick processing, bit for bit."""
+
+from __future__ import annotations
+
+import multiprocessing
+import tempfile
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corridor.traffic.tick_block import TickBlock
+
+SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+
+
+def test_a_block_concatenates_its_ticks_and_indexes_their_rows() -> None:
+    block = TickBlock(3)
+    assert block.take() is None
+    assert not block.add(0.1, np.array([5, 6]), np.array([1.0, 2.0]))
+    assert not block.add(0.2, np.zeros(0, dtype=int), np.zeros(0))
+    assert block.add(0.3, np.array([7, 5, 6]), np.array([3.0, 4.0, 5.0]))  # full after 3 ticks
+    b = block.take()
+    assert len(b) == 3 and b.t.tolist() == [0.1, 0.2, 0.3]
+    assert b.rows.tolist() == [2, 0, 3] and b.starts.tolist() == [0, 2, 2]
+    assert b.tick.tolist() == [0, 0, 2, 2, 2]
+    assert b.cols[0].tolist() == [5, 6, 7, 5, 6] and b.cols[1].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert block.take() is None  # emptied
+    with pytest.raises(ValueError, match="block size"):
+        TickBlock(0)
+
+
+def _monitors_with_blocks(ticks: int) -> dict[str, object]:
+    from corridor.run import build
+    from corridor.scenario import load
+    from corridor.traffic.monitors import SurrogateSafety, TrafficKpis
+
+    SurrogateSafety.block_ticks = TrafficKpis.block_ticks = ticks
+    # warm-up inside a block; a TTC threshold that is crossed (time exposed > 0) in 80 s
+    sets = ["duration=80", "warmup=23.3", "monitors.ssm.params.ttc_threshold_s=12"]
+    sc, _ = load(str(SCENARIO), sets)
+    sim = build(sc, 2, Path(tempfile.mkdtemp()))
+    metrics = sim.run()
+    signals = {n: sim.ctx.signals.get(n) for n in ("min_ttc", "vehicles", "mean_speed")}
+    return {"metrics": metrics, "signals": signals}
+
+
+def test_blocks_of_1_and_of_37_ticks_give_the_same_figures_bit_for_bit() -> None:
+    out = []
+    for ticks in (1, 37):
+        with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            out.append(pool.submit(_monitors_with_blocks, ticks).result())  # libsumo: one per process
+    one, many = out
+    m = one["metrics"]
+    assert m["hard_brakes"] > 0 and m["ttc_exposed_s"] > 0 and m["throughput_vph"] > 0  # all exercised
+    assert m["merge_loss_mean_s"] > 0 and np.isfinite(m["energy_proxy_mean"])
+    for key in ("min_ttc_s", "max_drac_mps2", "ttc_exposed_s", "hard_brakes", "throughput_vph", "tts_vh",
+                "energy_proxy_mean", "merge_loss_mainline_s", "merge_loss_ramp_s", "merge_loss_mean_s"):
+        assert many["metrics"][key] == m[key], key
+    assert len(one["signals"]["min_ttc"][0]) == 800  # one value per tick (the others: ticks with vehicles)
+    for name, (t, v) in one["signals"].items():
+        assert len(t) > 700 and np.array_equal(many["signals"][name][0], t), name
+        assert np.array_equal(many["signals"][name][1], v), name
