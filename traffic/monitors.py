@@ -46,21 +46,20 @@ class SurrogateSafety(Component):
         road_frame(ctx)  # fails early without a road
 
     def tick(self, ctx: RunContext) -> None:
-        r = road_frame(ctx)
-        vel, sl = ctx.snapshot.velocity, r.sl
-        if self._block.add(ctx.t, r.uid, r.lane, r.lane_pos, r.accel, vel[sl, 0], vel[sl, 1],
-                           ctx.snapshot.size[sl, 0]):
+        road_frame(ctx)
+        if self._block.add(ctx.t, ctx.snapshot):
             self._process(ctx)
 
     def _process(self, ctx: RunContext) -> None:
         b = self._block.take()
         if b is None:
             return
-        uid, lane, lane_pos, accel, vx, vy, length = b.cols
+        uid, lane, lane_pos, accel = b.road("uid"), b.road("lane"), b.road("lane_pos"), b.road("accel")
+        vel, length = b.rows_of("velocity"), b.rows_of("size")[:, 0]
         counting = b.t >= self.warmup  # per tick
         self._hard_brakes(uid, accel < self.p.hard_brake_mps2, counting[b.tick], road_frame(ctx).tables.n_uids)
         f, lead = lane_leaders(lane, lane_pos, group=b.tick)  # the pairs of each tick, in its order
-        speed = np.hypot(vx, vy)  # [m/s] (WorldSnapshot.speed)
+        speed = np.hypot(vel[:, 0], vel[:, 1])  # [m/s] (WorldSnapshot.speed)
         ttc, drac = ttc_drac(lane_pos[lead] - length[lead] - lane_pos[f], speed[f], speed[lead])
         at = b.tick[f]
         ttc_now = np.full(len(b), np.inf)
@@ -154,8 +153,7 @@ class TrafficKpis(Component):
             self.tts_vh += (n + r.events.backlog) * self.period / 3600.0
         if n == 0:
             return
-        pos, vel, sl = ctx.snapshot.position, ctx.snapshot.velocity, r.sl
-        if self._block.add(ctx.t, r.uid, r.lane, r.accel, pos[sl, 0], vel[sl, 0], vel[sl, 1]):
+        if self._block.add(ctx.t, ctx.snapshot):
             self._process(ctx)
 
     def _process(self, ctx: RunContext) -> None:
@@ -170,9 +168,10 @@ class TrafficKpis(Component):
             self.energy = np.concatenate([self.energy, np.zeros(grow)])
             self.area_loss = np.concatenate([self.area_loss, np.zeros(grow)])
             self.in_area = np.concatenate([self.in_area, np.zeros(grow, dtype=bool)])
-        uid, lane, accel, x, vx, vy = b.cols
+        uid, lane, accel = b.road("uid"), b.road("lane"), b.road("accel")
+        x, vel = b.rows_of("position")[:, 0], b.rows_of("velocity")
         counting = (b.t >= self.warmup)[b.tick]  # per row
-        speed = np.hypot(vx, vy)  # [m/s] (WorldSnapshot.speed)
+        speed = np.hypot(vel[:, 0], vel[:, 1])  # [m/s] (WorldSnapshot.speed)
         np.add.at(self.energy, uid[counting], (accel * accel * self.period)[counting])  # sequential: tick order
         if self.area_x is not None:
             self._merge_area_loss(tb, uid, lane, x, speed)

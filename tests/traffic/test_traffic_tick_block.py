@@ -11,22 +11,35 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from corridor.snapshot import RoadFrame, RoadTables, WorldSnapshot
 from corridor.traffic.tick_block import TickBlock
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
 
 
-def test_a_block_concatenates_its_ticks_and_indexes_their_rows() -> None:
+def _snapshot(uids: list[int], xs: list[float], offset: int = 0) -> WorldSnapshot:
+    """``offset`` rows of another backend (x = -1) before the road's rows."""
+    n = offset + len(uids)
+    pos = np.zeros((n, 3))
+    pos[:, 0] = [-1.0] * offset + xs
+    road = RoadFrame("road", RoadTables(), uid=np.array(uids, dtype=np.int64), offset=offset)
+    return WorldSnapshot(ids=np.array([f"v{k}" for k in range(n)], dtype=object), kind=np.zeros(n, np.int8),
+                         role=np.zeros(n, np.int8), position=pos, velocity=np.zeros((n, 3)), heading=np.zeros(n),
+                         size=np.ones((n, 3)), road=road)
+
+
+def test_a_block_concatenates_the_road_rows_of_its_ticks() -> None:
     block = TickBlock(3)
     assert block.take() is None
-    assert not block.add(0.1, np.array([5, 6]), np.array([1.0, 2.0]))
-    assert not block.add(0.2, np.zeros(0, dtype=int), np.zeros(0))
-    assert block.add(0.3, np.array([7, 5, 6]), np.array([3.0, 4.0, 5.0]))  # full after 3 ticks
+    assert not block.add(0.1, _snapshot([5, 6], [1.0, 2.0]))
+    assert not block.add(0.2, _snapshot([], []))
+    assert block.add(0.3, _snapshot([7, 5, 6], [3.0, 4.0, 5.0], offset=2))  # full after 3 ticks
     b = block.take()
     assert len(b) == 3 and b.t.tolist() == [0.1, 0.2, 0.3]
     assert b.rows.tolist() == [2, 0, 3] and b.starts.tolist() == [0, 2, 2]
     assert b.tick.tolist() == [0, 0, 2, 2, 2]
-    assert b.cols[0].tolist() == [5, 6, 7, 5, 6] and b.cols[1].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]
+    assert b.road("uid").tolist() == [5, 6, 7, 5, 6]
+    assert b.rows_of("position")[:, 0].tolist() == [1.0, 2.0, 3.0, 4.0, 5.0]  # the road's rows only
     assert block.take() is None  # emptied
     with pytest.raises(ValueError, match="block size"):
         TickBlock(0)
