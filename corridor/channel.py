@@ -58,6 +58,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 _T_EPS_S = 1e-9  # [s] tolerance of the delivery time comparison
+DELIVERY_TOLERANCE_S = _T_EPS_S  # public: a copy whose delay exceeds it is never due when it is sent
 MAX_DELAY_S = 60.0  # [s] upper bound of latency_s and jitter_s: no radio link of a scenario is slower
 DEFAULT_MAX_IN_FLIGHT = 1_000_000  # copies; beyond, new copies are dropped (``dropped_overflow``)
 

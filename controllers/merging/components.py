@@ -45,7 +45,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.channel import Channel, ChannelConfig
+from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
@@ -142,6 +142,7 @@ class V2XMerging(Controller):
         self._on_ramp_lane = np.zeros(0, dtype=bool)
         self._joins_lane = np.zeros(0, dtype=bool)
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
+        self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
@@ -154,9 +155,12 @@ class V2XMerging(Controller):
         state = self._sense(ctx)
         if state is None:
             return
-        self._communicate(ctx.t, state)
+        cams = self._communicate(ctx.t, state)
         target = self.p.target_speed_mps or self._stream_speed(state)
-        zone = self._coordinate(ctx.t, state, target)
+        zone, assignments = self._coordinate(ctx.t, state, target)
+        # the tick's CAMs and the RSU's assignments in one send_many (the same draws, in the same
+        # order, as one call each: no copy sent now is due before the next tick, see _communicate)
+        self.channel.send_many(ctx.t, cams + assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
@@ -185,7 +189,9 @@ class V2XMerging(Controller):
         self._on_ramp_lane = np.concatenate([self._on_ramp_lane, [self.landmarks.is_ramp_lane(n) for n in new]])
         self._joins_lane = np.concatenate([self._joins_lane, [self.landmarks.joins_mainline(n) for n in new]])
 
-    def _communicate(self, t: float, s: dict[str, Any]) -> None:
+    def _communicate(self, t: float, s: dict[str, Any]) -> list[tuple[str, Any, np.ndarray, list[str]]]:
+        """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
+        when the channel's delay is never zero (none of them could be delivered in this tick)."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist = s["ids"], s["dist"]
         near = s["connected"] & (dist < zone_len + self.p.send_margin_m) & (dist > -self.p.release_after_m - 50)
@@ -223,14 +229,17 @@ class V2XMerging(Controller):
             self._listen[vid] = set(ahead)
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
-        # one send_many, a multicast per CAM: the same draws as one unicast send per copy
-        self.channel.send_many(t, [(m.sender_id, m, m.position_m, [RSU, *followers.get(m.sender_id, ())])
-                                   for m in msgs])
+        # a multicast per CAM: the same draws as one unicast send per copy
+        cams = [(m.sender_id, m, m.position_m, [RSU, *followers.get(m.sender_id, ())]) for m in msgs]
+        if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
+            self.channel.send_many(t, cams)
+            cams = []
         for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
         self._receive(t)
         self.tracks.drop_stale(t)
+        return cams
 
     def _receive(self, t: float) -> None:
         """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each
@@ -258,8 +267,10 @@ class V2XMerging(Controller):
         """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
         return dst == RSU or src in self._listen.get(dst, ())
 
-    def _coordinate(self, t: float, s: dict[str, Any], target: float) -> dict[str, int]:
-        """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times."""
+    def _coordinate(self, t: float, s: dict[str, Any], target: float
+                    ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times;
+        returns the zone (vehicle -> row) and the assignments to send."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
         candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"])
@@ -300,7 +311,7 @@ class V2XMerging(Controller):
         crossed = {vid: t for vid in self.coord.sequence if vid not in index and live.get(vid, 1.0) <= 0.0}
         times = self.coord.assign(t, zone, crossed)
         if not zone:
-            return {}
+            return {}, []
         order = self.coord.sequence
         road_of = {z.id: z.road for z in zone}
         rsu_pos = np.array([self.x_merge, self.y_rsu, 0.0])
@@ -311,8 +322,7 @@ class V2XMerging(Controller):
                 continue
             pred = order[pos_ - 1] if pos_ > 0 else None
             out.append((RSU, Assignment(t, times[vid], pred, road_of.get(pred) if pred else None), rsu_pos, vid))
-        self.channel.send_many(t, out)
-        return index
+        return index, out
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
         cmds: list[Any] = []
