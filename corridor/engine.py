@@ -305,8 +305,8 @@ class Simulation:
             self._by_phase[c.phase].append(c)
         self.wall_s = 0.0
         # the world before the first step: no rows, but the road's static tables and landmarks
-        backends = [b for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
-        ctx.snapshot = WorldSnapshot.from_parts(ctx.t, [b.static_part() for b in backends])
+        self._backends = [b for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
+        ctx.snapshot = WorldSnapshot.from_parts(ctx.t, [b.static_part() for b in self._backends])
 
     def providers(self, role: str) -> list[Component]:
         """The components that provide ``role``, in build order."""
@@ -406,17 +406,15 @@ class Simulation:
 
     def _act(self) -> None:
         if self.ctx.commands:
-            for b in self._by_phase[Phase.INTEGRATE]:
-                if isinstance(b, Backend):
-                    b.apply(self.ctx.commands, self.ctx)
+            for b in self._backends:
+                b.apply(self.ctx.commands, self.ctx)
             self.ctx.commands = []
 
     def _integrate(self) -> None:
         self._run(Phase.INTEGRATE)
         self.ctx.tick += 1
         self.ctx.t = self.ctx.tick * self.ctx.dt
-        parts = [b.snapshot_part() for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
-        self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, parts)
+        self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, [b.snapshot_part() for b in self._backends])
 
     def step(self) -> None:
         """One tick; reads as the pipeline of DESIGN.md."""

@@ -121,6 +121,7 @@ class SumoBackend(Backend):
         self.pre_step: list[Callable[[RunContext], None]] = []
         self._part = WorldSnapshot(road=RoadFrame(name, self.tables))
         self._rows = _NO_ROWS
+        self._lanes: tuple[list[str], np.ndarray] = ([], np.zeros(0, dtype=np.int64))  # the last step's lane codes
         self._started = False
 
     # ------------------------------------------------------------------ set-up
@@ -308,18 +309,26 @@ class SumoBackend(Backend):
         if self.controlled:
             role = role.copy()
             role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
+        road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
+                         distance=distance, events=events, detectors=detectors)
+        self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, position=pos, velocity=vel,
+                                   heading=yaw, size=same.size, road=road)
+
+    def _lane_codes(self, lanes: list[str]) -> np.ndarray:
+        """Lane code per row (read-only; the previous step's array when no vehicle changed lanes)."""
+        if lanes == self._lanes[0]:
+            return self._lanes[1]
         codes = self.tables.lane_code_of
         try:
-            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
+            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=len(lanes))
         except KeyError:  # a lane entered for the first time: code it (in order of appearance)
             for ln in lanes:
                 if ln not in codes:
                     self._new_lane(ln)
-            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=n)
-        road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=lane, lane_pos=lane_pos, accel=accel,
-                         distance=distance, events=events, detectors=detectors)
-        self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, position=pos, velocity=vel,
-                                   heading=yaw, size=same.size, road=road)
+            lane = np.fromiter(map(codes.__getitem__, lanes), dtype=np.int64, count=len(lanes))
+        lane.flags.writeable = False
+        self._lanes = (lanes, lane)
+        return lane
 
     def _same_rows(self, ids: list[str]) -> _Rows:
         """The rows' arrays that depend only on which vehicles are on the road, in SUMO's order:
