@@ -8,19 +8,23 @@ elite, one or two points of 30-60; no mixture fitted to such an elite (weighted 
 by BIC) gives it a component (uav_encounter's plain rows: 2 of 33 stage-0 elites did), and an
 importance sampler that resamples the elite by weight loses it within a stage or two.
 
-1. *Exploration*: subset simulation (``splitting.py``, Au & Beck 2001) with ``p0 = 0.2`` and ``n`` runs
-   per level: each seed starts a Markov chain that stays in its region (a rejected move keeps the
-   state), so a mode with one seed keeps its chain down to the failure level; ``p0 = 0.2`` keeps twice
-   the seeds of ``p0 = 0.1`` at the first level, where a small mode is most easily lost.  It stops when a
-   level holds ``p0 n`` failures (or its share of the budget is spent).
+1. *Exploration*: subset simulation (``splitting.py``, Au & Beck 2001) with ``p0 = 0.2`` and
+   ``budget / 8`` runs per level, at most 75 % of the budget: each seed starts a Markov chain that stays
+   in its region (a rejected move keeps the state), so a region with a seed is explored further as long
+   as one of its states is among the next level's lowest ``p0 n``; ``p0 = 0.2`` keeps twice the seeds of
+   ``p0 = 0.1`` at the first level, where a small mode is most easily lost (it can still be lost: the
+   README's two-mode check loses it in 19 of 100 seeds).  It stops when a level holds ``p0 n`` failures.
 2. *Fit*: the distinct failing points of every level are (approximately) draws of the nominal law given
    failure, the optimal importance density; a Gaussian mixture with diagonal covariances is fitted to
    them by EM, the number of components chosen by BIC (``mixture.py``; Geyer, Papaioannou & Straub,
    Struct. Safety 76, 2019; the idea of sampling from a density built on MCMC failure samples: Au & Beck,
    Struct. Safety 21, 1999).  Sampling shares: each component's share of the points, at least
-   ``share_min / K``; standard deviations widened ``inflate`` times (at most 1).
-3. *Estimate*: the rest of the budget draws from ``alpha phi + (1 - alpha) g`` (weights ``<= 1 / alpha``);
-   ``p = mean(w 1{fail})`` with ``w = phi / q`` over this stage alone: unbiased, whatever the fit.
+   ``share_min / K``; standard deviations widened ``inflate`` times, within ``[std_low, 1]`` (a chain's
+   failures are correlated, so a fitted spread is often too narrow).
+3. *Estimate*: the rest of the budget draws from ``alpha phi + (1 - alpha) g`` (weights ``<= 1 / alpha``)
+   in two parts (``refit_share``, then the rest); between them the components' shares, means and spreads
+   get a cross-entropy update on the first part's weighted failures.  ``p = sum(w 1{fail}) / N`` with
+   ``w = phi / q`` of each part's own proposal, over both parts only: unbiased, whatever the fit.
 4. *Missed-mode check*: a failure of the final stage where ``alpha phi > (1 - alpha) g`` (drawn by the
    defensive part, outside every component) is a failure mode the mixture misses; it is counted and a
    warning written: the estimate stays unbiased, but its interval is then not to be trusted.
