@@ -85,9 +85,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     r.add_argument("--estimate", default=None, metavar="EVENT",
                    help="estimate P(EVENT): an expression over a run's row ('collisions > 0', 'nmac > 0 or "
                         "min_sep_h_m < 10') or spec:NAME (robustness < 0); default DIR results/<name>-<method>")
-    r.add_argument("--method", choices=["naive", "ce", "splitting"], default="ce",
+    r.add_argument("--method", default="ce", metavar="METHOD",
                    help="naive: plain Monte Carlo (Clopper-Pearson); ce: cross-entropy importance sampling "
-                        "(default); splitting: subset simulation")
+                        "(default); splitting: subset simulation; splitting_is: subset simulation, then importance "
+                        "sampling with a Gaussian mixture (several failure modes); or an installed "
+                        "corridor.estimators plug-in")
     r.add_argument("--budget", type=int, default=None, metavar="N", help="runs the estimate or search may use")
     r.add_argument("--level", default=None, metavar="COLUMN",
                    help="level function of ce/splitting: a row column, smaller = closer to failure ('-COL': "

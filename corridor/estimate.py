@@ -220,5 +220,7 @@ def print_rare(data: dict[str, Any]) -> None:
     mc = res["plain_mc_same_runs"]["ci95"]
     print(f"plain Monte Carlo with {res['runs']} runs: 95 % CI [{mc[0]:.3g}, {mc[1]:.3g}]; the same precision "
           f"needs ~{res['plain_runs_same_precision']:.3g} plain runs ({res['runs_ratio']:.3g} x)")
+    if res.get("missed_mode_warning"):
+        print(f"warning: {res['missed_mode_warning']}")
     for f in data["likely_failures"][:3]:
         print(f"failure {f['run_id']} (nominal log density {f['nominal_logpdf']:.3g}): {f['rerun']}")

@@ -46,14 +46,23 @@ def estimate_section(data: dict[str, Any]) -> str:
                     [[res["method"], res["runs"], res["estimate"], f"[{_n(lo)}, {_n(hi)}]",
                       f"[{_n(mc.get('ci95', [None])[0])}, {_n(mc.get('ci95', [None, None])[1])}]",
                       res.get("plain_runs_same_precision"), res.get("runs_ratio")]])]
+    if res.get("missed_mode_warning"):
+        parts.append(f"<p><strong>Warning:</strong> {html.escape(res['missed_mode_warning'])}</p>")
     keys = [k for k in ("ess", "ess_failures", "weight_max", "weight_cv", "max_weight_share_failures", "cv",
-                        "p0", "runs_per_level", "converged", "reached_failure") if k in res]
+                        "p0", "runs_per_level", "converged", "reached_failure", "components",
+                        "uncovered_failures") if k in res]
     if keys:
         parts.append(_table(keys, [[res[k] if not isinstance(res[k], bool) else str(res[k]) for k in keys]]))
     path = res.get("path") or []
     if path:
         head = sorted({k for p in path for k in p}, key=lambda k: list(path[0]).index(k) if k in path[0] else 99)
         parts.append("<h3>Stages (level / proposal path)</h3>" + _table(head, [[str(p.get(k, "")) if isinstance(p.get(k), list | bool) else p.get(k, "") for k in head] for p in path]))
+    modes = res.get("modes") or []
+    if modes:
+        parts.append("<h3>Proposal components (failure modes) and their share of the estimate</h3>"
+                     + _table(["component", "sampling share", "failures", "estimate", "mean (z)", "std (z)"],
+                              [[m["component"], m["share"], m["failures"], m["estimate"], str(m["mean"]),
+                                str(m["std"])] for m in modes]))
     parts.append(_failures(data.get("likely_failures", [])))
     return "<section>" + "".join(parts) + "</section>"
 
