@@ -16,11 +16,15 @@ Coefficient of variation: ``delta^2 = sum_i (1 - p_i) / (p_i n) * (1 + gamma_i)`
 the chains' indicator correlation (Au & Beck eq. 29); the 95 % interval is log-normal with it.  Even
 with independent samples at every level (``gamma = 0``) ``delta^2 ~ (ln p)^2 (1 - p0) / (p0 (ln p0)^2 B)``
 for a budget of ``B`` runs: ~0.12 for p = 3.4e-6 and B = 2,000 (see the README, "Safety statistics").
+
+``select`` replaces the choice of the lowest ``p0 n`` states as seeds (``splitting_is`` passes a quota
+per cluster, ``quota.py``); the estimate above then is a diagnostic only.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -55,8 +59,9 @@ class SubsetSimulation:
     TAG = 0x55
 
     def __init__(self, dim: int, budget: int, seed: int, p0: float = 0.1, n_level: int | None = None,
-                 burn: int = 1) -> None:
+                 burn: int = 1, select: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None) -> None:
         self.dim, self.budget, self.seed, self.p0, self.burn = dim, budget, seed, p0, burn
+        self.select = select  # seed choice (z, score, n_seeds) -> indices; None: the lowest
         self.per = int(round(1 / p0))
         self.n = n_level or level_size(budget, p0, burn)
         self.n_seeds = int(round(p0 * self.n))
@@ -66,7 +71,7 @@ class SubsetSimulation:
         self.levels: list[dict[str, Any]] = []
         self.chains_z: np.ndarray | None = None  # (chains, states, dim)
         self.chains_s: np.ndarray | None = None  # (chains, states)
-        self.threshold = math.inf
+        self.threshold: float | np.ndarray = math.inf  # per chain: max(level threshold, its seed's score)
         self.step = 0
         self.accepted = 0
         self._z: np.ndarray | None = None
@@ -125,7 +130,10 @@ class SubsetSimulation:
         if final:
             self._finish(reached=n_fail >= self.n_seeds or n_fail > 0)
             return
-        self.threshold = b
+        if self.select is not None:
+            seeds = self.select(flat_z, flat_s, self.n_seeds)
+            self.levels[-1]["seeds_above_threshold"] = int((flat_s[seeds] > b).sum())
+        self.threshold = np.maximum(b, flat_s[seeds])
         self.chains_z, self.chains_s = flat_z[seeds][:, None, :], flat_s[seeds][:, None]
         self.step = self.accepted = 0
 
