@@ -438,6 +438,10 @@ class RampMpc(RampControl):
         occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])
         if self.fusion is not None:
             x0, occ = self.fused_state(x0, keys, obs.t)
+        if self._ctx is not None:  # the state the MPC decides on (compare with segment_watch's rho_true_*)
+            for i in range(net.n_seg):
+                self._ctx.signals.record(f"mpc_rho_{i}", obs.t, float(x0[i]))
+                self._ctx.signals.record(f"mpc_v_{i}", obs.t, float(x0[net.n_seg + i]))
         capped = mpc.n_cpu_capped
         res = mpc.solve(x0, self.forecast(times), self.u_prev, occupancy_pct=occ)
         if mpc.n_cpu_capped > capped:
