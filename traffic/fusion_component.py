@@ -47,6 +47,9 @@ class SegmentFusion(Component):
         # followed it down the healthy station of the segment is the one that disagrees (air_ground_watch
         # seed 1, loops only: a segment at 60 veh/km/lane estimated at 1).  None: off.
         zero_check_vph: float | None = Field(600.0, gt=0.0)
+        # file of the map between segment-mean and station-scale density (``corridor.traffic.station_map``):
+        # loop densities are taken to the segment mean (g^-1) before they are fused; None: as read
+        station_map: str | None = None
         filter: FusionParams = Field(default_factory=FusionParams)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
@@ -70,6 +73,11 @@ class SegmentFusion(Component):
         from corridor.controllers.ramp_metering.components import loop_speed_kmh
 
         self._speed = loop_speed_kmh  # space-mean speed of a station, as the direct mapping computes it
+        self.station_map = None
+        if self.params.station_map:
+            from corridor.controllers.ramp_metering.components import load_station_map
+
+            self.station_map = load_station_map(self.params.station_map)
 
     def station_segment(self, key: str, side: str) -> int:
         """Segment a loop station informs: downstream of merge k -> the first segment of link k; upstream
@@ -142,7 +150,10 @@ class SegmentFusion(Component):
         occ, flow, spd = ((m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps) if side == "down"
                           else (m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
         L = self.params.vehicle_length_m
-        return station, i, occ * 10.0 / L, self._speed(occ, flow, spd, self.lanes, L)
+        rho = occ * 10.0 / L
+        if self.station_map is not None:
+            rho = float(self.station_map.to_segment(np.array([rho]))[0])
+        return station, i, rho, self._speed(occ, flow, spd, self.lanes, L)
 
     def densities(self) -> np.ndarray:
         """[n_seg] fused density [veh/km/lane]."""
