@@ -39,6 +39,17 @@ class SegmentFusion(Component):
         period_s: float = Field(5.0, gt=0.0)  # [s]
         segments_per_link: int = Field(1, ge=1, le=8)  # the MPC's m
         vehicle_length_m: float = Field(5.0, gt=0.0)  # occupancy [%] -> density: occ 10 / length
+        # Zero test (a traffic centre's routine loop-data check): an interval in which a station counted
+        # no vehicle at 0 % occupancy while the median station of its carriageway counted at least this
+        # flow [veh/h] is implausible (a stuck or cut loop; at 600 veh/h over 60 s a healthy 2-lane
+        # station sees nobody with probability ~e^-10) and is not fused.  The NIS down-weighting alone
+        # cannot catch it: a station stuck at zero agrees with an empty prior, and once the filter has
+        # followed it down the healthy station of the segment is the one that disagrees (air_ground_watch
+        # seed 1, loops only: a segment at 60 veh/km/lane estimated at 1).  None: off.
+        zero_check_vph: float | None = Field(600.0, gt=0.0)
+        # file of the map between segment-mean and station-scale density (``corridor.traffic.station_map``):
+        # loop densities are taken to the segment mean (g^-1) before they are fused; None: as read
+        station_map: str | None = None
         filter: FusionParams = Field(default_factory=FusionParams)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
@@ -51,6 +62,8 @@ class SegmentFusion(Component):
         self.uav_age_sum_s = 0.0
         self.uav_age_max_s = 0.0
         self.n = 0
+        self.zero_rejected = 0  # station intervals rejected by the zero test
+        self.zero_stations: set[str] = set()
 
     def setup(self, ctx: RunContext) -> None:
         self.n = len(self.det.interchanges)
@@ -60,6 +73,11 @@ class SegmentFusion(Component):
         from corridor.controllers.ramp_metering.components import loop_speed_kmh
 
         self._speed = loop_speed_kmh  # space-mean speed of a station, as the direct mapping computes it
+        self.station_map = None
+        if self.params.station_map:
+            from corridor.controllers.ramp_metering.components import load_station_map
+
+            self.station_map = load_station_map(self.params.station_map)
 
     def station_segment(self, key: str, side: str) -> int:
         """Segment a loop station informs: downstream of merge k -> the first segment of link k; upstream
@@ -77,15 +95,17 @@ class SegmentFusion(Component):
     def refresh(self, t_s: float) -> None:
         kf = self.kf
         kf.predict(t_s)
-        readings = []
+        fresh = []
         for key, m in self.det.latest.items():
             if m.t_loops <= self._seen_loops.get(key, -math.inf):
                 continue
             self._seen_loops[key] = m.t_loops
-            for side in ("down", "up"):
-                r = self._loop(f"{key}/{side}", self.station_segment(key, side), m, side)
-                if r is not None:
-                    readings.append(r)
+            fresh.append(m)
+        readings = []
+        for key, side, m in self._plausible(fresh):
+            r = self._loop(f"{key}/{side}", self.station_segment(key, side), m, side)
+            if r is not None:
+                readings.append(r)
         if readings:
             kf.update_loops(readings)
         if self.link is not None and self.link.link is not None:
@@ -100,6 +120,28 @@ class SegmentFusion(Component):
                 self.uav_age_sum_s += age
                 self.uav_age_max_s = max(self.uav_age_max_s, age)
 
+    def _plausible(self, fresh: list[RampMeasurement]) -> list[tuple[str, str, RampMeasurement]]:
+        """The (key, side, measurement) station intervals that pass the zero test (see ``zero_check_vph``)."""
+        out = [(m.key, side, m) for m in fresh for side in ("down", "up")]
+        limit = self.params.zero_check_vph
+        if limit is None:
+            return out
+        flows: dict[str, list[float]] = {}
+        for _, side, m in out:
+            if m.ok_down if side == "down" else m.ok_up:
+                flows.setdefault(m.direction, []).append(m.flow_down_vph if side == "down" else m.flow_up_vph)
+        busy = {d: float(np.median(f)) >= limit for d, f in flows.items()}
+        kept = []
+        for key, side, m in out:
+            ok, flow, occ = ((m.ok_down, m.flow_down_vph, m.occupancy_down_pct) if side == "down"
+                             else (m.ok_up, m.flow_up_vph, m.occupancy_up_pct))
+            if ok and flow <= 0.0 and occ <= 0.0 and busy.get(m.direction, False):
+                self.zero_rejected += 1
+                self.zero_stations.add(f"{key}/{side}")
+                continue
+            kept.append((key, side, m))
+        return kept
+
     def _loop(self, station: str, i: int, m: RampMeasurement, side: str) -> tuple[str, int, float, float] | None:
         """(station, segment, density, speed) of one station's interval; None on dropout (nothing came)."""
         ok = m.ok_down if side == "down" else m.ok_up
@@ -108,7 +150,10 @@ class SegmentFusion(Component):
         occ, flow, spd = ((m.occupancy_down_pct, m.flow_down_vph, m.speed_down_mps) if side == "down"
                           else (m.occupancy_up_pct, m.flow_up_vph, m.speed_up_mps))
         L = self.params.vehicle_length_m
-        return station, i, occ * 10.0 / L, self._speed(occ, flow, spd, self.lanes, L)
+        rho = occ * 10.0 / L
+        if self.station_map is not None:
+            rho = float(self.station_map.to_segment(np.array([rho]))[0])
+        return station, i, rho, self._speed(occ, flow, spd, self.lanes, L)
 
     def densities(self) -> np.ndarray:
         """[n_seg] fused density [veh/km/lane]."""
@@ -124,4 +169,5 @@ class SegmentFusion(Component):
         return {"fusion_uav_estimates": self.uav_received,
                 "fusion_uav_aoi_mean_s": self.uav_age_sum_s / self.uav_received if self.uav_received else math.nan,
                 "fusion_uav_aoi_max_s": self.uav_age_max_s if self.uav_received else math.nan,
-                "fusion_stations_downweighted": int(sum(w < 0.5 for w in weights))}
+                "fusion_stations_downweighted": int(sum(w < 0.5 for w in weights)),
+                "fusion_stations_zero": len(self.zero_stations), "fusion_zero_rejected": self.zero_rejected}

@@ -97,6 +97,9 @@ class MetanetParams:
     phi: float = 2.98  # lane-drop coefficient [-] (Hegyi 2004; from memory, unused without drops)
     smooth_vph: float = 0.0  # >0: smooth min/max of width [veh/h] in origin flows (MPC prediction only)
     smooth_rho: float = 0.0  # >0: smooth min/max of width [veh/km/lane] at destinations (MPC only)
+    # >0: the equilibrium speed takes the smooth positive part of the density, width [veh/km/lane]
+    # (MPC only): the NLP's state iterates may hold negative densities, where (rho / rho_crit)^a is NaN
+    smooth_pos_rho: float = 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -273,7 +276,8 @@ def _segment_speed_next(i: int, rho: Any, v: Any, d: Any, q_merge: Any, net: Met
     T = p.step_h
     up = int(net.up[i])
     v_up = v[up] if up >= 0 else v[i]
-    v_eq = equilibrium_speed(rho[i], float(net.v_free_kmh[i]), float(net.rho_crit[i]), float(net.a[i]))
+    rho_eq = smooth_max(rho[i], 0.0, p.smooth_pos_rho) if p.smooth_pos_rho > 0.0 else rho[i]
+    v_eq = equilibrium_speed(rho_eq, float(net.v_free_kmh[i]), float(net.rho_crit[i]), float(net.a[i]))
     rho_down = _downstream_density(rho, d, i, net)
     v_next = (v[i] + T / p.tau_h * (v_eq - v[i]) + T / L * v[i] * (v_up - v[i])
               - p.nu_km2ph * T / (p.tau_h * L) * (rho_down - rho[i]) / (rho[i] + p.kappa))

@@ -53,6 +53,7 @@ class SegmentWatch(Component):
         start_s: float = Field(120.0, ge=0.0)  # [s] errors counted from here on
         vehicle_length_m: float = Field(5.0, gt=0.0)
         min_observed_m: float = Field(50.0, ge=0.0)  # [m] a segment counts as observed
+        truth_signal_period_s: float = Field(60.0, gt=0.0)  # [s] signals rho_true_i / v_true_i (per segment)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -70,6 +71,7 @@ class SegmentWatch(Component):
         self.seg = RingSegments.build(lm, road_spec(ctx.scenario).network.params, 1)
         self.index = RingIndex(self.seg)
         self.n = self.seg.n
+        self._next_truth_s = self.params.start_s
         self._wall0 = time.perf_counter()
         self._cpu0 = time.process_time()
 
@@ -98,7 +100,12 @@ class SegmentWatch(Component):
             ctx.signals.record("coverage", ctx.t, float(np.mean(self.camera.observed_m >= self.params.min_observed_m)))
         if ctx.t < self.params.start_s:
             return
-        truth, _ = self.index.truth(ctx.snapshot)
+        truth, v_true = self.index.truth(ctx.snapshot)
+        if ctx.t + 1e-9 >= self._next_truth_s:
+            self._next_truth_s += self.params.truth_signal_period_s
+            for i, (r, v) in enumerate(zip(truth, v_true, strict=True)):
+                ctx.signals.record(f"rho_true_{i}", ctx.t, float(r))
+                ctx.signals.record(f"v_true_{i}", ctx.t, float(v))
         e_loops = self.loops_density() - truth
         self.sq_loops += float(e_loops @ e_loops)
         ctx.signals.record("rho_rmse_loops", ctx.t, float(np.sqrt(np.mean(e_loops**2))))

@@ -207,6 +207,9 @@ class RampMpcParams(RampParams):
     # name of a ``segment_estimate`` component (``segment_fusion``: loops + UAV cameras) the MPC takes
     # its density/speed state from; None: the loops by the direct mapping (``estimate_state``)
     estimator: str | None = None
+    # with an estimator: the file of the map from segment-mean density (what the estimator estimates) to
+    # the station scale the model is calibrated on (``corridor.traffic.station_map``); None: identity
+    station_map: str | None = None
 
 
 def load_calibration(name: str | None) -> dict[str, float]:
@@ -216,11 +219,23 @@ def load_calibration(name: str | None) -> dict[str, float]:
     repository's ``scenarios/`` folder; missing file -> the defaults of ``DEFAULT_FD``.
     """
     import json
-    from pathlib import Path
 
     out = dict(DEFAULT_FD)
     if not name:
         return out
+    cand = scenario_data_file(name)
+    if cand is not None:
+        fit = json.loads(cand.read_text())
+        out.update({k: float(fit[k]) for k in (*DEFAULT_FD, "alinea_setpoint_pct") if k in fit})
+        out["source"] = str(cand)  # type: ignore[assignment]
+    return out
+
+
+def scenario_data_file(name: str) -> Any:
+    """A data file beside the scenarios (calibration, station map): ``name`` as given, under
+    ``scenarios/`` of the working directory or of the repository / installed package; None if absent."""
+    from pathlib import Path
+
     packaged = [Path(__file__).resolve().parents[2] / "scenarios"]  # a checkout: <repo>/scenarios
     try:
         import corridor.scenarios as pkg  # an installed wheel: scenarios ship as package data
@@ -230,11 +245,8 @@ def load_calibration(name: str | None) -> dict[str, float]:
         pass
     for cand in (Path(name), Path("scenarios") / name, *(d / name for d in packaged)):
         if cand.is_file():
-            fit = json.loads(cand.read_text())
-            out.update({k: float(fit[k]) for k in (*DEFAULT_FD, "alinea_setpoint_pct") if k in fit})
-            out["source"] = str(cand)  # type: ignore[assignment]
-            break
-    return out
+            return cand
+    return None
 
 
 def setpoint_from_calibration(p: RampParams) -> float:
@@ -366,6 +378,16 @@ def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
     return np.concatenate([rho, v, w])
 
 
+def load_station_map(name: str) -> Any:
+    """The ``StationMap`` in data file ``name`` (see ``scenario_data_file``); a missing file is an error."""
+    from corridor.traffic.station_map import StationMap
+
+    path = scenario_data_file(name)
+    if path is None:
+        raise ValueError(f"station_map: no file {name!r} (looked in ., scenarios/ and the packaged scenarios)")
+    return StationMap.load(path)
+
+
 class RampMpc(RampControl):
     """Coordinated ramp metering + route guidance by METANET MPC, ALINEA fallback on solver failure."""
 
@@ -409,6 +431,7 @@ class RampMpc(RampControl):
         self.u_prev = self.net.default_u()
         self.targets: dict[int, float] = {}
         self.defaults = {k: float(s) for k, s in enumerate(self.net.split_default)}
+        self.station_map = load_station_map(p.station_map) if p.station_map else None
 
     @property
     def solve_times_s(self) -> list[float]:
@@ -438,6 +461,10 @@ class RampMpc(RampControl):
         occ = np.array([obs.ramps[k].occupancy_down_pct for k in keys])
         if self.fusion is not None:
             x0, occ = self.fused_state(x0, keys, obs.t)
+        if self._ctx is not None:  # the state the MPC decides on (compare with segment_watch's rho_true_*)
+            for i in range(net.n_seg):
+                self._ctx.signals.record(f"mpc_rho_{i}", obs.t, float(x0[i]))
+                self._ctx.signals.record(f"mpc_v_{i}", obs.t, float(x0[net.n_seg + i]))
         capped = mpc.n_cpu_capped
         res = mpc.solve(x0, self.forecast(times), self.u_prev, occupancy_pct=occ)
         if mpc.n_cpu_capped > capped:
@@ -463,7 +490,10 @@ class RampMpc(RampControl):
 
         self.fusion.refresh(t_s)
         net, ns = self.net, self.net.n_seg
-        rho = np.maximum(self.fusion.densities(), RHO_FLOOR)
+        rho = self.fusion.densities()
+        if self.station_map is not None:  # segment-mean -> the station scale of the model's calibration
+            rho = self.station_map.to_station(rho)
+        rho = np.maximum(rho, RHO_FLOOR)
         v = self.fusion.speeds_kmh()
         v = np.where(np.isfinite(v), v, equilibrium_speed(rho, net.v_free_kmh, net.rho_crit, net.a))
         x = x0.copy()

@@ -64,6 +64,10 @@ class MPCConfig:
     feasibility_tol: float = 1e-2  # [veh/km/lane, km/h, veh] largest constraint violation accepted
     smooth_vph: float = 20.0  # width of the smooth min in the prediction model's origin flows [veh/h]
     smooth_rho: float = 1.0  # width of the smooth min/max at destinations [veh/km/lane]
+    # width of the smooth positive part of the density in the equilibrium speed [veh/km/lane]: the
+    # states are free in the NLP, and an iterate with a negative density made the Jacobian NaN
+    # (IPOPT stopped, the step fell back to ALINEA); it moves V by < 1e-3 km/h at any rho >= 0.1
+    smooth_pos_rho: float = 0.1
     occupancy_eff_length_m: float = 7.0  # vehicle + loop length, converts density to occupancy [m]
     alinea_gain_vph_per_pct: float = 70.0
     alinea_override_frac: float = 0.8
@@ -201,7 +205,7 @@ class RampMeteringMPC:
         D = ca.SX.sym("D", net.nd, lay.n)
         u_prev = ca.SX.sym("u_prev", net.nu)
         pred = dataclasses.replace(net, params=dataclasses.replace(
-            net.params, smooth_vph=c.smooth_vph, smooth_rho=c.smooth_rho))
+            net.params, smooth_vph=c.smooth_vph, smooth_rho=c.smooth_rho, smooth_pos_rho=c.smooth_pos_rho))
         f = self._pred_f = pred.function  # the same METANET with smoothed kinks (metanet.smooth_min)
         g, cost, x = [], 0, x0
         lane_km = ca.DM(net.lane_km())

@@ -61,10 +61,28 @@ class UavAvoidanceParams(BaseModel):
     # sector patrol (the air backend's ``patrol`` fleet): the goal is a point this far ahead along the
     # UAV's sector arc, turning back at the sector ends; None: the fixed goal of each UAV
     patrol_lookahead_m: float | None = Field(None, gt=0.0)
+    # [m] a patrolling UAV turns back this far (along the arc) before its sector end: a tracker that
+    # converges to its goal without overshoot (the control tube) approaches the clipped goal at the
+    # end asymptotically and would never reach the end itself (it hovered there for the rest of the run)
+    patrol_turn_m: float = Field(10.0, gt=0.0)
     # the methods' own parameters, typed so that a misspelt one fails at scenario load (not in every run);
     # control_tube.period_s defaults to the controller's period (see ControlTubeController.build_methods)
     potential_field: PotentialFieldParams = Field(default_factory=PotentialFieldParams)
     control_tube: ControlTubeParams = Field(default_factory=ControlTubeParams)
+
+
+def patrol_target(angle_rad: float, a0: float, a1: float, direction: float, lookahead_rad: float,
+                  turn_rad: float) -> tuple[float, float]:
+    """(goal angle [rad], patrol direction +-1) of a UAV at polar ``angle_rad`` patrolling the sector
+    [a0, a1]: the direction reverses within ``turn_rad`` of the end it is heading for, and the goal is
+    ``lookahead_rad`` ahead, clipped to the sector."""
+    theta = a0 + float(np.mod(angle_rad - a0, 2.0 * np.pi))
+    if theta > a1 + 0.5 * (2.0 * np.pi - (a1 - a0)):  # behind the start: unwrap backwards
+        theta -= 2.0 * np.pi
+    d = direction
+    if (d > 0 and theta >= a1 - turn_rad) or (d < 0 and theta <= a0 + turn_rad):
+        d = -d
+    return float(np.clip(theta + d * lookahead_rad, a0, a1)), d
 
 
 class _UavController(Controller):
@@ -119,13 +137,8 @@ class _UavController(Controller):
         """The point ``patrol_lookahead_m`` ahead of the UAV's projection on its sector arc, in its
         current patrol direction (reversed at a sector end, a ``patrol_turn`` event)."""
         r, a0, a1, alt = self.patrol[uid]
-        theta = a0 + float(np.mod(np.arctan2(pos[1], pos[0]) - a0, 2.0 * np.pi))
-        if theta > a1 + 0.5 * (2.0 * np.pi - (a1 - a0)):  # behind the start: unwrap backwards
-            theta -= 2.0 * np.pi
-        d = self.patrol_dir[uid]
-        if (d > 0 and theta >= a1) or (d < 0 and theta <= a0):
-            self.patrol_dir[uid] = d = -d
-        target = float(np.clip(theta + d * self.params.patrol_lookahead_m / r, a0, a1))
+        target, self.patrol_dir[uid] = patrol_target(float(np.arctan2(pos[1], pos[0])), a0, a1, self.patrol_dir[uid],
+                                                     self.params.patrol_lookahead_m / r, self.params.patrol_turn_m / r)
         return np.array([r * np.cos(target), r * np.sin(target), alt])
 
     def build_methods(self) -> None:

@@ -125,3 +125,23 @@ def test_dual_warm_start_reaches_the_primal_warm_starts_plan() -> None:
         np.testing.assert_allclose(a.u, b.u, atol=1e-3)
         u_a, u_b = a.u, b.u
     assert duals._warm.lam_x is not None and duals._warm_solver is not None  # the warm solver was used
+
+
+def test_prediction_model_has_a_finite_jacobian_at_negative_density() -> None:
+    """The NLP's states are free, so an iterate may hold a negative density: the prediction model's
+    equilibrium speed takes the smooth positive part there (the plain model's is NaN)."""
+    import casadi as ca
+
+    net, x0, d = congested_case()
+    mpc = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=1))
+    x = ca.SX.sym("x", net.nx)
+    u = net.default_u()
+    jac = ca.Function("j", [x], [ca.jacobian(mpc._pred_f(x, u, d)[0], x)])
+    bad = np.array(x0, dtype=float)
+    bad[0] = -0.5  # [veh/km/lane]
+    assert np.all(np.isfinite(jac(bad).full()))
+    plain = ca.Function("p", [x], [ca.jacobian(net.function(x, u, d)[0], x)])
+    assert not np.all(np.isfinite(plain(bad).full()))
+    # away from zero both models agree (to the smoothing's size)
+    good = mpc._pred_f(x0, u, d)[0].full().ravel() - net.function(x0, u, d)[0].full().ravel()
+    assert np.max(np.abs(good[: 2 * net.n_seg])) < 5.0  # the other smoothings (origin flows, destinations)

@@ -75,3 +75,21 @@ def test_camera_needs_the_traffic_dialect(tmp_path):
     sc = variant("loops_failed_uav_pf", 2.0, "backends.link.params.dialect=common")
     with pytest.raises(ValueError, match="dialect: corridor_traffic"):
         simulate(sc, 0, None)
+
+
+def test_perfect_information_baseline_feeds_the_mpc_the_ground_truth():
+    """``segment_truth`` (the diagnostic baseline: the MPC on SUMO's segment truth) hands the MPC what
+    ``segment_watch`` measures as truth (one SUMO step earlier: DECIDE reads the last integrated state),
+    taken to the station scale by the scenario's station map."""
+    from corridor.controllers.ramp_metering.components import load_station_map
+
+    sc = variant("loops_failed", 121.0, "controllers.truth.type=segment_truth",
+                 "controllers.ramps.params.estimator=truth", "monitors.watch.params.start_s=120")
+    _, ctx, _ = simulate(sc, 0, None)
+    g = load_station_map(sc.controllers["ramps"].params["station_map"])
+    mpc = np.array([ctx.signals.get(f"mpc_rho_{i}")[1] for i in range(16)])  # [segment, decision]
+    true = np.array([ctx.signals.get(f"rho_true_{i}")[1][0] for i in range(16)])  # t = 120 s: the first
+    assert list(ctx.signals.get("mpc_rho_0")[0]) == [0.0, 60.0, 120.0]  # vehicles reach the ring at ~90 s
+    assert np.all(mpc[:, 0] == 0.1)  # empty ring at t = 0 (floored)
+    expected = np.maximum(g.to_station(true), 0.1)
+    assert true.max() > 1.0 and np.max(np.abs(mpc[:, 2] - expected)) <= 1.0  # [veh/km/lane]: ~2 vehicles
