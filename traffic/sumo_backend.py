@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from corridor.engine import Backend, RunContext
+from corridor.poses import PlanarPoses
 from corridor.snapshot import DetectorFrame, Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 from corridor.traffic import commands as cmd
 from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
@@ -79,11 +80,6 @@ def vtype_attrs(vt: Any) -> dict[str, str | float]:
 def _uids(values: list[int]) -> np.ndarray:
     """An int64 array of uids (the shared empty one on most steps: no event)."""
     return np.array(values, dtype=np.int64) if values else _NO_UIDS
-
-
-def yaw_from_sumo_angle(angle_deg: np.ndarray) -> np.ndarray:
-    """SUMO angle: degrees clockwise from north -> ENU yaw: radians counter-clockwise from east."""
-    return np.radians(90.0 - np.asarray(angle_deg, dtype=float))
 
 
 class SumoBackend(Backend):
@@ -298,21 +294,16 @@ class SumoBackend(Backend):
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
-        yaw = yaw_from_sumo_angle(angle)
-        cs = np.empty((n, 2))
-        cs[:, 0], cs[:, 1] = np.cos(yaw), np.sin(yaw)
-        pos = np.zeros((n, 3))
-        pos[:, :2] = front - same.half_length * cs  # SUMO reports the front bumper; store the centre
-        vel = np.zeros((n, 3))
-        vel[:, :2] = speed[:, None] * cs
         role = same.role
         if self.controlled:
             role = role.copy()
             role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
                          distance=distance, events=events, detectors=detectors)
-        self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, position=pos, velocity=vel,
-                                   heading=yaw, size=same.size, road=road)
+        # SUMO reports the front bumper and its angle (clockwise from north): centre, velocity and
+        # ENU yaw are derived when a consumer first reads them (corridor.poses)
+        self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, size=same.size, road=road,
+                                   poses=PlanarPoses(front, angle, speed, same.half_length))
 
     def _lane_codes(self, lanes: list[str]) -> np.ndarray:
         """Lane code per row (read-only; the previous step's array when no vehicle changed lanes)."""
