@@ -118,6 +118,16 @@ class RoadTables:
         return k
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+# shared empty defaults (read-only: a step without events allocates nothing)
+_NO_INTS, _NO_FLOATS, _NO_CODES = (_read_only(np.zeros(0, dtype=np.int64)), _read_only(np.zeros(0)),
+                                   _read_only(np.zeros(0, dtype=np.int8)))
+
+
 @dataclass
 class RoadEvents:
     """What happened on the road during the backend's last step.
@@ -127,14 +137,14 @@ class RoadEvents:
     inserted yet (the insertion backlog): ids, their wait so far [s], route code and role.
     """
 
-    departed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    teleported: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    departed: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    arrived: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    teleported: np.ndarray = field(default_factory=lambda: _NO_INTS)
     collisions: tuple[tuple[float, str, str, str], ...] = ()
     pending_ids: tuple[str, ...] = ()
-    pending_wait_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    pending_route: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    pending_role: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    pending_wait_s: np.ndarray = field(default_factory=lambda: _NO_FLOATS)
+    pending_route: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    pending_role: np.ndarray = field(default_factory=lambda: _NO_CODES)
 
     @property
     def backlog(self) -> int:

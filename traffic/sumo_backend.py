@@ -146,9 +146,11 @@ class SumoBackend(Backend):
         """Subscribe the loops, lane areas and watched edges that the network's landmarks declare."""
         ls, lm = self._ls, self.tables.landmarks
         loops, areas, edges = lm.declared_detectors() if hasattr(lm, "declared_detectors") else ((), (), ())
-        self._det = DetectorFrame(loop_ids=tuple(loops), area_ids=tuple(areas),
-                                  loop_index={i: k for k, i in enumerate(loops)},
-                                  area_index={i: k for k, i in enumerate(areas)})
+        self._det: DetectorFrame | None = None  # None: nothing to read each step
+        if loops or areas or edges:
+            self._det = DetectorFrame(loop_ids=tuple(loops), area_ids=tuple(areas),
+                                      loop_index={i: k for k, i in enumerate(loops)},
+                                      area_index={i: k for k, i in enumerate(areas)})
         self._det_edges = tuple(edges)
         self._loop_vars = (ls.VAR_LAST_INTERVAL_NUMBER, ls.VAR_LAST_INTERVAL_OCCUPANCY, ls.VAR_LAST_INTERVAL_SPEED)
         self._area_vars = (ls.LAST_STEP_VEHICLE_NUMBER, ls.LAST_STEP_VEHICLE_HALTING_NUMBER)
@@ -207,8 +209,9 @@ class SumoBackend(Backend):
         for vid in sim.get(ls.VAR_TELEPORT_STARTING_VEHICLES_IDS, ()):
             teleported.append(uid_of.get(vid, -1))
             ctx.events.emit(t, self.name, "teleport", f"{vid} teleported (jam or stuck merge)", vid=vid)
+        hits = ls.simulation.getCollisions()
         events = RoadEvents(departed=_uids(departed), arrived=_uids(arrived), teleported=_uids(teleported),
-                            collisions=tuple((t, c.collider, c.victim, c.type) for c in ls.simulation.getCollisions()))
+                            collisions=tuple((t, c.collider, c.victim, c.type) for c in hits) if hits else ())
         self._pending(events)
         self._read_state(ls.vehicle.getAllSubscriptionResults(), t, events, final=ctx.tick == self._last_tick)
 
@@ -249,7 +252,7 @@ class SumoBackend(Backend):
 
     def _read_detectors(self) -> DetectorFrame | None:
         d = self._det
-        if not (d.loop_ids or d.area_ids or self._det_edges):
+        if d is None:
             return None
         ls = self._ls
         loops = ls.inductionloop.getAllSubscriptionResults()
