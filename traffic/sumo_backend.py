@@ -117,6 +117,7 @@ class SumoBackend(Backend):
         self.pre_step: list[Callable[[RunContext], None]] = []
         self._part = WorldSnapshot(road=RoadFrame(name, self.tables))
         self._rows = _NO_ROWS
+        self._blank = False  # a vehicle was off-lane (lane id "") in the last step
         self._lanes: tuple[list[str], np.ndarray] = ([], np.zeros(0, dtype=np.int64))  # the last step's lane codes
         self._started = False
 
@@ -279,7 +280,9 @@ class SumoBackend(Backend):
         lanes = list(map(itemgetter(LN), rows))
         # a teleporting vehicle still reports (lane '', position INVALID_DOUBLE_VALUE = -2**30): it is off
         # the road until SUMO re-inserts it.  A parked one (SUMO parking area) also has lane '' but a pose.
-        if "" in lanes and any(not r[LN] and r[P][0] < _OFF_NETWORK for r in rows):
+        blank, blank_before = "" in lanes, self._blank
+        self._blank = blank
+        if blank and any(not r[LN] and r[P][0] < _OFF_NETWORK for r in rows):
             res = {v: r for v, r in res.items() if r[LN] or r[P][0] >= _OFF_NETWORK}
             rows = res.values()
             lanes = list(map(itemgetter(LN), rows))
@@ -293,7 +296,10 @@ class SumoBackend(Backend):
         front = np.fromiter(chain.from_iterable(map(itemgetter(P), rows)), dtype=float, count=2 * n).reshape(n, 2)
         speed, angle, accel, lane_pos = (np.fromiter(map(itemgetter(k), rows), dtype=float, count=n)
                                          for k in (S, A, ACC, LP))
-        same = self._same_rows(ids)
+        # the vehicles are those of the previous step unless one departed, arrived or teleported, or
+        # a vehicle was off-lane (teleporting, parked) in either step: then the id lists are compared
+        quiet = not (blank or blank_before or len(events.departed) or len(events.arrived) or len(events.teleported))
+        same = self._same_rows(ids, quiet)
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
@@ -324,11 +330,17 @@ class SumoBackend(Backend):
         self._lanes = (lanes, lane)
         return lane
 
-    def _same_rows(self, ids: list[str]) -> _Rows:
+    def _same_rows(self, ids: list[str], quiet: bool = False) -> _Rows:
         """The rows' arrays that depend only on which vehicles are on the road, in SUMO's order:
-        rebuilt when that list changes (a departure, an arrival), else the previous step's (read-only;
-        comparing the ids costs a third of looking them up)."""
-        if ids == self._rows.id_list:
+        rebuilt when that list changes (a departure, an arrival), else the previous step's (read-only).
+
+        ``quiet``: no vehicle departed, arrived or teleported and none was off-lane in this or the
+        previous step.  SUMO's subscription results are keyed by id in sorted order and a vehicle
+        enters them only by departing (it is subscribed then) and leaves them only by arriving
+        (every removal is reported as an arrival) or by a teleport (filtered out): the same number of
+        ids is then the same list, and the comparison (~5 us a step for 300 ids) is skipped."""
+        prev = self._rows.id_list
+        if (quiet and len(ids) == len(prev)) or ids == prev:
             return self._rows
         tb, n = self.tables, len(ids)
         uid = np.fromiter(map(tb.uid_of.__getitem__, ids), dtype=np.int64, count=n)
