@@ -137,8 +137,11 @@ class SumoBackend(Backend):
                            libsumo.VAR_LANEPOSITION, libsumo.VAR_LANE_ID)
         every = round(self.period / ctx.dt)
         self._last_tick = ((round(ctx.duration / ctx.dt) - 1) // every) * every  # the run's last SUMO step
-        libsumo.simulation.subscribe([libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
-                                      libsumo.VAR_TELEPORT_STARTING_VEHICLES_IDS])
+        self._sim_vars = (libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
+                          libsumo.VAR_TELEPORT_STARTING_VEHICLES_IDS)
+        libsumo.simulation.subscribe(list(self._sim_vars))
+        # one getter per read variable (position, speed, angle, acceleration, lane position, lane id)
+        self._getters = tuple(map(itemgetter, self._read_vars))
         for r, edges in self.net.routes.items():
             self.tables.add_route(r, tuple(self._route_lanes(edges)))
         self._subscribe_detectors()
@@ -200,14 +203,15 @@ class SumoBackend(Backend):
         t = ls.simulation.getTime()
         sim = ls.simulation.getSubscriptionResults()
         uid_of = self.tables.uid_of
-        departed = [self._on_depart(vid, t) for vid in sim.get(ls.VAR_DEPARTED_VEHICLES_IDS, ())]
+        dep, arr, tel = self._sim_vars
+        departed = [self._on_depart(vid, t) for vid in sim.get(dep, ())]
         arrived = []
-        for vid in sim.get(ls.VAR_ARRIVED_VEHICLES_IDS, ()):
+        for vid in sim.get(arr, ()):
             if vid in uid_of:
                 arrived.append(uid_of[vid])
             self.controlled.discard(vid)
         teleported = []
-        for vid in sim.get(ls.VAR_TELEPORT_STARTING_VEHICLES_IDS, ()):
+        for vid in sim.get(tel, ()):
             teleported.append(uid_of.get(vid, -1))
             ctx.events.emit(t, self.name, "teleport", f"{vid} teleported (jam or stuck merge)", vid=vid)
         hits = ls.simulation.getCollisions()
@@ -275,9 +279,10 @@ class SumoBackend(Backend):
         variable (``np.fromiter`` over ``map(itemgetter)``: no Python frame per row, 3x faster than one
         ``np.array`` over a list of row tuples), then whole-array numpy (plain-int role/kind codes:
         numpy compares IntEnum members ~100x slower)."""
-        P, S, A, ACC, LP, LN = self._read_vars
+        P, LN = self._read_vars[0], self._read_vars[5]  # position, lane id (the teleport check)
+        g_pos, g_speed, g_angle, g_accel, g_lane_pos, g_lane = self._getters
         rows = res.values()
-        lanes = list(map(itemgetter(LN), rows))
+        lanes = list(map(g_lane, rows))
         # a teleporting vehicle still reports (lane '', position INVALID_DOUBLE_VALUE = -2**30): it is off
         # the road until SUMO re-inserts it.  A parked one (SUMO parking area) also has lane '' but a pose.
         blank, blank_before = "" in lanes, self._blank
@@ -285,7 +290,7 @@ class SumoBackend(Backend):
         if blank and any(not r[LN] and r[P][0] < _OFF_NETWORK for r in rows):
             res = {v: r for v, r in res.items() if r[LN] or r[P][0] >= _OFF_NETWORK}
             rows = res.values()
-            lanes = list(map(itemgetter(LN), rows))
+            lanes = list(map(g_lane, rows))
         ids = list(res)
         n = len(ids)
         self._ids = ids
@@ -293,9 +298,11 @@ class SumoBackend(Backend):
         if n == 0:
             self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
-        front = np.fromiter(chain.from_iterable(map(itemgetter(P), rows)), dtype=float, count=2 * n).reshape(n, 2)
-        speed, angle, accel, lane_pos = (np.fromiter(map(itemgetter(k), rows), dtype=float, count=n)
-                                         for k in (S, A, ACC, LP))
+        front = np.fromiter(chain.from_iterable(map(g_pos, rows)), dtype=float, count=2 * n).reshape(n, 2)
+        speed = np.fromiter(map(g_speed, rows), dtype=float, count=n)
+        angle = np.fromiter(map(g_angle, rows), dtype=float, count=n)
+        accel = np.fromiter(map(g_accel, rows), dtype=float, count=n)
+        lane_pos = np.fromiter(map(g_lane_pos, rows), dtype=float, count=n)
         # the vehicles are those of the previous step unless one departed, arrived or teleported, or
         # a vehicle was off-lane (teleporting, parked) in either step: then the id lists are compared
         quiet = not (blank or blank_before or len(events.departed) or len(events.arrived) or len(events.teleported))
