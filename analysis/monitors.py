@@ -41,6 +41,9 @@ class CollisionMonitor(Component):
         super().__init__(name)
         self.pairs: dict[tuple[str, str], float] = {}  # unordered pair -> first contact time [s]
         self._prev: Poses | None = None  # geometry of the previous tick's snapshot
+        # role and kind arrays of the last tick with only backend-driven road rows (a road backend
+        # publishes the same read-only arrays while its vehicles stay the same): no check needed
+        self._plain: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -53,7 +56,10 @@ class CollisionMonitor(Component):
                                     f"{a} x {v} [{s.road.source} ({kind}), lane-projected; not counted]", a=a, b=v)
                 else:
                     self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
-        if len(s) < 2 or (np.maximum.reduce(s.role) < _CONTROLLED and np.maximum.reduce(s.kind) <= _TRUCK):
+        if len(s) < 2 or (s.role is self._plain[0] and s.kind is self._plain[1]):
+            return  # the same (read-only) role and kind arrays as a tick that had no special row
+        if np.maximum.reduce(s.role) < _CONTROLLED and np.maximum.reduce(s.kind) <= _TRUCK:
+            self._plain = (s.role, s.kind)
             return  # only backend-driven road vehicles: their backend reports collisions
         special = np.flatnonzero((s.role == _CONTROLLED) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
         pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],

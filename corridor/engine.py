@@ -303,6 +303,8 @@ class Simulation:
         self._by_phase: dict[Phase, list[Component]] = {p: [] for p in Phase}
         for c in comps:
             self._by_phase[c.phase].append(c)
+        # per phase: (ticks per period, component) in build order, looked up once here, not every tick
+        self._due = {p: tuple((self._every[c.name], c) for c in cs) for p, cs in self._by_phase.items()}
         self.wall_s = 0.0
         # the world before the first step: no rows, but the road's static tables and landmarks
         self._backends = [b for b in self._by_phase[Phase.INTEGRATE] if isinstance(b, Backend)]
@@ -400,8 +402,8 @@ class Simulation:
 
     def _run(self, phase: Phase) -> None:
         k = self.ctx.tick
-        for c in self._by_phase[phase]:
-            if k % self._every[c.name] == 0:
+        for every, c in self._due[phase]:
+            if k % every == 0:
                 c.tick(self.ctx)
 
     def _act(self) -> None:

@@ -8,11 +8,14 @@ A road backend adds a ``RoadFrame``: the lane frame of its rows, the run's growi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from enum import IntEnum
 from typing import Any
 
 import numpy as np
+
+from corridor.poses import ConcatGeometry, Geometry, PlanarPoses
 
 
 class Kind(IntEnum):
@@ -115,6 +118,16 @@ class RoadTables:
         return k
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.flags.writeable = False
+    return a
+
+
+# shared empty defaults (read-only: a step without events allocates nothing)
+_NO_INTS, _NO_FLOATS, _NO_CODES = (_read_only(np.zeros(0, dtype=np.int64)), _read_only(np.zeros(0)),
+                                   _read_only(np.zeros(0, dtype=np.int8)))
+
+
 @dataclass
 class RoadEvents:
     """What happened on the road during the backend's last step.
@@ -124,14 +137,14 @@ class RoadEvents:
     inserted yet (the insertion backlog): ids, their wait so far [s], route code and role.
     """
 
-    departed: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    arrived: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    teleported: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    departed: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    arrived: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    teleported: np.ndarray = field(default_factory=lambda: _NO_INTS)
     collisions: tuple[tuple[float, str, str, str], ...] = ()
     pending_ids: tuple[str, ...] = ()
-    pending_wait_s: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    pending_route: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
-    pending_role: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
+    pending_wait_s: np.ndarray = field(default_factory=lambda: _NO_FLOATS)
+    pending_route: np.ndarray = field(default_factory=lambda: _NO_INTS)
+    pending_role: np.ndarray = field(default_factory=lambda: _NO_CODES)
 
     @property
     def backlog(self) -> int:
@@ -204,26 +217,80 @@ class RoadFrame:
         return self.tables.connected[self.uid]
 
 
-@dataclass
 class WorldSnapshot:
     """Struct-of-arrays state of all entities at time ``t`` [s].
 
     position/velocity are ENU metres and m/s; heading is the yaw angle [rad] measured
     counter-clockwise from east (ENU convention); size is (length, width, height) [m].
+
+    A backend may give the three geometry arrays as a lazy source instead (``poses``: a
+    ``corridor.poses.PlanarPoses``): they are derived on first access and cached, so a tick whose
+    consumers read only ids, sizes and the road frame never computes them.  Published arrays are
+    never written again (the lazily derived ones are read-only).
     """
 
-    t: float = 0.0
-    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=object))
-    kind: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
-    role: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
-    position: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    velocity: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    heading: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    size: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-    road: RoadFrame | None = None  # the road entities' lane frame (at most one road backend)
+    __slots__ = ("t", "ids", "kind", "role", "size", "road", "_position", "_velocity", "_heading", "_poses")
+
+    def __init__(self, t: float = 0.0, ids: np.ndarray | None = None, kind: np.ndarray | None = None,
+                 role: np.ndarray | None = None, position: np.ndarray | None = None,
+                 velocity: np.ndarray | None = None, heading: np.ndarray | None = None,
+                 size: np.ndarray | None = None, road: RoadFrame | None = None, *,
+                 poses: PlanarPoses | ConcatGeometry | None = None) -> None:
+        self.t = t
+        self.ids = np.zeros(0, dtype=object) if ids is None else ids
+        self.kind = np.zeros(0, dtype=np.int8) if kind is None else kind
+        self.role = np.zeros(0, dtype=np.int8) if role is None else role
+        self.size = np.zeros((0, 3)) if size is None else size
+        self.road = road  # the road entities' lane frame (at most one road backend)
+        self._poses = poses
+        if poses is not None:
+            if position is not None or velocity is not None or heading is not None:
+                raise ValueError("give the geometry as arrays or as a lazy source (poses), not both")
+            self._position = self._velocity = self._heading = None
+        else:
+            self._position = np.zeros((0, 3)) if position is None else position
+            self._velocity = np.zeros((0, 3)) if velocity is None else velocity
+            self._heading = np.zeros(0) if heading is None else heading
+
+    def _fill(self) -> None:
+        self._position, self._velocity, self._heading = self._poses.geometry()  # type: ignore[union-attr]
+
+    @property
+    def position(self) -> np.ndarray:
+        """(N, 3) [m] ENU centre positions."""
+        if self._position is None:
+            self._fill()
+        return self._position  # type: ignore[return-value]
+
+    @property
+    def velocity(self) -> np.ndarray:
+        """(N, 3) [m/s] ENU velocities."""
+        if self._velocity is None:
+            self._fill()
+        return self._velocity  # type: ignore[return-value]
+
+    @property
+    def heading(self) -> np.ndarray:
+        """(N,) [rad] yaw, counter-clockwise from east."""
+        if self._heading is None:
+            self._fill()
+        return self._heading  # type: ignore[return-value]
+
+    def geometry_source(self) -> Geometry | PlanarPoses | ConcatGeometry:
+        """The geometry as arrays if derived (or given), else its lazy source (for ``from_parts``)."""
+        if self._position is None:
+            return self._poses  # type: ignore[return-value]
+        return self._position, self.velocity, self.heading
+
+    def pending_poses(self) -> list[PlanarPoses]:
+        """The lazy pose sources whose geometry is not derived yet (for ``fill_geometry``)."""
+        return [] if self._position is not None or self._poses is None else self._poses.pending()
 
     def __len__(self) -> int:
         return int(self.ids.shape[0])
+
+    def __repr__(self) -> str:
+        return f"WorldSnapshot(t={self.t}, rows={len(self)}, road={self.road is not None})"
 
     @property
     def speed(self) -> np.ndarray:
@@ -244,7 +311,8 @@ class WorldSnapshot:
     @staticmethod
     def from_parts(t: float, parts: list[WorldSnapshot]) -> WorldSnapshot:
         """Concatenate the backends' parts; the road frame (of at most one part) keeps pointing at
-        its own rows (its ``offset`` moves by the rows of the parts before it)."""
+        its own rows (its ``offset`` moves by the rows of the parts before it).  The geometry stays
+        lazy while a part's is."""
         parts = [p for p in parts if len(p) or p.road is not None]
         if not parts:
             return WorldSnapshot(t=t)
@@ -259,14 +327,27 @@ class WorldSnapshot:
                     raise ValueError("at most one road backend per run: two snapshot parts carry a road frame")
                 road = replace(p.road, offset=offset + p.road.offset)
             offset += len(p)
+        common = {"t": t, "ids": np.concatenate([p.ids for p in parts]),
+                  "kind": np.concatenate([p.kind for p in parts]), "role": np.concatenate([p.role for p in parts]),
+                  "size": np.concatenate([p.size for p in parts]), "road": road}
+        if any(p.pending_poses() for p in parts):
+            return WorldSnapshot(**common, poses=ConcatGeometry([p.geometry_source() for p in parts]))
         return WorldSnapshot(
-            t=t,
-            ids=np.concatenate([p.ids for p in parts]),
-            kind=np.concatenate([p.kind for p in parts]),
-            role=np.concatenate([p.role for p in parts]),
+            **common,
             position=np.concatenate([p.position for p in parts]),
             velocity=np.concatenate([p.velocity for p in parts]),
             heading=np.concatenate([p.heading for p in parts]),
-            size=np.concatenate([p.size for p in parts]),
-            road=road,
         )
+
+
+def fill_geometry(snapshots: Sequence[WorldSnapshot]) -> Geometry | None:
+    """Derive the lazy geometry of many snapshots (a block of ticks) in one numpy pass: the values
+    are those each snapshot would derive on its own (``PlanarPoses.fill_many``).  Returns the joint
+    (position, velocity, heading) of all their rows, in order, when each snapshot was one pending
+    ``PlanarPoses`` part (else None: read each snapshot's arrays)."""
+    pending = [s.pending_poses() for s in snapshots]
+    joint = PlanarPoses.fill_many([q for p in pending for q in p])
+    if joint is not None and all((len(p) == 1 and len(p[0]) == len(s)) or (not p and not len(s))
+                                 for p, s in zip(pending, snapshots, strict=True)):
+        return joint
+    return None

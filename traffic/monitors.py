@@ -79,7 +79,8 @@ class SurrogateSafety(Component):
             self._braking = np.concatenate([self._braking, np.zeros(n_uids + 256, dtype=bool)])
         if not len(uid):
             return
-        order = np.argsort(uid, kind="stable")  # each vehicle's rows in tick order
+        # each vehicle's rows in tick order (uids below 2**16: numpy's radix sort, the same order)
+        order = np.argsort(uid.astype(np.uint16) if n_uids <= 1 << 16 else uid, kind="stable")
         u, now = uid[order], braking[order]
         first = np.empty(len(u), dtype=bool)
         first[0], first[1:] = True, u[1:] != u[:-1]

@@ -14,14 +14,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from corridor.snapshot import WorldSnapshot
+from corridor.snapshot import WorldSnapshot, fill_geometry
+
+_GEOMETRY = {"position": 0, "velocity": 1, "heading": 2}  # lazily derived snapshot columns
 
 
 class RoadTicks:
     """The road rows of several ticks' snapshots: ``t`` [s] and ``rows`` per tick; ``tick`` (the
     block's tick index of every row) and ``starts`` (first row of each tick) index the columns,
     which are concatenated on request: ``road("uid")`` (a ``RoadFrame`` field), ``rows_of("velocity")``
-    (a ``WorldSnapshot`` field, the road rows only)."""
+    (a ``WorldSnapshot`` field, the road rows only; lazy geometry is derived for all held ticks at once)."""
 
     def __init__(self, t: list[float], snapshots: list[WorldSnapshot]) -> None:
         self.t = np.array(t)
@@ -30,6 +32,8 @@ class RoadTicks:
         self.starts = np.zeros(len(self.rows), dtype=np.int64)
         np.cumsum(self.rows[:-1], out=self.starts[1:])
         self.tick = np.repeat(np.arange(len(self.rows)), self.rows)
+        self._road_only = all(s.road.offset == 0 and len(s) == n for s, n in zip(snapshots, self.rows.tolist(), strict=True))
+        self._geometry: tuple[np.ndarray, ...] | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -38,6 +42,13 @@ class RoadTicks:
         return np.concatenate([getattr(s.road, field) for s in self._snaps])
 
     def rows_of(self, field: str) -> np.ndarray:
+        if field in _GEOMETRY:  # derive the held ticks' lazy geometry in one pass (identical values)
+            if self._geometry is None:
+                self._geometry = fill_geometry(self._snaps) or ()
+            if self._geometry and self._road_only:  # the joint arrays are these rows already
+                return self._geometry[_GEOMETRY[field]]
+        if self._road_only:
+            return np.concatenate([getattr(s, field) for s in self._snaps])
         return np.concatenate([getattr(s, field)[s.road.sl] for s in self._snaps])
 
 

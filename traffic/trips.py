@@ -70,6 +70,8 @@ class Trips(Component):
         road = road_frame(ctx)
         self.last = road
         ev = road.events
+        if not (len(ev.departed) or len(ev.arrived) or len(ev.teleported)):
+            return  # most steps: nothing departed, arrived or teleported
         tb = self.tables
         if len(ev.departed):
             n = tb.n_uids
