@@ -235,6 +235,11 @@ class RampMeteringMPC:
         lbg, ubg = self._constraint_bounds()
         return solver, lbz, ubz, lbg, ubg
 
+    @property
+    def nlp(self) -> dict[str, ca.SX]:
+        """The NLP as given to ``nlpsol``: x (decision vector z), p (parameters), f (cost), g (rows)."""
+        return dict(self._nlp)
+
     def _warm_start_solver(self) -> ca.Function:
         """The same NLP with IPOPT's warm-start options (built at the first warm solve)."""
         if self._warm_solver is None:
