@@ -35,6 +35,7 @@ import casadi as ca
 import numpy as np
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
+from corridor.controllers.ramp_metering.casadi_blas import casadi_blas_threads
 from corridor.traffic.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
@@ -78,6 +79,9 @@ class MPCConfig:
     linear_solver: str = "mumps"
     mumps_pivot_order: int | None = None
     ipopt_extra: tuple[tuple[str, Any], ...] = ()  # further IPOPT options, (name, value) pairs
+    # threads of CasADi's OpenBLAS (MUMPS's dense kernels) during a solve; None: its default (one
+    # per core).  1: no CPU spent by a spinning second thread, the same sums on every machine (casadi_blas)
+    blas_threads: int | None = 1
     # Opt-in: warm solves (after a successful one) also start from the shifted multipliers, with
     # IPOPT's warm-start point and a small initial barrier parameter.  On the beltway (4-16
     # interchanges) about half the iterations and CPU time, TTS equal to 1e-3 veh h; on the Hegyi
@@ -357,7 +361,8 @@ class RampMeteringMPC:
             solver, args["lam_x0"], args["lam_g0"] = self._warm_start_solver(), warm.lam_x, warm.lam_g
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            sol = solver(**args)
+            with casadi_blas_threads(self.cfg.blas_threads):
+                sol = solver(**args)
             stats = solver.stats()
             status = str(stats["return_status"])
             self.iter_counts.append(int(stats.get("iter_count", -1)))
