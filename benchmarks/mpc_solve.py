@@ -7,9 +7,10 @@ demand capped at 95 % of the two on-ramps' capacity), starting near critical den
 ramp queues, and prints solve-time percentiles with the growth ratio against the 4-interchange ring.
 
 Each case runs once per configuration, back to back in the same run so all see the same machine
-load: corridor's MPC configuration; ``2thr``, the same with CasADi's OpenBLAS left at its default
-of one thread per core (corridor before ``MPCConfig.blas_threads``); ``previous``, the configuration
-before issue 16 (MUMPS choosing its own ordering); and, when asked for, ``+duals``, the opt-in dual
+load: corridor's MPC configuration; ``2thr``, the same with CasADi's OpenBLAS on two threads
+(its default of one per core on the 2-core machine where corridor ran before ``MPCConfig.blas_threads``);
+``previous``, the configuration before issue 16 (MUMPS choosing its own ordering, two BLAS
+threads); and, when asked for, ``+duals``, the opt-in dual
 warm start on top of corridor's (``MPCConfig.warm_start_duals``).  ``cpu/iter`` is the CPU time of
 all solves over all their IPOPT iterations; ``benchmarks/mpc_kkt_structure.py`` explains its growth.
 
@@ -82,8 +83,8 @@ def main() -> None:
     args = ap.parse_args()
     steps = 4 if args.quick else args.steps
     every = {"corridor": MPCConfig(max_cpu_time_s=args.time_limit),
-             "2thr": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=None),
-             "previous": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=None, **PREVIOUS),
+             "2thr": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=2),
+             "previous": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=2, **PREVIOUS),
              "+duals": MPCConfig(max_cpu_time_s=args.time_limit, warm_start_duals=True)}
     configs = {name: every[name] for name in dict.fromkeys(["corridor", *args.configs])}
     results: dict[str, list[dict[str, Any]]] = {name: [] for name in configs}

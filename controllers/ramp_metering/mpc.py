@@ -35,7 +35,7 @@ import casadi as ca
 import numpy as np
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
-from corridor.controllers.ramp_metering.casadi_blas import casadi_blas_threads
+from corridor.controllers.ramp_metering.casadi_blas import set_casadi_blas_threads
 from corridor.traffic.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
@@ -79,8 +79,9 @@ class MPCConfig:
     linear_solver: str = "mumps"
     mumps_pivot_order: int | None = None
     ipopt_extra: tuple[tuple[str, Any], ...] = ()  # further IPOPT options, (name, value) pairs
-    # threads of CasADi's OpenBLAS (MUMPS's dense kernels) during a solve; None: its default (one
-    # per core).  1: no CPU spent by a spinning second thread, the same sums on every machine (casadi_blas)
+    # threads of CasADi's OpenBLAS (MUMPS's dense kernels), set before each solve for the whole
+    # process; None: leave it (OpenBLAS's default: one per core).  1: no CPU spent by a spinning
+    # second thread, the same sums on every machine (see casadi_blas)
     blas_threads: int | None = 1
     # Opt-in: warm solves (after a successful one) also start from the shifted multipliers, with
     # IPOPT's warm-start point and a small initial barrier parameter.  On the beltway (4-16
@@ -359,10 +360,10 @@ class RampMeteringMPC:
         solver, warm = self._solver, self._warm
         if self.cfg.warm_start_duals and warm.valid and warm.lam_x is not None:
             solver, args["lam_x0"], args["lam_g0"] = self._warm_start_solver(), warm.lam_x, warm.lam_g
+        set_casadi_blas_threads(self.cfg.blas_threads)
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            with casadi_blas_threads(self.cfg.blas_threads):
-                sol = solver(**args)
+            sol = solver(**args)
             stats = solver.stats()
             status = str(stats["return_status"])
             self.iter_counts.append(int(stats.get("iter_count", -1)))
