@@ -187,6 +187,7 @@ class RampMeteringMPC:
         self.lay = _Layout(net.nx, self.n, net.n_metered, net.n_split, self.cfg.horizon_ctrl_steps,
                            len(self.queue_idx))
         self.pivot_order = pivot_order_for(int(self.lay.offsets[-1]), self.cfg.mumps_pivot_order)
+        set_casadi_blas_threads(self.cfg.blas_threads)  # before nlpsol loads OpenBLAS (casadi_blas)
         self._solver, self._lbz, self._ubz, self._lbg, self._ubg = self._build()
         self._warm = _Warm(z=np.zeros(sum(self.lay.sizes)))
         self.alineas = [Alinea(alinea_config_for(net, int(j), self.cfg)) for j in net.metered_idx]

@@ -3,6 +3,8 @@ depend on it."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -49,3 +51,14 @@ def test_mpc_result_does_not_depend_on_blas_threads(keep_threads: int) -> None:
     assert not res[0].fallback and not res[1].fallback
     np.testing.assert_allclose(res[0].u, res[1].u, atol=1e-6)
     assert res[0].predicted_tts == pytest.approx(res[1].predicted_tts, rel=1e-9)
+
+
+def test_one_copy_of_casadi_openblas_is_mapped(keep_threads: int) -> None:
+    """The thread count is set on the copy MUMPS uses (pip installs the .so files as copies)."""
+    maps = Path("/proc/self/maps")
+    if not maps.exists():
+        pytest.skip("needs /proc/self/maps")
+    net, x0, demand = _case()
+    RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=2)).solve(x0, demand)
+    mapped = {line.split()[-1] for line in maps.read_text().splitlines() if "libcasadi-tp-openblas" in line}
+    assert len(mapped) == 1
