@@ -6,11 +6,16 @@ demand that loads the busiest ring link to ``--load`` x capacity (2 lanes, OD fa
 demand capped at 95 % of the two on-ramps' capacity), starting near critical density with half-full
 ramp queues, and prints solve-time percentiles with the growth ratio against the 4-interchange ring.
 
-Each case runs three times, back to back in the same run so all see the same machine load: with
-corridor's MPC configuration, with the previous one (MUMPS choosing its own ordering), and with the
-opt-in dual warm start on top of corridor's (``MPCConfig.warm_start_duals``).
+Each case runs once per configuration, back to back in the same run so all see the same machine
+load: corridor's MPC configuration; ``2thr``, the same with CasADi's OpenBLAS on two threads
+(its default of one per core on the 2-core machine where corridor ran before ``MPCConfig.blas_threads``);
+``previous``, the configuration before issue 16 (MUMPS choosing its own ordering, two BLAS
+threads); and, when asked for, ``+duals``, the opt-in dual
+warm start on top of corridor's (``MPCConfig.warm_start_duals``).  ``cpu/iter`` is the CPU time of
+all solves over all their IPOPT iterations; ``benchmarks/mpc_kkt_structure.py`` explains its growth.
 
     python benchmarks/mpc_solve.py [--steps 10] [--load 1.05] [--sizes 4 8 16] [--quick]
+                                   [--configs corridor 2thr previous +duals]
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ def run_case(n: int, steps: int, load: float, cfg: MPCConfig) -> dict[str, Any]:
             "p50_s": st["p50_s"], "p95_s": st["p95_s"], "max_s": st["max_s"],
             "cpu_p50_s": float(np.percentile(mpc.solve_cpu_s, 50)),
             "cpu_p95_s": float(np.percentile(mpc.solve_cpu_s, 95)), "order": mpc.pivot_order,
+            "cpu_per_iter_s": float(np.sum(mpc.solve_cpu_s)) / max(1, int(np.sum(mpc.iter_counts))),
             "fallbacks": st["fallbacks"], "iters": float(np.mean(mpc.iter_counts)), "tts": res.tts_veh_h,
             "wall_s": wall}
 
@@ -72,11 +78,15 @@ def main() -> None:
     ap.add_argument("--sizes", type=int, nargs="+", default=[4, 8, 16])
     ap.add_argument("--time-limit", type=float, default=30.0, help="IPOPT cpu/wall limit per solve [s]")
     ap.add_argument("--quick", action="store_true", help="4 receding steps per case (for make bench)")
+    ap.add_argument("--configs", nargs="+", default=["corridor", "2thr", "previous"],
+                    choices=["corridor", "2thr", "previous", "+duals"])
     args = ap.parse_args()
     steps = 4 if args.quick else args.steps
-    configs = {"corridor": MPCConfig(max_cpu_time_s=args.time_limit),
-               "previous": MPCConfig(max_cpu_time_s=args.time_limit, **PREVIOUS),
-               "+duals": MPCConfig(max_cpu_time_s=args.time_limit, warm_start_duals=True)}
+    every = {"corridor": MPCConfig(max_cpu_time_s=args.time_limit),
+             "2thr": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=2),
+             "previous": MPCConfig(max_cpu_time_s=args.time_limit, blas_threads=2, **PREVIOUS),
+             "+duals": MPCConfig(max_cpu_time_s=args.time_limit, warm_start_duals=True)}
+    configs = {name: every[name] for name in dict.fromkeys(["corridor", *args.configs])}
     results: dict[str, list[dict[str, Any]]] = {name: [] for name in configs}
     for n in args.sizes:  # both configurations of one size back to back: the same machine load
         for name, cfg in configs.items():
@@ -88,16 +98,19 @@ def main() -> None:
             r = rows[n_i]
             print(f"{name:>9}{r['n']:>9}{r['variables']:>9}{r['order']:>6}{r['p50_s']:>9.3f}{r['p95_s']:>9.3f}"
                   f"{r['max_s']:>9.3f}{r['cpu_p50_s']:>9.3f}{r['cpu_p95_s']:>9.3f}{r['iters']:>7.1f}"
-                  f"{r['cpu_p50_s'] / r['iters']:>9.4f}{r['fallbacks']:>7.0f}{r['tts']:>13.4f}")
+                  f"{r['cpu_per_iter_s']:>9.4f}{r['fallbacks']:>7.0f}{r['tts']:>13.4f}")
     sizes = " -> ".join(str(n) for n in args.sizes)
     for name, rows in results.items():
         print(f"{name:>9}: growth {sizes}: wall p50 {_growth(rows, 'p50_s')}, p95 {_growth(rows, 'p95_s')}; "
-              f"cpu p50 {_growth(rows, 'cpu_p50_s')}, p95 {_growth(rows, 'cpu_p95_s')}")
-    for (a, b), n_i in itertools.product((("corridor", "previous"), ("+duals", "corridor")), range(len(args.sizes))):
+              f"cpu p50 {_growth(rows, 'cpu_p50_s')}, p95 {_growth(rows, 'cpu_p95_s')}, "
+              f"per iteration {_growth(rows, 'cpu_per_iter_s')}")
+    pairs = [("corridor", a) for a in configs if a != "corridor"]
+    for (a, b), n_i in itertools.product(pairs, range(len(args.sizes))):
         c, p, n = results[a][n_i], results[b][n_i], args.sizes[n_i]
         print(f"{n:>3} interchanges: {a} / {b}: wall p50 {c['p50_s'] / p['p50_s']:.2f}, "
               f"p95 {c['p95_s'] / p['p95_s']:.2f}; cpu p50 {c['cpu_p50_s'] / p['cpu_p50_s']:.2f}, "
-              f"p95 {c['cpu_p95_s'] / p['cpu_p95_s']:.2f}; TTS difference {c['tts'] - p['tts']:+.4f} veh h")
+              f"p95 {c['cpu_p95_s'] / p['cpu_p95_s']:.2f}, per iteration {c['cpu_per_iter_s'] / p['cpu_per_iter_s']:.2f}; "
+              f"TTS difference {c['tts'] - p['tts']:+.4f} veh h")
     print(f"({steps} receding steps each, horizon {configs['corridor'].horizon_ctrl_steps} x "
           f"{configs['corridor'].control_step_s:.0f} s, load {args.load:.2f} x link capacity, limit "
           f"{args.time_limit:.0f} s per solve; previous = IPOPT/MUMPS with {PREVIOUS}; wall times on this "

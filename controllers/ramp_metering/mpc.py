@@ -35,6 +35,7 @@ import casadi as ca
 import numpy as np
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
+from corridor.controllers.ramp_metering.casadi_blas import set_casadi_blas_threads
 from corridor.traffic.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
@@ -78,6 +79,10 @@ class MPCConfig:
     linear_solver: str = "mumps"
     mumps_pivot_order: int | None = None
     ipopt_extra: tuple[tuple[str, Any], ...] = ()  # further IPOPT options, (name, value) pairs
+    # threads of CasADi's OpenBLAS (MUMPS's dense kernels), set before each solve for the whole
+    # process; None: leave it (OpenBLAS's default: one per core).  1: no CPU spent by a spinning
+    # second thread, the same sums on every machine (see casadi_blas)
+    blas_threads: int | None = 1
     # Opt-in: warm solves (after a successful one) also start from the shifted multipliers, with
     # IPOPT's warm-start point and a small initial barrier parameter.  On the beltway (4-16
     # interchanges) about half the iterations and CPU time, TTS equal to 1e-3 veh h; on the Hegyi
@@ -182,6 +187,7 @@ class RampMeteringMPC:
         self.lay = _Layout(net.nx, self.n, net.n_metered, net.n_split, self.cfg.horizon_ctrl_steps,
                            len(self.queue_idx))
         self.pivot_order = pivot_order_for(int(self.lay.offsets[-1]), self.cfg.mumps_pivot_order)
+        set_casadi_blas_threads(self.cfg.blas_threads)  # before nlpsol loads OpenBLAS (casadi_blas)
         self._solver, self._lbz, self._ubz, self._lbg, self._ubg = self._build()
         self._warm = _Warm(z=np.zeros(sum(self.lay.sizes)))
         self.alineas = [Alinea(alinea_config_for(net, int(j), self.cfg)) for j in net.metered_idx]
@@ -234,6 +240,11 @@ class RampMeteringMPC:
         lbz, ubz = self._bounds()
         lbg, ubg = self._constraint_bounds()
         return solver, lbz, ubz, lbg, ubg
+
+    @property
+    def nlp(self) -> dict[str, ca.SX]:
+        """The NLP as given to ``nlpsol``: x (decision vector z), p (parameters), f (cost), g (rows)."""
+        return dict(self._nlp)
 
     def _warm_start_solver(self) -> ca.Function:
         """The same NLP with IPOPT's warm-start options (built at the first warm solve)."""
@@ -350,6 +361,7 @@ class RampMeteringMPC:
         solver, warm = self._solver, self._warm
         if self.cfg.warm_start_duals and warm.valid and warm.lam_x is not None:
             solver, args["lam_x0"], args["lam_g0"] = self._warm_start_solver(), warm.lam_x, warm.lam_g
+        set_casadi_blas_threads(self.cfg.blas_threads)
         t0, c0 = time.perf_counter(), time.process_time()
         try:
             sol = solver(**args)
