@@ -225,30 +225,41 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
         os.environ.setdefault(var, "1")
     queue = iter(specs)
     running: dict[int, _Worker] = {}
+
+    def fill() -> int:
+        """Hand queued specs to idle slots; the number of busy slots."""
+        busy = sum(1 for w in running.values() if w.spec is not None)
+        while busy < workers and (spec := next(queue, None)) is not None:
+            idle = next((w for w in running.values() if w.spec is None and not w.retiring), None)
+            w = _start(spec, fork_server, idle)
+            running[w.fd] = w
+            busy += 1
+        return busy
+
     try:
         while True:
-            busy = sum(1 for w in running.values() if w.spec is not None)
-            while busy < workers and (spec := next(queue, None)) is not None:
-                idle = next((w for w in running.values() if w.spec is None and not w.retiring), None)
-                w = _start(spec, fork_server, idle)
-                running[w.fd] = w
-                busy += 1
-            if not busy:  # nothing left to run: idle servers get end of file on stdin and exit
+            if not fill():  # nothing left to run: idle servers get end of file on stdin and exit
                 for w in running.values():
                     _close_stdin(w)
             if not running:
                 return
+            done: list[dict[str, Any]] = []
             for fd in mp_wait(list(running)):
                 w = running[fd]
                 chunk = os.read(fd, 1 << 20)
                 if chunk:
                     w.data += chunk
                     if w.serve and (row := _take_frame(w)) is not None:
-                        yield row
+                        done.append(row)
                     continue
                 del running[fd]  # end of file: the worker is done (or dead)
                 if (row := _finish(w)) is not None:
-                    yield row
+                    done.append(row)
+            if done:
+                # the freed slots get their next runs before the caller writes these rows: a worker
+                # does not wait for the parent's write (with short runs that wait was ~15 % of a run)
+                fill()
+                yield from done
     except KeyboardInterrupt:
         _say_stopping(sum(1 for w in running.values() if w.spec is not None))  # at once, before stopping
         if said is not None:
