@@ -17,6 +17,14 @@ position (the previous plan, shifted; on the first step the nominal plan). A hal
 excludes the ball is a subset of the ball's complement, so every feasible plan is outside every tube.
 If the reference is itself inside the ball (a head-on nominal) the normal is tilted to the ego's
 right (relative to the relative velocity), so two UAVs running this controller both turn right.
+Against a piloted aircraft the normal's vertical component takes the side the ego is on now (above
+the aircraft's measured altitude: up, else down), not the side of the extrapolated tube centre: a
+light aircraft's phugoid (c172x: +-10 m over ~30 s) extrapolated over the horizon put the centre
+below a UAV the aircraft was 15 m above, the UAV started to climb, the previous plan then kept the
+normals pointing up, and the climbing aircraft passed 11 m under it (uav_encounter, crossing
+geometry, aircraft 20-23.5 m above the conflict point; at 24 m and more the UAV descended and
+passed 44-46 m away). Any unit normal gives a half-space that excludes the ball, so the guarantee
+below does not depend on this choice.
 m_j = dt_j * (v_ego_max + |v| + a_max t_j) covers the time between samples: if the constraint holds
 at t_j, the true separation over [t_{j-1}, t_j] is at least r0 + r_safe. Hence, when a step's QP is
 feasible with zero slack, collision avoidance holds at every time instant of the applied control
@@ -405,6 +413,7 @@ class ControlTubeAvoidance:
             sigma=np.array([o.sigma_m for o in others], dtype=float),
             acc=np.where(piloted, p.piloted_accel_mps2, p.uav_accel_mps2),
             radius=np.where(piloted, p.piloted_size_m + p.piloted_safety_radius_m, p.uav_size_m + p.uav_safety_radius_m),
+            piloted=piloted,
         )
 
     def _relevant(self, obs: AvoidanceObservation, v_ego: float) -> list[TrackedAgent]:
@@ -549,9 +558,11 @@ class _Agents:
     sigma: np.ndarray  # (K,) [m]
     acc: np.ndarray  # (K,) [m/s^2] a_max of the agent's class
     radius: np.ndarray  # (K,) [m] size + safety radius of the agent's class
+    piloted: np.ndarray  # (K,) bool: piloted aircraft (vertical side from the measured altitudes)
 
     def take(self, idx: np.ndarray) -> _Agents:
-        return _Agents(self.pos[idx], self.vel[idx], self.sigma[idx], self.acc[idx], self.radius[idx])
+        return _Agents(self.pos[idx], self.vel[idx], self.sigma[idx], self.acc[idx], self.radius[idx],
+                       self.piloted[idx])
 
 
 @dataclass
@@ -616,7 +627,13 @@ def _collision_rows_many(items: list[_Pending]) -> list[tuple[np.ndarray, np.nda
     radius = r + sigma + 0.5 * acc * first._t_sq  # (KT, M)
     margin = pr.dt * (v_ego + np.sqrt(np.einsum("kd,kd->k", vel, vel))[:, None] + acc * pr.t)
     bound = radius + margin
-    n = first._normals(ref[:, :, :3] - centre, bound, ref[:, :, 3:] - vel[:, None, :], fallback)
+    d = ref[:, :, :3] - centre
+    piloted = np.concatenate([a.piloted for a in agents])
+    if piloted.any():  # vertical side of a piloted intruder: from the measured altitudes (docstring)
+        above = np.array([s.x0[2] for s in items])[owner] >= pos[:, 2]
+        side = np.where(above, 1.0, -1.0)[:, None]
+        d[:, :, 2] = np.where(piloted[:, None], side * np.abs(d[:, :, 2]), d[:, :, 2])
+    n = first._normals(d, bound, ref[:, :, 3:] - vel[:, None, :], fallback)
     coef = np.einsum("kmd,mdc->kmc", n, first._gam_pos)  # (KT, M, n_u)
     lower = bound + np.einsum("kmd,kmd->km", n, centre - free)
     out, start = [], 0

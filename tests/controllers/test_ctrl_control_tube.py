@@ -256,3 +256,52 @@ def test_ct_unconstrained_steps_equal_the_qp_optimum(case: str) -> None:
     np.testing.assert_allclose(cmd.vel_mps, ref, atol=1e-9)
     if case == "far_intruder":
         assert cmd.info["n_intruders"] == 1.0 and not cmd.avoiding
+
+
+
+def _phugoid_pass(offset_m: float) -> tuple[float, float]:
+    """A c172x-like piloted aircraft at 50 m/s crosses the path of a UAV flying west (the geometry of
+    uav_encounter's plain run 5076), its altitude oscillating +-11 m with a 32 s period (the phugoid
+    of JSBSim's c172x): descending for the first 6 s, climbing through the pass at 13 s, where it is
+    ``offset_m`` above the UAV's start. Returns (smallest 3D separation [m], UAV minus aircraft
+    altitude at that instant [m])."""
+    dt_s, w, v = 0.02, 2.0 * np.pi / 32.0, np.array([-17.3, 47.0])
+    ego, goal = np.array([112.0, -100.0, 61.0, -4.0, 0.0, 0.0]), np.array([-128.0, -100.0, 61.0])
+    ctrl = ControlTubeAvoidance(PARAMS)
+    ctrl.reset(np.random.default_rng(0))
+    every, u, best = int(round(PARAMS.period_s / dt_s)), np.zeros(3), (np.inf, 0.0)
+    for k in range(int(30.0 / dt_s)):
+        t = k * dt_s
+        z = 61.0 + offset_m - 8.25 - 11.25 * np.cos(w * (t - 6.0))
+        q = np.array([*(np.array([55.0, -92.0]) + v * (t - 13.0)), z])
+        qv = np.array([*v, 11.25 * w * np.sin(w * (t - 6.0))])
+        if k % every == 0:
+            seen = (TrackedAgent("c172x", q.copy(), qv.copy(), 2.0, is_piloted=True),)
+            u = ctrl.step(AvoidanceObservation(t, ego[:3].copy(), ego[3:].copy(), goal, seen)).vel_mps
+        ego = step_states(ego, u, MODEL, dt_s)
+        sep = float(np.linalg.norm(ego[:3] - q))
+        if sep < best[0]:
+            best = (sep, float(ego[2] - q[2]))
+    return best
+
+
+@pytest.mark.parametrize("offset_m", [18.0, 22.0, 24.0])
+def test_ct_passes_below_a_phugoiding_aircraft_that_is_above(offset_m: float) -> None:
+    """The aircraft is above the UAV throughout, but early on it descends, so its tube centre
+    extrapolated over the 6 s horizon lies below the UAV. Taking the vertical side from that
+    centre made the UAV climb, the previous plan kept it climbing, and the aircraft climbed towards
+    it through the pass (uav_encounter run 5076: 11.8 m). With the side from the measured altitudes
+    the UAV goes down and passes below with more room."""
+    sep, dz = _phugoid_pass(offset_m)
+    assert dz < 0.0
+    assert sep > 65.0
+
+
+def test_ct_climbs_when_above_a_piloted_aircraft() -> None:
+    """The mirror case: a UAV above the aircraft's measured altitude is pushed up, not down."""
+    ctrl = ControlTubeAvoidance(PARAMS)
+    ctrl.reset(np.random.default_rng(0))
+    q, qv = np.array([0.0, -400.0, 50.0]), np.array([0.0, 50.0, -3.0])  # sinking: centre farther below
+    seen = (TrackedAgent("c172x", q, qv, 2.0, is_piloted=True),)
+    obs = AvoidanceObservation(0.0, np.array([0.0, 0.0, 60.0]), np.zeros(3), np.array([60.0, 0.0, 60.0]), seen)
+    assert ctrl.step(obs).vel_mps[2] > 0.0
