@@ -49,6 +49,18 @@ def test_short_head_on_encounter_all_variants(tmp_path: Path) -> None:
     assert (df["rtf"].notna() & (df["rtf"] > 0.0)).all()
 
 
+def test_control_tube_passes_below_the_phugoiding_c172x(tmp_path: Path) -> None:
+    """Plain run 5076 of the rare-event study (degraded link, crossing geometry, the c172x 22 m above
+    the conflict point at 15 s): UAV b used to climb over the c172x, which climbed through its phugoid
+    and passed 11.8 m under it. With the vertical side taken from the measured altitudes it descends."""
+    df = cli(str(ENCOUNTER), "--variant", "control_tube", "--seed", "5076", "--out", str(tmp_path / "e"),
+             "--set", "channels.mavlink.loss.p=0.3", "--set", "channels.mavlink.latency_s=0.3",
+             "--set", "duration=25")
+    assert df["draw.backends.air.params.encounter.geometry"].tolist() == [1]
+    assert 21.9 < df["draw.backends.air.params.encounter.piloted_alt_offset_m"].iloc[0] < 22.0
+    assert df["status"].tolist() == ["ok"] and df["sep_min_3d_m"].iloc[0] > 35.0
+
+
 @pytest.mark.slow
 def test_encounter_every_geometry_several_seeds(tmp_path: Path) -> None:
     df = cli(str(ENCOUNTER), "--runs", "5", "--seed", "4", "--workers", "2", "--out", str(tmp_path / "e"),
