@@ -17,8 +17,8 @@ position (the previous plan, shifted; on the first step the nominal plan). A hal
 excludes the ball is a subset of the ball's complement, so every feasible plan is outside every tube.
 If the reference is itself inside the ball (a head-on nominal) the normal is tilted to the ego's
 right (relative to the relative velocity), so two UAVs running this controller both turn right.
-Against a piloted aircraft the normal's vertical component takes the side the ego is on now (above
-the aircraft's measured altitude: up, else down), not the side of the extrapolated tube centre: a
+Against a piloted aircraft the normal's vertical component takes the side the ego is on now (at or
+above the aircraft's tracked altitude: up, else down), not the side of the extrapolated tube centre: a
 light aircraft's phugoid (c172x: +-10 m over ~30 s) extrapolated over the horizon put the centre
 below a UAV the aircraft was 15 m above, the UAV started to climb, the previous plan then kept the
 normals pointing up, and the climbing aircraft passed 11 m under it (uav_encounter, crossing
@@ -558,7 +558,7 @@ class _Agents:
     sigma: np.ndarray  # (K,) [m]
     acc: np.ndarray  # (K,) [m/s^2] a_max of the agent's class
     radius: np.ndarray  # (K,) [m] size + safety radius of the agent's class
-    piloted: np.ndarray  # (K,) bool: piloted aircraft (vertical side from the measured altitudes)
+    piloted: np.ndarray  # (K,) bool: piloted aircraft (vertical side from the current altitudes)
 
     def take(self, idx: np.ndarray) -> _Agents:
         return _Agents(self.pos[idx], self.vel[idx], self.sigma[idx], self.acc[idx], self.radius[idx],
@@ -629,7 +629,7 @@ def _collision_rows_many(items: list[_Pending]) -> list[tuple[np.ndarray, np.nda
     bound = radius + margin
     d = ref[:, :, :3] - centre
     piloted = np.concatenate([a.piloted for a in agents])
-    if piloted.any():  # vertical side of a piloted intruder: from the measured altitudes (docstring)
+    if piloted.any():  # vertical side of a piloted intruder: from the current altitudes (docstring)
         above = np.array([s.x0[2] for s in items])[owner] >= pos[:, 2]
         side = np.where(above, 1.0, -1.0)[:, None]
         d[:, :, 2] = np.where(piloted[:, None], side * np.abs(d[:, :, 2]), d[:, :, 2])
