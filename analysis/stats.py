@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
 
 from corridor.stats import clopper_pearson  # the kernel's summary needs it too
 
@@ -21,6 +20,9 @@ def mean_ci(x: np.ndarray, confidence: float = 0.95) -> tuple[float, float, floa
     m = float(x.mean())
     if len(x) < 2:
         return (m, math.nan, math.nan)
+    from scipy import stats  # here, not at import: scipy.stats costs ~0.4 s, which a run's monitors
+    #   (jain_index) would pay in every fresh worker process
+
     h = float(stats.t.ppf(0.5 + confidence / 2, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
     return (m, m - h, m + h)
 
