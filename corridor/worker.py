@@ -5,12 +5,18 @@ it, and writes the pickled row to file descriptor ``FD``.
 
 ``python -m corridor.worker --serve FD PARENT_PID`` (a fork server, one per batch worker slot):
 imports corridor once, then reads length-prefixed pickled ``RunSpec`` frames from stdin until end of
-file.  For each it forks a child that runs the spec and hands the row back through a pipe of its
-own; the server then writes one frame ``(length, exit status, row bytes)`` to ``FD``.  So every run
-is still a process of its own (its own libsumo, its own module state, copied from the server at the
-fork) but pays no interpreter start-up or imports (about 1.6 s per run before).  Each run reports
-the modules it imported; the server imports them after the run (``_learn``), so later runs of that
-scenario find them loaded too.
+file.  It forks a *runner*, which runs spec after spec in its own process and hands each row back
+through a pipe of its own; the server then writes one frame ``(length, exit status, row bytes)`` to
+``FD``.  Runs pay no interpreter start-up or imports (about 1.6 s per run before the fork server)
+and, since the runner is forked once and not per run, no fork either (a fork per run cost ~0.03 s
+of CPU, more when two servers forked side by side: 20 % of a 60 s merging run).  A run that fails
+(a ``status=error`` row), a runner that dies (segfault, kill -9: that run's row says so), and every
+``RUNS_PER_RUNNER``-th run end the runner; the server forks a fresh one for the next spec, so a run
+never starts in a process whose last run failed.  Before that fork the server imports the modules
+the runs imported (``_learn``), so the new runner finds them loaded.  The rows do not depend on
+which runs shared a runner (the engine builds every component afresh and closes it, libsumo
+included; tested against a fresh process per run), and ``CORRIDOR_RUNNER_RUNS=1`` restores a
+process of its own per run.
 
 Both kinds run in a session of their own (the local executor starts them so), so a terminal's Ctrl-C
 (sent to the foreground process group) reaches only the parent, which then stops the workers itself;
@@ -27,7 +33,8 @@ import pickle
 import signal
 import struct
 import sys
-from typing import Any, BinaryIO
+from dataclasses import dataclass
+from typing import BinaryIO
 
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 # server -> parent: row length [bytes], run's wait status (0: exited 0), whether the server retires
@@ -86,21 +93,43 @@ def _learn(modules: list[str]) -> None:
                 pass
 
 
-def _run_child(spec: Any, server_pid: int, row_w: int, keep: set[int]) -> None:
-    """In the forked child: run ``spec``, write (row bytes, modules it imported) to ``row_w``, exit
-    without returning."""
-    code, before = 1, set(sys.modules)
+# a runner retires after this many runs (a bound on anything a run leaves behind); 1: a fresh process
+# per run, as isolated as a run can be (for a plug-in that keeps state between runs, say)
+RUNS_PER_RUNNER = int(os.environ.get("CORRIDOR_RUNNER_RUNS", "200"))
+
+
+def _runner(server_pid: int, spec_r: int, row_w: int, keep: set[int]) -> None:
+    """In the forked runner: run spec after spec from ``spec_r`` in this process, one frame
+    ``(row bytes, modules the run imported, retire)`` per run on ``row_w``; exit without returning
+    after a run that failed (its state is not trusted for the next), after ``RUNS_PER_RUNNER`` runs,
+    or at end of file."""
+    code = 1
     try:
         for fd in (0, *keep):  # the parent's pipes are the server's business only
             os.close(fd)
         _die_with_parent(server_pid)
         from corridor.run import execute
 
-        row = pickle.dumps(execute(spec), protocol=pickle.HIGHEST_PROTOCOL)
-        new = [m for m in sys.modules if m not in before and not m.startswith("_") and m != "__main__"]
-        data = pickle.dumps((row, new), protocol=pickle.HIGHEST_PROTOCOL)
-        with os.fdopen(row_w, "wb") as out:
-            out.write(data)
+        src, out = os.fdopen(spec_r, "rb"), os.fdopen(row_w, "wb")
+        for done in range(1, RUNS_PER_RUNNER + 1):
+            head = _read_exact(src, SPEC_LEN.size)
+            if head is None:
+                break
+            body = _read_exact(src, SPEC_LEN.unpack(head)[0])
+            if body is None:
+                break
+            before = set(sys.modules)
+            row = execute(pickle.loads(body))
+            new = [m for m in sys.modules if m not in before and not m.startswith("_") and m != "__main__"]
+            retire = row.get("status") != "ok" or done == RUNS_PER_RUNNER
+            data = pickle.dumps((pickle.dumps(row, protocol=pickle.HIGHEST_PROTOCOL), new, retire),
+                                protocol=pickle.HIGHEST_PROTOCOL)
+            sys.stdout.flush()
+            sys.stderr.flush()
+            out.write(SPEC_LEN.pack(len(data)) + data)
+            out.flush()
+            if retire:
+                break
         code = 0
     finally:
         sys.stdout.flush()
@@ -108,52 +137,99 @@ def _run_child(spec: Any, server_pid: int, row_w: int, keep: set[int]) -> None:
         os._exit(code)
 
 
-def _fork_run(spec: Any) -> tuple[bytes, int]:
-    """Run ``spec`` in a forked child; its row bytes (empty if it died first) and exit code
-    (negative: killed by that signal).  Learns the modules the run imported."""
-    r, w = os.pipe()
+@dataclass
+class _Runner:
+    """A forked process that runs the server's specs one after another: the server writes a spec
+    frame to ``spec_w`` and reads the run's frame from ``row_r``."""
+
+    pid: int
+    spec_w: BinaryIO
+    row_r: BinaryIO
+
+
+def _fork_runner() -> _Runner:
+    spec_r, spec_w = os.pipe()
+    row_r, row_w = os.pipe()
     server = os.getpid()
-    gc.freeze()  # the server's objects stay out of the child's collections: fewer copy-on-write pages
+    gc.freeze()  # the server's objects stay out of the runner's collections: fewer copy-on-write pages
     pid = os.fork()
     if pid == 0:
-        os.close(r)
-        _run_child(spec, server, w, _SERVER_FDS)
-    os.close(w)
-    with os.fdopen(r, "rb") as src:
-        data = src.read()
-    _, status = os.waitpid(pid, 0)
-    code = os.waitstatus_to_exitcode(status)
+        os.close(spec_w)
+        os.close(row_r)
+        _runner(server, spec_r, row_w, _SERVER_FDS)
+    os.close(spec_r)
+    os.close(row_w)
+    return _Runner(pid, os.fdopen(spec_w, "wb"), os.fdopen(row_r, "rb"))
+
+
+def _end_runner(runner: _Runner) -> int:
+    """Reap a runner that finished or died; its exit code (negative: killed by that signal)."""
+    for f in (runner.spec_w, runner.row_r):
+        try:
+            f.close()
+        except OSError:
+            pass
+    _, status = os.waitpid(runner.pid, 0)
+    return os.waitstatus_to_exitcode(status)
+
+
+def _run_in(runner: _Runner, body: bytes, learned: list[str]) -> tuple[bytes, int, bool]:
+    """Hand one pickled spec to ``runner``; (row bytes, exit code, runner gone).  A runner that died
+    before its frame was whole gives empty row bytes and its exit code.  The modules the run
+    imported are added to ``learned``."""
     try:
-        row, modules = pickle.loads(data)
-    except Exception:  # noqa: BLE001 - died while writing: the parent records a died row
-        return b"", code
-    _learn(modules)
-    return row, code
+        runner.spec_w.write(SPEC_LEN.pack(len(body)) + body)
+        runner.spec_w.flush()
+    except OSError:  # died before it read the spec: its exit code says how
+        pass
+    head = _read_exact(runner.row_r, SPEC_LEN.size)
+    frame = _read_exact(runner.row_r, SPEC_LEN.unpack(head)[0]) if head is not None else None
+    if frame is None:
+        return b"", _end_runner(runner), True
+    row, modules, retire = pickle.loads(frame)
+    learned.extend(modules)
+    return row, (_end_runner(runner) if retire else 0), retire
 
 
 _SERVER_FDS: set[int] = set()
 
 
 def serve(fd: int, parent_pid: int) -> int:
-    """Fork a run per spec frame on stdin; one result frame per run on ``fd``; stop at end of file."""
+    """Run each spec frame on stdin in the runner (forked when there is none); one result frame per
+    run on ``fd``; stop at end of file."""
     _die_with_parent(parent_pid)
     _SERVER_FDS.add(fd)
     import corridor.run  # noqa: F401 - the imports every run needs, loaded once for all forks
 
     out = os.fdopen(fd, "wb")
     src = sys.stdin.buffer
-    while (head := _read_exact(src, SPEC_LEN.size)) is not None:
-        body = _read_exact(src, SPEC_LEN.unpack(head)[0])
-        if body is None:
-            break
-        data, code = _fork_run(pickle.loads(body))
-        # a learned module started a thread (a Rust runtime, say): forking a multi-threaded process is
-        # unsafe, so retire, and say so in the frame, before the parent can hand this server more work
-        retire = _threads() > 1
-        out.write(FRAME.pack(len(data), code, retire) + data)
-        out.flush()
-        if retire:
-            break
+    runner: _Runner | None = None
+    learned: list[str] = []  # modules the runs imported, imported here before the next runner is forked
+    try:
+        while (head := _read_exact(src, SPEC_LEN.size)) is not None:
+            body = _read_exact(src, SPEC_LEN.unpack(head)[0])
+            if body is None:
+                break
+            if runner is None:
+                runner = _fork_runner()
+            data, code, gone = _run_in(runner, body, learned)
+            retire = False
+            if gone:
+                runner = None
+                _learn(learned)  # so the next runner finds them loaded
+                learned.clear()
+                # a learned module started a thread (a Rust runtime, say): forking a multi-threaded
+                # process is unsafe, so retire, and say so in the frame, before the parent can hand
+                # this server more work
+                retire = _threads() > 1
+            out.write(FRAME.pack(len(data), code, retire) + data)
+            out.flush()
+            if retire:
+                break
+    finally:
+        if runner is not None:
+            runner.spec_w.close()  # end of file: the runner exits
+            _end_runner(runner)
     return 0
 
 
