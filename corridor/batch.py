@@ -299,22 +299,64 @@ def _stop(running: dict[int, _Worker]) -> None:
     running.clear()
 
 
+class _RayRunner:
+    """A Ray actor that runs spec after spec in its process: the Ray form of the local executor's
+    runner (``corridor.worker``), replaced after a failed run and after ``RUNS_PER_RUNNER`` runs."""
+
+    def run(self, spec: RunSpec) -> dict[str, Any]:
+        return execute(spec)
+
+
 def _ray(specs: Iterable[RunSpec], address: str | None) -> Iterator[dict[str, Any]]:
+    """One actor per CPU of the cluster, each running one spec at a time (libsumo: one simulation at
+    a time per process), spec after spec, so a run pays no worker start-up and imports (Ray used to
+    start a process per run: ``max_calls=1``).  As with the local runner, a failed run, a dead
+    actor (its row says so) and every ``RUNS_PER_RUNNER``-th run end the actor; the next spec gets
+    a fresh one.  Specs are taken from the plan as actors free up, not all submitted at once."""
     try:
         import ray
     except ImportError:
         raise CorridorError("--executor ray needs Ray: pip install -e '.[ray]' in the corridor clone") from None
+    from ray.exceptions import RayActorError
+
+    from corridor.worker import RUNS_PER_RUNNER
+
     if not ray.is_initialized():
         ray.init(address=address, include_dashboard=False, log_to_driver=False)
-    remote = ray.remote(max_calls=1)(execute)  # one simulation per worker process, like the pool
-    pending = [remote.remote(s) for s in specs]
+    runner = ray.remote(num_cpus=1, max_restarts=0)(_RayRunner)
+    queue = iter(specs)
+    busy: dict[Any, tuple[Any, RunSpec, int]] = {}  # task ref -> (actor, spec, runs it has done before)
+
+    def give(actor: Any, done: int) -> None:
+        """Hand the next spec to ``actor`` (a new one if None), or end it when none is left."""
+        spec = next(queue, None)
+        if spec is None:
+            if actor is not None:
+                ray.kill(actor)
+            return
+        if actor is None:
+            actor, done = runner.remote(), 0
+        busy[actor.run.remote(spec)] = (actor, spec, done)
+
     try:
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            yield ray.get(done[0])
+        for _ in range(max(1, int(ray.cluster_resources().get("CPU", 1)))):
+            give(None, 0)
+        while busy:
+            (ref,), _ = ray.wait(list(busy), num_returns=1)
+            actor, spec, done = busy.pop(ref)
+            try:
+                row = ray.get(ref)
+            except RayActorError as exc:
+                row, actor = _died_row(spec, None), None
+                row["error"] = f"Ray worker process died before returning a row ({type(exc).__name__})"
+            if actor is not None and (row.get("status") != "ok" or done + 1 >= RUNS_PER_RUNNER):
+                ray.kill(actor)  # a failed run's process is not trusted for the next
+                actor = None
+            give(actor, done + 1)
+            yield row
     finally:
-        for ref in pending:
-            ray.cancel(ref, force=True)
+        for actor, _, _ in busy.values():
+            ray.kill(actor)
 
 
 class BatchInterrupted(KeyboardInterrupt):

@@ -108,6 +108,33 @@ def test_ray_executor_gives_the_same_rows(tmp_path):
     pd.testing.assert_frame_equal(a[cols], b[cols])
 
 
+def test_ray_actors_run_spec_after_spec_and_a_failed_run_is_one_error_row(tmp_path):
+    """With Ray's actors (each runs spec after spec, replaced after a failed run) a failing run is one
+    error row, and the other runs are ok with the rows of the local executor."""
+    pytest.importorskip("ray")
+    import dataclasses
+
+    from corridor.batch import expand, run_batch
+    from corridor.results import ResultStore
+    from corridor.scenario import load
+
+    hegyi = str(ROOT / "scenarios" / "hegyi_benchmark.yaml")
+    sc, raw = load(hegyi, ["duration=300"])
+    plan = list(expand(sc, raw, hegyi, runs=3, variants=["none", "alinea"]))
+    plan[1] = dataclasses.replace(plan[1], overrides={"controllers": {"x": {"type": "no_such_controller"}}})
+    rows = {}
+    for ex in ("ray", "local"):
+        store = ResultStore(tmp_path / ex)
+        run_batch(plan, store, executor=ex, workers=2, progress=False)
+        rows[ex] = store.read().sort_values("run_id").reset_index(drop=True)
+    ray_rows = rows["ray"].set_index("run_id")
+    bad = plan[1].run_id
+    assert ray_rows.loc[bad, "status"] == "error" and "no_such_controller" in ray_rows.loc[bad, "error"]
+    assert (ray_rows.drop(index=bad)["status"] == "ok").all() and len(ray_rows) == 6
+    cols = [c for c in rows["local"].columns if c not in ("wall_s", "traceback")]
+    pd.testing.assert_frame_equal(rows["ray"][cols], rows["local"][cols])
+
+
 def test_local_workers_get_single_threaded_math_unless_the_user_chose(monkeypatch) -> None:
     from corridor.batch import WORKER_THREAD_ENV, _local
 
