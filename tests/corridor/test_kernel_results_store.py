@@ -60,3 +60,24 @@ def test_compacted_table_is_unchanged(tmp_path_factory, values) -> None:
     pd.testing.assert_frame_equal(ours, ref[[c for c in ours.columns]])
     # a store opened on the folder later (resume, report) reads every part from disk: the same frame
     pd.testing.assert_frame_equal(ResultStore(tmp / "out").read(), store.read())
+
+
+def test_resumed_store_reads_parts_from_disk_and_memory_in_file_order(tmp_path) -> None:
+    """A resumed batch: parts of an earlier session on disk, this session's rows in memory, one run
+    written again (an errored run re-run): always the frame of the parts as pandas reads them."""
+    out = tmp_path / "out"
+    first = ResultStore(out)
+    for i in (0, 2, 4, 11):
+        first.write({"run_id": f"r{i}", "status": "ok", "x": float(i), "n": i})
+    store = ResultStore(out)  # resumed: the first session's parts are on disk only
+    for i in (1, 3, 10, 100):
+        store.write({"run_id": f"r{i}", "status": "ok", "x": float(i), "n": i})
+
+    def ref() -> pd.DataFrame:
+        return pd.concat([pd.read_parquet(f) for f in sorted(store.parts.glob("*.parquet"))], ignore_index=True)
+
+    assert store.read()["run_id"].tolist() == ["r0", "r1", "r10", "r100", "r11", "r2", "r3", "r4"]
+    pd.testing.assert_frame_equal(store.read(), ref())
+    store.write({"run_id": "r3", "status": "error", "x": math.nan, "n": -1})  # re-run: the part is replaced
+    pd.testing.assert_frame_equal(store.read(), ref())
+    assert store.read().set_index("run_id").loc["r3", "status"] == "error"
