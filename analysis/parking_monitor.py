@@ -33,12 +33,34 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.parking.clearance import box_polygons, clearances
 from corridor.controllers.parking.spot_detection import Slot, match_slots, true_slots
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind
 
 
 class ParkingMonitor(Component):
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('success', '1',
+               "1 if the ego stopped within the monitor's position and heading tolerance of the bay pose."),
+        Metric('pos_err_m', 'm',
+               "Final distance of the ego's reference point from the goal pose."),
+        Metric('heading_err_rad', 'rad',
+               'Final absolute heading error to the goal pose.'),
+        Metric('min_clearance_m', 'm',
+               "Smallest distance between the ego's footprint and any obstacle."),
+        Metric('manoeuvre_time_s', 's',
+               'Time from the first move (or the slot choice) to the last move.'),
+        Metric('direction_changes', '1',
+               'Forward/reverse switches during the manoeuvre.'),
+        Metric('slot_precision', '1',
+               'Share of the detected free slots that are real free slots.'),
+        Metric('slot_recall', '1',
+               'Share of the real free slots that were detected.'),
+        Metric('slots_detected', '1',
+               "Free slots the ego's sensors detected."),
+        Metric('slots_true', '1',
+               'Free slots in the scene.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from corridor.analysis.glossary import glossary_section, safety_event_columns
 from corridor.analysis.stats import clopper_pearson, mean_ci
 from corridor.traffic.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
@@ -300,26 +301,50 @@ def collision_table(df: pd.DataFrame) -> str:
             "<th>runs with a collision</th><th>P(collision) 95 % exact CI</th></tr>" + "".join(rows) + "</table>")
 
 
-def problem_runs(df: pd.DataFrame, with_collisions: bool = True) -> str:
+def _events_of(r: pd.Series, event_cols: list[str], spec_cols: list[str]) -> list[str]:
+    """What went wrong in one ok run: its safety events (``2 nmac``) and the specs it violated."""
+    out = [f"{int(v)} {c}" for c in event_cols if (v := pd.to_numeric(r.get(c), errors="coerce")) > 0]
+    violated = [c.split(".")[1] for c in spec_cols if r.get(c) is False or r.get(c) == 0]
+    return out + ([f"violates {', '.join(violated)}"] if violated else [])
+
+
+def safety_verdict(df: pd.DataFrame, event_cols: list[str]) -> str:
+    """Per variant: runs with each safety event (``k/n``, total count), runs violating a spec, errors.
+    Green only where every count is 0."""
     spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
-    coll = (df["collisions"].fillna(0) if "collisions" in df and with_collisions
-            else pd.Series(0, index=df.index))
-    bad = df[(df["status"] != "ok") | (coll > 0)]
-    for c in spec_cols:
-        bad = pd.concat([bad, df[df[c] == False]])  # noqa: E712 (pandas comparison)
-    bad = bad.drop_duplicates("run_id")
-    if bad.empty:
-        return ("<p class=good>No run " + ("collided, failed, " if with_collisions else "failed ")
-                + "or violated a specification.</p>")
+    head = "".join(f"<th>runs with {html.escape(c)} (total)</th>" for c in event_cols)
     rows = []
-    for _, r in bad.iterrows():
-        violated = [c.split(".")[1] for c in spec_cols if r.get(c) is False or r.get(c) == 0]
-        why = (r["error"] if r["status"] != "ok" else
-               "; ".join(([f"{int(r.get('collisions', 0) or 0)} collision(s)"] if with_collisions else [])
-                         + ([f"violates {', '.join(violated)}"] if violated else [])))
-        rows.append(f"<tr><td>{html.escape(r['run_id'])}</td><td>{html.escape(str(r['status']))}</td>"
-                    f"<td style='text-align:left'>{html.escape(str(why))}</td></tr>")
-    return "<table><tr><th>run</th><th>status</th><th>why</th></tr>" + "".join(rows) + "</table>"
+    for v, g in df.groupby("variant", sort=False):
+        ok = g[g["status"] == "ok"]
+        cells = []
+        for c in event_cols:
+            x = pd.to_numeric(ok[c], errors="coerce").fillna(0)
+            k = int((x > 0).sum())
+            cells.append(f"<td class={'bad' if k else 'good'}>{k}/{len(ok)} ({int(x.sum())})</td>")
+        sv = int(sum(((ok[c] == False) | (ok[c] == 0)).sum() for c in spec_cols))  # noqa: E712
+        spec = f"<td class={'bad' if sv else 'good'}>{sv}</td>" if spec_cols else ""
+        err = len(g) - len(ok)
+        rows.append(f"<tr><td>{html.escape(str(v))}</td><td>{len(g)}</td><td class={'bad' if err else 'good'}>{err}</td>"
+                    f"{''.join(cells)}{spec}</tr>")
+    spec_head = "<th>spec violations</th>" if spec_cols else ""
+    return (f"<table><tr><th>variant</th><th>runs</th><th>errors</th>{head}{spec_head}</tr>"
+            + "".join(rows) + "</table>")
+
+
+def problem_runs(df: pd.DataFrame, event_cols: list[str]) -> str:
+    """The runs that failed, had a safety event (any column of ``event_cols`` above 0) or violated a
+    spec, with why; a green line only when there is none."""
+    spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
+    whys = {r["run_id"]: (r["error"] if r["status"] != "ok" else "; ".join(_events_of(r, event_cols, spec_cols)))
+            for _, r in df.iterrows()}
+    bad = df[[(r["status"] != "ok") or bool(whys[r["run_id"]]) for _, r in df.iterrows()]]
+    if bad.empty:
+        what = ", ".join(event_cols) if event_cols else "no safety event measured"
+        return f"<p class=good>No run failed, had a safety event ({html.escape(what)}) or violated a specification.</p>"
+    rows = [f"<tr><td>{html.escape(r['run_id'])}</td><td>{html.escape(str(r['status']))}</td>"
+            f"<td style='text-align:left'>{html.escape(str(whys[r['run_id']]))}</td></tr>" for _, r in bad.iterrows()]
+    return (f"<p class=bad>{len(bad)} of {len(df)} runs failed, had a safety event or violated a specification.</p>"
+            "<table><tr><th>run</th><th>status</th><th>why</th></tr>" + "".join(rows) + "</table>")
 
 
 SENSITIVITY_NOTE = (
@@ -342,6 +367,7 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}") for c in spec_cols)
     with_coll = collisions_apply(df, scenario)
     skip = not_applicable_draws(ok, scenario) if len(ok) else {}
+    events = [c for c in safety_event_columns(df.columns, scenario) if with_coll or c != "collisions"]
     body = [
         f"<h1>{html.escape(scenario.name)}</h1><p>{html.escape(scenario.description)}</p>",
         f"<p>{len(df)} runs ({len(ok)} ok), variants: {', '.join(map(html.escape, variants))}; "
@@ -349,6 +375,8 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
         *(["<h2>Safety: collisions</h2>", collision_table(df)] if with_coll else
           [f"<p>No collision probability: {ENTITY_FREE_REASON} (a macroscopic model), so a count of 0 "
            "collisions would say nothing about safety.</p>"]),
+        "<h2>Verdict: safety events, errors and violated specifications per variant</h2>",
+        safety_verdict(df, events), problem_runs(df, events),
         "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline) if len(ok) else "",
         *(["<h2>Paired differences between variants</h2>", paired_table(ok, key)]
           if len(ok) and ok["variant"].nunique() > 1 else []),
@@ -356,9 +384,8 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
         *(["<h2>Sensitivity to the randomized fields</h2>", SENSITIVITY_NOTE, sensitivity] if (sensitivity := (
             draw_sensitivity(ok, key[0], skip) if len(ok) and key else "")) else []),
         *(extra_sections or []),
-        f"<h2>Runs with {'collisions, ' if with_coll else ''}errors or violated specifications</h2>",
-        problem_runs(df, with_coll),
         "<h2>All metrics</h2>", kpi_table(ok, cols, baseline) if len(ok) else "",
+        glossary_section([c for c in df.columns if c not in NON_METRICS], scenario),
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(scenario.name)}"

@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.tick_block import TickBlock
 from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
@@ -24,6 +24,16 @@ class SurrogateSafety(Component):
     ``min_ttc`` signal is recorded when a block is processed, each value with its own tick's time)."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('min_ttc_s', 's',
+               'Smallest time-to-collision over leader-follower pairs after the warm-up.'),
+        Metric('max_drac_mps2', 'm/s^2',
+               'Largest deceleration rate to avoid a crash after the warm-up.'),
+        Metric('ttc_exposed_s', 's',
+               'Time exposed to a TTC below the threshold, summed over vehicles (TET).'),
+        Metric('hard_brakes', '1',
+               'Times a vehicle started braking harder than the hard-brake threshold.'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
     block_ticks: ClassVar[int] = 100
@@ -119,6 +129,30 @@ class TrafficKpis(Component):
     ``insertion_backlog`` is the number still waiting to enter the network at the end."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('throughput_vph', 'veh/h',
+               'Vehicles crossing the counting line (past the merge) per hour after the warm-up.'),
+        Metric('tts_vh', 'veh*h',
+               'Total time spent: vehicles on the road plus waiting to enter, integrated after the warm-up.'),
+        Metric('insertion_backlog', 'veh',
+               'Vehicles still waiting to enter the network at the end.'),
+        Metric('delay_mean_s', 's',
+               'Mean travel-time delay of the measured vehicles (unfinished trips count with their delay so far).'),
+        Metric('delay_total_vh', 'veh*h',
+               'Summed delay of the measured vehicles.'),
+        Metric('delay_*_mean_s', 's',
+               'Mean delay by role (mainline, ramp).'),
+        Metric('delay_*_p95_s', 's',
+               '95th percentile of the delay by role (mainline, ramp).'),
+        Metric('n_*', 'veh',
+               'Measured vehicles by role (mainline, ramp).'),
+        Metric('delay_jain_index', '1',
+               "Jain's fairness index between the mainline and ramp mean delays (1: equal)."),
+        Metric('energy_proxy_mean', 'm^2/s^3',
+               'Mean over arrived vehicles of the integral of acceleration squared.'),
+        Metric('merge_loss_*_s', 's',
+               'Mean time lost inside the merge area per vehicle, by role (mainline, ramp, mean: all).'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD, "trips": NEEDS_TRIPS}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
     block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.traffic.tick_block)
