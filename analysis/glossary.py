@@ -80,9 +80,9 @@ def safety_event_columns(columns: Iterable[str], scenario: Any) -> list[str]:
     return [c for c, (_, m) in match(columns, declared_metrics(scenario)).items() if m.safety_event]
 
 
-def unit_of(column: str, scenario: Any) -> str:
-    hit = match([column], declared_metrics(scenario)).get(column)
-    return hit[1].unit if hit else ""
+def units_of(columns: Iterable[str], scenario: Any) -> dict[str, str]:
+    """column -> its declared unit (columns no component declares are left out)."""
+    return {c: m.unit for c, (_, m) in match(columns, declared_metrics(scenario)).items()}
 
 
 def glossary_section(columns: Iterable[str], scenario: Any) -> str:

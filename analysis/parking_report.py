@@ -13,12 +13,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from corridor.analysis.svgplot import bar_chart
+from corridor.analysis.plots import histogram
 from corridor.stats import clopper_pearson
 
 HISTOGRAMS = (  # column, scale, label, bin width
     ("pos_err_m", 1.0, "final position error [m]", 0.02),
-    ("heading_err_rad", 180.0 / np.pi, "final heading error [deg]", 0.25),
+    ("heading_err_rad", 1.0, "final heading error [rad]", 0.005),
     ("manoeuvre_time_s", 1.0, "manoeuvre time [s]", 2.0),
 )
 
@@ -56,12 +56,10 @@ def _histogram(ok: pd.DataFrame, variants: list[str], col: str, scale: float, la
         return ""
     hi = max(float(np.percentile(allv, 99)), width)
     edges = np.arange(0.0, hi + width, width)
-    counts = np.array([np.histogram(np.clip(data[v], 0.0, edges[-1] - 1e-9), edges)[0] for v in variants]).T
-    groups = [f"{a:.3g}" for a in edges[:-1]]
     stats = "; ".join(f"{html.escape(v)}: p50 {np.median(x):.3g}, p95 {np.percentile(x, 95):.3g}, "
                       f"max {np.max(x):.3g} (n={len(x)})" for v, x in data.items() if len(x))
     return (f"<h3>{html.escape(label)}</h3><p>{stats}</p>"
-            f"<div>{bar_chart(groups, variants, counts, label, 'runs')}</div>")
+            f"{histogram(data, edges, label, label + ' (the last bin holds everything above)')}")
 
 
 def report_sections(out_dir: Path, df: pd.DataFrame, scenario: Any, scenario_path: Path | str | None) -> list[str]:

@@ -21,9 +21,7 @@ The report shows only what applies to the scenario and to each variant:
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -31,8 +29,11 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.stats import linregress
+from scipy.stats import t as student_t
 
-from corridor.analysis.glossary import glossary_section, safety_event_columns
+from corridor.analysis.glossary import glossary_section, safety_event_columns, units_of
+from corridor.analysis.plots import box_or_points, figure, svg
 from corridor.analysis.stats import clopper_pearson, mean_ci
 from corridor.traffic.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
@@ -46,6 +47,7 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#b00}.good{color:#070}
 img{max-width:100%}code{background:#f3f3f3;padding:1px 3px}.res{font-weight:bold}"""
 
+MIN_BOX = 5  # runs of a variant below which its distribution is drawn as points, not a box
 NON_METRICS = {"run_id", "scenario", "variant", "seed", "status", "error", "traceback"}
 
 
@@ -131,8 +133,17 @@ def not_applicable_draws(ok: pd.DataFrame, scenario: Any) -> dict[str, dict[str,
     return out
 
 
-def _num(x: float, digits: int = 3) -> str:
-    return "–" if x is None or not math.isfinite(float(x)) else f"{float(x):.{digits}g}"
+def _num(x: float | None, digits: int = 3) -> str:
+    """A value for a table cell: "—" when it is missing or not finite (never "nan")."""
+    try:
+        ok = x is not None and math.isfinite(float(x))
+    except (TypeError, ValueError):
+        ok = False
+    return f"{float(x):.{digits}g}" if ok else "—"
+
+
+def _interval(lo: float, hi: float) -> str:
+    return f"[{_num(lo)}, {_num(hi)}]" if math.isfinite(lo) and math.isfinite(hi) else ""
 
 
 def metric_columns(df: pd.DataFrame) -> list[str]:
@@ -145,57 +156,50 @@ def metric_columns(df: pd.DataFrame) -> list[str]:
     return cols
 
 
-def _png(fig: Any) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
-
-
-def distribution_plot(ok: pd.DataFrame, column: str, title: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 3.2))
-    groups = [(v, pd.to_numeric(g[column], errors="coerce").dropna().to_numpy(dtype=float))
+def distribution_plot(ok: pd.DataFrame, column: str, title: str, unit: str = "") -> str:
+    """Per variant: a box plot with its points, or the points alone below ``MIN_BOX`` runs."""
+    groups = [(str(v), pd.to_numeric(g[column], errors="coerce").dropna().to_numpy(dtype=float))
               for v, g in ok.groupby("variant", sort=False)]
+    groups = [(v, x[np.isfinite(x)]) for v, x in groups]
     groups = [(v, x) for v, x in groups if len(x)]
     if not groups:
-        plt.close(fig)
         return ""
-    ax.boxplot([x for _, x in groups], vert=False, showmeans=True)
-    for i, (_, x) in enumerate(groups, start=1):
-        jitter = np.linspace(-0.15, 0.15, len(x)) if len(x) > 1 else np.zeros(1)
-        ax.plot(x, i + jitter, ".", alpha=0.5, color="C0")
-    ax.set_yticks(range(1, len(groups) + 1), [v for v, _ in groups])
-    ax.set_title(title)
-    ax.set_xlabel(column)
-    ax.grid(alpha=0.3)
-    return _png(fig)
+    return box_or_points(groups, title, f"{column} [{unit}]" if unit else column, MIN_BOX)
 
 
-def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str) -> str:
+def _cell(x: np.ndarray, base_mean: float, is_base: bool) -> str:
+    """Mean [95 % CI] of the finite values, their count when some are missing, % vs the baseline."""
+    finite = np.isfinite(x)
+    n, k = len(x), int(finite.sum())
+    if not k:
+        return f"<td>— <small>(no value in {n} run{'s' if n != 1 else ''})</small></td>"
+    m, lo, hi = mean_ci(x)
+    sd = float(np.std(x[finite], ddof=1)) if k > 1 else math.nan
+    rel = ""
+    if not is_base and math.isfinite(base_mean) and base_mean != 0:
+        rel = f" <small>({(m - base_mean) / abs(base_mean) * 100:+.1f} %)</small>"
+    ci = _interval(lo, hi)
+    count = f" <small>n={k}</small>" if k == n else f" <small>n={k} of {n}</small>"
+    return (f"<td title='sd {_num(sd, 2)}'>{_num(m)}{rel}"
+            f"{f' <small>{ci}</small>' if ci else ''}{count}</td>")
+
+
+def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str, units: dict[str, str] | None = None) -> str:
+    """Per metric and variant: the mean, its 95 % Student-t interval and the number of runs with a
+    value (missing values, e.g. no closing pair for a TTC, are counted, never averaged)."""
+    units = units or {}
     variants = list(dict.fromkeys(ok["variant"]))
-    head = "".join(f"<th>{html.escape(v)}</th>" for v in variants)
-    rows = []
+    head = "".join(f"<th>{html.escape(str(v))}</th>" for v in variants)
     base = ok[ok["variant"] == baseline]
+    rows = []
     for c in cols:
-        cells = []
         b = mean_ci(pd.to_numeric(base[c], errors="coerce").to_numpy(dtype=float))[0] if len(base) else math.nan
-        for v in variants:
-            x = pd.to_numeric(ok[ok["variant"] == v][c], errors="coerce").to_numpy(dtype=float)
-            m, lo, hi = mean_ci(x)
-            sd = np.nanstd(x, ddof=1) if np.isfinite(x).sum() > 1 else math.nan
-            rel = ""
-            if v != baseline and math.isfinite(m) and math.isfinite(b) and b != 0:
-                rel = f" <small>({(m - b) / abs(b) * 100:+.1f} %)</small>"
-            cells.append(f"<td title='95% CI [{_num(lo)}, {_num(hi)}]'>{_num(m)} ± {_num(sd, 2)}{rel}</td>")
-        rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>metric (mean ± sd; % vs {html.escape(baseline)})</th>{head}</tr>{''.join(rows)}</table>"
+        cells = [_cell(pd.to_numeric(ok[ok["variant"] == v][c], errors="coerce").to_numpy(dtype=float), b,
+                       v == baseline) for v in variants]
+        unit = f" [{html.escape(units[c])}]" if units.get(c) else ""
+        rows.append(f"<tr><td>{html.escape(c)}{unit}</td>{''.join(cells)}</tr>")
+    return (f"<table><tr><th>metric [unit] (mean, % vs {html.escape(str(baseline))}, [95 % CI], runs with a value)"
+            f"</th>{head}</tr>{''.join(rows)}</table>")
 
 
 def _paired(ok: pd.DataFrame, column: str, a: str, b: str) -> tuple[np.ndarray, np.ndarray]:
@@ -241,49 +245,60 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
             f"<table><tr><th>metric</th>{head}</tr>{''.join(rows)}</table>")
 
 
-def draw_sensitivity(ok: pd.DataFrame, column: str, not_applicable: dict[str, dict[str, str]] | None = None) -> str:
-    """The metric against each randomized field, per variant, with a least-squares line: how the
-    result moves with demand, penetration, message loss ... over the batch's draws.  A (variant,
-    field) pair in ``not_applicable`` (variant -> {draw column -> reason}) is neither drawn nor
-    fitted; it is listed under the table with its reason."""
+def _slope_ci(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares slope of y on x and its 95 % Student-t interval."""
+    res = linregress(x, y)
+    if len(x) < 3 or not math.isfinite(res.stderr):
+        return float(res.slope), math.nan, math.nan
+    h = float(student_t.ppf(0.975, len(x) - 2) * res.stderr)
+    return float(res.slope), float(res.slope) - h, float(res.slope) + h
+
+
+def draw_sensitivity(ok: pd.DataFrame, column: str, not_applicable: dict[str, dict[str, str]] | None = None,
+                     unit: str = "") -> str:
+    """The metric against each randomized field, per variant, with a least-squares line and its
+    slope's 95 % interval: how the result moves with demand, penetration, message loss ... over the
+    batch's draws.  A (variant, field) pair in ``not_applicable`` (variant -> {draw column -> reason})
+    is neither drawn nor fitted; it is listed under the table with its reason."""
     skip = not_applicable or {}
     variants = list(dict.fromkeys(ok["variant"].astype(str))) if "variant" in ok else []
     draws = [c for c in ok.columns if c.startswith("draw.") and pd.api.types.is_numeric_dtype(ok[c])]
     draws = [c for c in draws if ok[c].nunique() > 2 and any(c not in skip.get(v, {}) for v in variants)]
     if not draws or column not in ok:
         return ""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(draws), figsize=(3.4 * len(draws), 3.0), squeeze=False, sharey=True)
-    rows, handles = [], {}
-    for ax, dc in zip(axes[0], draws, strict=True):
+    fig, axes = figure((min(3.2 * len(draws), 10.0) + 1.2, 3.0), ncols=len(draws), sharey=True)
+    rows = []
+    for ax, dc in zip(axes, draws, strict=True):
         for i, (v, g) in enumerate(ok.groupby("variant", sort=False)):
             if dc in skip.get(str(v), {}):
                 continue
             x = g[dc].to_numpy(dtype=float)
             y = pd.to_numeric(g[column], errors="coerce").to_numpy(dtype=float)
             keep = np.isfinite(x) & np.isfinite(y)
-            handles.setdefault(str(v), ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=v)[0])
+            ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=str(v) if dc == draws[0] else None,
+                    gid=f"points:{v}:{dc}")
             if keep.sum() >= 3 and np.ptp(x[keep]) > 0:
-                slope, icpt = np.polyfit(x[keep], y[keep], 1)
+                slope, lo, hi = _slope_ci(x[keep], y[keep])
+                icpt = float(np.mean(y[keep]) - slope * np.mean(x[keep]))
                 xs = np.array([x[keep].min(), x[keep].max()])
                 ax.plot(xs, icpt + slope * xs, "-", color=f"C{i}", lw=1)
-                rows.append(f"<tr><td>{html.escape(v)}</td><td>{html.escape(dc[5:])}</td>"
-                            f"<td>{_num(slope)}</td><td>{_num(slope * np.ptp(x[keep]))}</td></tr>")
+                span = float(np.ptp(x[keep]))
+                rows.append(f"<tr><td>{html.escape(str(v))}</td><td>{html.escape(dc[5:])}</td>"
+                            f"<td>{_num(slope)} <small>{_interval(lo, hi)}</small></td>"
+                            f"<td>{_num(slope * span)} <small>{_interval(lo * span, hi * span)}</small></td>"
+                            f"<td>{int(keep.sum())}</td></tr>")
         ax.set_xlabel(dc[5:], fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel(column)
-    axes[0][0].legend(list(handles.values()), list(handles), fontsize=7)
-    table = ("<table><tr><th>variant</th><th>randomized field</th><th>slope</th>"
-             "<th>change over the drawn range</th></tr>" + "".join(rows) + "</table>")
+    axes[0].set_ylabel(f"{column} [{unit}]" if unit else column)
+    axes[0].legend(fontsize=7)
+    u = html.escape(unit) if unit else "its unit"
+    table = (f"<table><tr><th>variant</th><th>randomized field</th><th>slope of {html.escape(column)} "
+             f"[{u} per unit of the field] [95 % CI]</th><th>change of {html.escape(column)} over the drawn "
+             f"range [{u}] [95 % CI]</th><th>runs</th></tr>" + "".join(rows) + "</table>")
     left_out = [f"<li>{html.escape(v)} &times; <code>{html.escape(dc[5:])}</code>: {html.escape(why)}</li>"
                 for v in variants for dc, why in skip.get(v, {}).items() if dc in ok.columns]
     note = ("<p>Not fitted (the field cannot affect that variant):</p><ul>" + "".join(left_out) + "</ul>"
             if left_out else "")
-    return _png(fig) + table + note
+    return svg(fig, "sensitivity") + table + note
 
 
 def collision_table(df: pd.DataFrame) -> str:
@@ -362,9 +377,10 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     baseline = variants[0] if variants else ""
     cols = metric_columns(ok) if len(ok) else []
     key = [m for m in scenario.metrics if m in cols] or cols[:6]
-    plots = "".join(distribution_plot(ok, c, c) for c in key if len(ok))
+    units = units_of(cols, scenario)
+    plots = "".join(distribution_plot(ok, c, c, units.get(c, "")) for c in key if len(ok))
     spec_cols = [c for c in cols if c.startswith("spec.") and c.endswith(".space")]
-    spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}") for c in spec_cols)
+    spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}", units.get(c, "")) for c in spec_cols)
     with_coll = collisions_apply(df, scenario)
     skip = not_applicable_draws(ok, scenario) if len(ok) else {}
     events = [c for c in safety_event_columns(df.columns, scenario) if with_coll or c != "collisions"]
@@ -377,14 +393,14 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
            "collisions would say nothing about safety.</p>"]),
         "<h2>Verdict: safety events, errors and violated specifications per variant</h2>",
         safety_verdict(df, events), problem_runs(df, events),
-        "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline) if len(ok) else "",
+        "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline, units) if len(ok) else "",
         *(["<h2>Paired differences between variants</h2>", paired_table(ok, key)]
           if len(ok) and ok["variant"].nunique() > 1 else []),
         "<h2>Distributions</h2>", plots, spec_plots,
         *(["<h2>Sensitivity to the randomized fields</h2>", SENSITIVITY_NOTE, sensitivity] if (sensitivity := (
-            draw_sensitivity(ok, key[0], skip) if len(ok) and key else "")) else []),
+            draw_sensitivity(ok, key[0], skip, units.get(key[0], "")) if len(ok) and key else "")) else []),
         *(extra_sections or []),
-        "<h2>All metrics</h2>", kpi_table(ok, cols, baseline) if len(ok) else "",
+        "<h2>All metrics</h2>", kpi_table(ok, cols, baseline, units) if len(ok) else "",
         glossary_section([c for c in df.columns if c not in NON_METRICS], scenario),
     ]
     path.parent.mkdir(parents=True, exist_ok=True)

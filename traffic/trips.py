@@ -55,7 +55,7 @@ class Trips(Component):
         Metric('vehicles_measured', 'veh',
                'Vehicles that departed after the warm-up (the ones delays are taken over).'),
         Metric('teleports', '1',
-               'Vehicles SUMO teleported (jammed or collided).', safety_event=True),
+               'Vehicles SUMO teleported (jammed too long; collisions are counted by the collisions monitor).'),
         Metric('merge_failures', '1',
                'Ramp vehicles that reached the end of the acceleration lane without merging.'),
     )
