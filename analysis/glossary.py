@@ -97,10 +97,10 @@ def glossary_section(columns: Iterable[str], scenario: Any) -> str:
         event = " <small>(safety event)</small>" if m is not None and m.safety_event else ""
         rows.append(f"<tr><td><code>{html.escape(c)}</code></td><td style='text-align:left'>"
                     f"{html.escape(meaning)}{event}</td><td>{html.escape(unit)}</td><td>{html.escape(label)}</td></tr>")
-    return ("<h2>Metric glossary</h2><p>Each column of this batch: what it measures, its unit (SI; 1: a "
+    return ("<section id=glossary><h2>Metric glossary</h2><p>Each column of this batch: what it measures, its unit (SI; 1: a "
             "count or a ratio) and the component that writes it, from the components' declarations.</p>"
             "<table><tr><th>column</th><th>meaning</th><th>unit</th><th>written by</th></tr>"
-            + "".join(rows) + "</table>")
+            + "".join(rows) + "</table></section>")
 
 
 def _all_components() -> list[tuple[str, Any]]:

@@ -193,7 +193,7 @@ def time_space(t: np.ndarray, pos: np.ndarray, speed: np.ndarray, title: str, vm
     """Every vehicle sample as a dot at (time, position along the road) coloured by its speed
     [m/s]: shock waves are red bands running upstream, merges show as new trajectories."""
     fig, (ax,) = figure(TALL)
-    pts = ax.scatter(t, pos, c=speed, s=1.0, cmap=SPEED_CMAP, vmin=0.0, vmax=vmax, lw=0, rasterized=True,
+    pts = ax.scatter(t, pos, c=speed, s=2.0, cmap=SPEED_CMAP, vmin=0.0, vmax=vmax, lw=0, rasterized=True,
                      gid="timespace")
     if warmup_s > 0:
         ax.axvspan(0.0, warmup_s, color="#999", alpha=0.18, lw=0, gid="warmup")
@@ -215,3 +215,36 @@ def box_or_points(groups: Sequence[tuple[str, np.ndarray]], title: str, x_label:
     ax.set_ylim(0.4, len(groups) + 0.6)
     ax.set(title=title, xlabel=x_label)
     return svg(fig, "distribution")
+
+
+def lot_chart(doc: dict, title: str) -> str:
+    """A parking lot from above (``parking/lot-<run_id>.json``): outlines, parked cars, the goal bay,
+    the planned paths (the last one solid) and the driven path."""
+    from matplotlib.patches import Polygon
+
+    fig, (ax,) = figure(TALL)
+    style = {"goal_bay": {"fc": "#cfc", "ec": "#070", "lw": 1.2}, "walls": {"fc": "none", "ec": "#333", "lw": 2.0}}
+    for name, polys in doc.get("outlines", {}).items():
+        for q in polys:
+            ax.add_patch(Polygon(np.asarray(q), closed=True, **style.get(name, {"fc": "none", "ec": "#aaa", "lw": 0.6})))
+    for q in doc.get("parked", []):
+        ax.add_patch(Polygon(np.asarray(q), closed=True, fc="#555", ec="#222", lw=0.5, alpha=0.7))
+    plans = doc.get("plans", [])
+    for k, p in enumerate(plans):
+        xy = np.asarray(p["xy"], float)
+        last = k == len(plans) - 1
+        ax.plot(xy[:, 0], xy[:, 1], "-" if last else "--", color="C1", lw=1.6 if last else 0.8, alpha=1.0 if last else 0.6,
+                label=f"planned ({len(plans)} plan{'s' if len(plans) != 1 else ''})" if last else None,
+                gid=f"plan:{k}")
+    driven = np.asarray(doc.get("driven", []), float).reshape(-1, 3)
+    if len(driven):
+        ax.plot(driven[:, 1], driven[:, 2], "-", color="C0", lw=1.4, label="driven", gid="track:driven")
+        ax.plot(driven[0, 1], driven[0, 2], "o", color="C0", ms=4)
+    if doc.get("goal") is not None:
+        gx, gy, gh = doc["goal"]
+        ax.annotate("", (gx + 1.5 * np.cos(gh), gy + 1.5 * np.sin(gh)), (gx, gy), arrowprops={"arrowstyle": "->", "color": "#070"})
+    ax.autoscale_view()
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set(title=title, xlabel="x [m]", ylabel="y [m]")
+    _legend(ax)
+    return svg(fig, "lot")

@@ -238,7 +238,11 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
             cls = "" if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 <= hi else " class=res"
             ref = float(np.mean(y[np.isfinite(d)])) if n else math.nan
             rel = f" ({m / abs(ref) * 100:+.1f} %)" if math.isfinite(m) and math.isfinite(ref) and ref != 0 else ""
-            cells.append(f"<td{cls}>{_num(m)}{rel} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
+            if not n:
+                cells.append("<td>— <small>(no seed with a value in both)</small></td>")
+                continue
+            ci = _interval(lo, hi)
+            cells.append(f"<td{cls}>{_num(m)}{rel} <small>{ci + ', ' if ci else ''}n={n}</small></td>")
         rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
     return ("<p>Mean paired difference per seed (in % of the second variant's mean over the same seeds),"
             " [95 % CI]; <b>bold</b>: the interval excludes 0.</p>"
