@@ -40,7 +40,6 @@ from corridor.controllers.parking.spot_detection import Slot, match_slots, true_
 from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind
 
-
 LOT_FILE = "parking/lot.json"  # per run: parking/lot-<run_id>.json
 
 
