@@ -21,11 +21,6 @@ from corridor.engine import Metric
 Declared = list[tuple[str, Metric]]  # (component "<kind>.<type>", its metric)
 
 TABLES = (("backends", "backend"), ("controllers", "controller"), ("monitors", "monitor"))
-SPEC_METRICS = (  # written by the stl_specs monitor for each spec <name> of the scenario
-    Metric("spec.*.space", "1", "Space robustness of STL spec <name> (> 0: satisfied with that margin, "
-           "in the spec's signal units)."),
-    Metric("spec.*.satisfied", "1", "1 if the run satisfied STL spec <name>."),
-)
 KERNEL_METRICS = (  # written by the batch runner for every run
     Metric("wall_s", "s", "Wall-clock time of the run."),
     Metric("sim_s", "s", "Simulated time of the run."),
@@ -37,7 +32,7 @@ KERNEL_METRICS = (  # written by the batch runner for every run
 def _classes(scenario: Any) -> list[tuple[str, Any]]:
     """(``<kind>.<type>``, class) of every component a run of some variant of ``scenario`` builds:
     its backends, controllers (not ``none``), monitors, the default ones and those a backend requires."""
-    from corridor.run import DEFAULT_MONITORS
+    from corridor.run import DEFAULT_MONITORS, SPEC_MONITOR
     from corridor.variants import component_class, variant_scenarios
 
     scens = [s for s in variant_scenarios(scenario).values() if s is not None] or [scenario]
@@ -45,6 +40,7 @@ def _classes(scenario: Any) -> list[tuple[str, Any]]:
     for sc in scens:
         specs = [(t, spec) for t, _ in TABLES for spec in getattr(sc, t, {}).values()]
         specs += [("monitors", spec) for spec in DEFAULT_MONITORS.values()]
+        specs += [("monitors", SPEC_MONITOR[1])] if getattr(sc, "specs", None) else []
         for table, spec in list(specs):
             cls = component_class(table, spec)
             for mon in getattr(cls, "required_monitors", {}).values():
@@ -60,8 +56,8 @@ def _classes(scenario: Any) -> list[tuple[str, Any]]:
 
 def declared_metrics(scenario: Any) -> Declared:
     """Every metric declared by a component of the scenario (any variant), the specs' and the kernel's."""
-    out: Declared = [(label, m) for label, cls in _classes(scenario) for m in getattr(cls, "metrics", ())]
-    return out + [("monitor.stl_specs", m) for m in SPEC_METRICS] + [("batch", m) for m in KERNEL_METRICS]
+    out: Declared = [(label, m) for label, cls in _classes(scenario) for m in getattr(cls, "metrics", None) or ()]
+    return out + [("batch", m) for m in KERNEL_METRICS]
 
 
 def match(columns: Iterable[str], declared: Declared) -> dict[str, tuple[str, Metric]]:
@@ -116,6 +112,13 @@ def _all_components() -> list[tuple[str, Any]]:
     return out
 
 
+def _writes_columns(cls: Any) -> bool:
+    """Whether a component class may write metric columns (it overrides ``finish``)."""
+    from corridor.engine import Component
+
+    return not isinstance(cls, Exception) and getattr(cls, "finish", None) is not Component.finish
+
+
 def glossary_markdown() -> str:
     """The reference page: every installed component's declared metrics."""
     lines = ["# Metrics", "",
@@ -126,15 +129,18 @@ def glossary_markdown() -> str:
              "| column | meaning | unit | written by |", "|---|---|---|---|"]
     silent = []
     for label, cls in _all_components():
-        ms = getattr(cls, "metrics", ()) if not isinstance(cls, Exception) else ()
-        if not ms:
+        ms = getattr(cls, "metrics", None) if not isinstance(cls, Exception) else None
+        if ms is None and _writes_columns(cls):
             silent.append(label)
-        for m in ms:
+        for m in ms or ():
             event = " (safety event)" if m.safety_event else ""
             lines.append(f"| `{m.name}` | {m.meaning}{event} | {m.unit} | `{label}` |")
-    for label, m in [("monitor.stl_specs", m) for m in SPEC_METRICS] + [("batch", m) for m in KERNEL_METRICS]:
+    for label, m in [("batch", m) for m in KERNEL_METRICS]:
         lines.append(f"| `{m.name}` | {m.meaning} | {m.unit} | `{label}` |")
-    lines += ["", "Components that declare no metric columns (yet): " + ", ".join(f"`{s}`" for s in silent) + ".", ""]
+    if silent:
+        lines += ["", "Components that write columns they do not declare yet (the report's glossary says so "
+                  "for their columns): " + ", ".join(f"`{s}`" for s in silent) + "."]
+    lines.append("")
     return "\n".join(lines)
 
 

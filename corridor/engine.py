@@ -197,7 +197,8 @@ class Component:
     provides: ClassVar[frozenset[str]] = frozenset()
     period_source: ClassVar[str | None] = None
     period_override: float | None = None  # [s] the scenario's ``period:`` of this component
-    metrics: ClassVar[tuple[Metric, ...]] = ()  # the columns ``finish`` writes (glossary, verdict)
+    # the columns ``finish`` writes (report glossary and verdict); None: not declared, () : none
+    metrics: ClassVar[tuple[Metric, ...] | None] = None
 
     def __init__(self, name: str) -> None:
         self.name = name

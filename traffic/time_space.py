@@ -14,7 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.trips import NEEDS_ROAD, road_frame
 
 FILE = "timespace/ts.npz"  # per run: timespace/ts-<run_id>.npz
@@ -24,6 +24,7 @@ class TimeSpace(Component):
     phase = Phase.DETECT
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "p.period_s"
+    metrics: ClassVar[tuple[Metric, ...] | None] = ()  # writes a file, no column
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
