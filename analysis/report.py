@@ -1,4 +1,5 @@
-"""The HTML report of a batch: self-contained (plots embedded as PNG), read from the results table.
+"""The HTML report of a batch: self-contained (matplotlib charts as inline SVG, ``corridor.analysis.plots``),
+read from the results table.  Its contents are described in docs/guide/reports.md.
 
 The report shows only what applies to the scenario and to each variant:
 

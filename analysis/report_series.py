@@ -1,4 +1,5 @@
-"""Time-series sections of the report, drawn from the runs' recorded signals (``signals/<run_id>.npz``).
+"""Time-series sections of the report, drawn from the runs' recorded signals (``signals/<run_id>.npz``),
+with ``corridor.analysis.plots`` (matplotlib, inline SVG).
 
 A section is a ``SeriesFamily``: the signals whose names start with a prefix (``queue_ccw0``,
 ``queue_cw3``, ... -> one item per suffix), drawn per variant as lines or as a space x time contour.
@@ -7,13 +8,16 @@ ramp-metering scenario gets the speed contour, ramp queues, meter rates and rout
 get nothing (or the families they happen to record).  One representative run per variant: its
 first run with ``status == ok`` that kept signals.
 
-``overlay_sections`` draws single signals with all variants in one chart, from one seed that every
-variant ran (the same draws and demand: the lines differ only by the variant): minimum
-time-to-collision, mean speed and vehicles in the network (road monitors), minimum horizontal and
-3-D separation (``uav_separation``).  Long signals are reduced to <= ~300 bins (the bin's minimum for
-minima, its mean otherwise).  ``track_sections`` draws top-down x/y paths per variant from signals
-``track_e_<id>`` / ``track_n_<id>`` (ENU east / north [m] of entity ``<id>``) when a run recorded them.
-``merge_loss_section`` shows the time lost around the merge (``merge_loss_*`` columns) per variant.
+``overlay_sections`` draws single signals with all variants in one chart: per variant the median
+over every ok run in each of ``MAX_BINS`` equal time bins and the interquartile band, the warm-up
+shaded: minimum time-to-collision, mean speed and vehicles in the network (road monitors), minimum
+horizontal and 3-D separation (``uav_separation``).  Within a bin a run contributes its minimum
+(minima) or its mean.  ``time_space_sections`` draws a time-space diagram per variant from the
+``time_space`` monitor's ``timespace/ts-<run_id>.npz`` (one seed every variant ran).
+``track_sections`` draws top-down x/y paths per variant from signals ``track_e_<id>`` /
+``track_n_<id>`` (ENU east / north [m] of entity ``<id>``), a panel zoomed on the closest approach
+and the altitude profile (``track_u_<id>``) when a run recorded them.  ``merge_loss_section`` shows
+the time lost around the merge (``merge_loss_*`` columns) per variant.
 
 ``diagram_section`` draws the fitted fundamental diagram of a calibration file
 (``corridor.traffic.calibrate``) against its detector points.
