@@ -47,6 +47,7 @@ from corridor.analysis.plots import (
 from corridor.analysis.stats import mean_ci
 
 Series = dict[str, tuple[np.ndarray, np.ndarray]]  # signal name -> (t [s], value)
+KMH = 3.6  # [km/h per m/s]: detector speeds recorded in km/h are shown in m/s
 
 
 @dataclass(frozen=True)
@@ -119,8 +120,8 @@ def family_chart(fam: SeriesFamily, variant: str, sig: Series, storage_veh: floa
     title = f"{variant}: {fam.title.lower()}"
     if fam.kind == "contour":
         edges, grid = contour_grid(sig, fam.prefix, items)
-        grid = grid / 3.6  # [km/h] recorded -> [m/s] shown (SI throughout the report)
-        vmax = max(100.0 / 3.6, float(np.nanmax(grid)) if np.isfinite(grid).any() else 0.0)
+        grid = grid / KMH  # [km/h] recorded -> [m/s] shown (SI throughout the report)
+        vmax = max(100.0 / KMH, float(np.nanmax(grid)) if np.isfinite(grid).any() else 0.0)
         return heatmap(items, edges, grid, title, "t [s]", fam.y_label, vmax)
     series = [(i, *sig[fam.prefix + i]) for i in items]
     dashed = [i.startswith("cw") for i in items] if any(i.startswith("ccw") for i in items) else None
@@ -480,8 +481,8 @@ def diagram_svgs(doc: dict[str, Any]) -> list[str]:
     if "downstream_fit" in doc:
         fits.append(("fit (downstream loops)", doc["downstream_fit"]))
     speeds = [(label, FdFit(f["v_free_kmh"], f["rho_crit"], f["a"], 0.0, 0.0, 0).speed(grid)) for label, f in fits]
-    out = [scatter_chart(rho, v, [(label, grid, s) for label, s in speeds], "Speed vs density",
-                         "density [veh/km/lane]", "speed [km/h]", "fd-speed")]
+    out = [scatter_chart(rho, v / KMH, [(label, grid, s / KMH) for label, s in speeds], "Speed vs density",
+                         "density [veh/km/lane]", "speed [m/s]", "fd-speed")]
     if "q" in pts:
         out.append(scatter_chart(rho, np.asarray(pts["q"], float), [(label, grid, grid * s) for label, s in speeds],
                                  "Flow vs density", "density [veh/km/lane]", "flow [veh/h/lane]", "fd-flow"))
@@ -496,9 +497,9 @@ def diagram_section(path: Path | None) -> str:
     if "points" not in doc:
         return ""
     text = (f"Fit of V(&rho;) = v<sub>free</sub> exp(-(1/a)(&rho;/&rho;<sub>crit</sub>)<sup>a</sup>) from "
-            f"<code>{html.escape(Path(path).name)}</code>: v<sub>free</sub> = {doc['v_free_kmh']:.1f} km/h, "
+            f"<code>{html.escape(Path(path).name)}</code>: v<sub>free</sub> = {doc['v_free_kmh'] / KMH:.1f} m/s, "
             f"&rho;<sub>crit</sub> = {doc['rho_crit']:.1f} veh/km/lane, a = {doc['a']:.2f}, capacity "
-            f"{doc['capacity_vph_per_lane']:.0f} veh/h/lane, speed RMSE {doc['rmse_kmh']:.1f} km/h, "
+            f"{doc['capacity_vph_per_lane']:.0f} veh/h/lane, speed RMSE {doc['rmse_kmh'] / KMH:.2f} m/s, "
             f"{len(doc['points'].get('rho', []))} detector points (one per loop interval, per lane).")
     return (f"<h2>Calibrated fundamental diagram</h2><p>{text}</p>"
             + "".join(diagram_svgs(doc)))

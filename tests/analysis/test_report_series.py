@@ -127,6 +127,7 @@ def test_diagram_draws_every_detector_point(tmp_path: Path) -> None:
     speed, flow = _svgs(sec, "fd-speed"), _svgs(sec, "fd-flow")
     assert len(speed) == len(flow) == 1
     assert "detector points (n=37)" in speed[0] and "detector points (n=37)" in flow[0]
+    assert "speed [m/s]" in speed[0] and "27.8 m/s" in sec  # SI: 100 km/h shown as 27.8 m/s
     assert _ids(speed[0], "series") == ["fit (all loops)"]  # the fitted curve
     only_speed = diagram_section(_calibration(tmp_path / "y.calibration.json", 12, with_flow=False))
     assert "detector points (n=12)" in _svgs(only_speed, "fd-speed")[0] and not _svgs(only_speed, "fd-flow")
