@@ -145,7 +145,9 @@ def track_chart(tracks: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str
         axes[1].set_aspect("equal", adjustable="box")
         axes[1].plot([x], [y], "x", color="#b00", ms=8, gid="closest")
         axes[0].add_patch(_square(x, y, r))
-    _legend(axes[-1])
+    handles, labels = axes[0].get_legend_handles_labels()
+    if labels:
+        axes[-1].legend(handles, labels, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
     return svg(fig, cls)
 
 

@@ -222,6 +222,7 @@ def test_uav_sections_separation_and_tracks(tmp_path: Path) -> None:
     assert len(tracks) == 2  # control_tube recorded no positions
     assert all(_ids(c, "track") == ["c172x", "uav0", "uav1"] and "east [m]" in c and "north [m]" in c for c in tracks)
     assert 'id="closest"' in tracks[0] and "closest approach 0.0 m" in tracks[0]  # uav0 and uav1 meet head-on
+    assert all(f">{i}</text>" in tracks[0] for i in ("c172x", "uav0", "uav1"))  # the legend
     assert "closest approach 5.0 m" in tracks[1]  # 5 m apart east in potential_field
     alts = _svgs(secs[2], "altitude")
     assert len(alts) == 2 and _ids(alts[0], "series") == ["uav0", "uav1"]
