@@ -37,3 +37,11 @@ def test_reference_page_is_generated() -> None:
     page = (REPO / "docs" / "reference" / "metrics.md").read_text()
     assert page == glossary_markdown(), "regenerate: python -m corridor.analysis.glossary docs/reference/metrics.md"
     assert "| `nmac` |" in page and "(safety event)" in page
+
+
+def test_every_component_that_writes_columns_declares_them() -> None:
+    from corridor.analysis.glossary import _all_components, _writes_columns
+
+    undeclared = [label for label, cls in _all_components()
+                  if _writes_columns(cls) and getattr(cls, "metrics", None) is None]
+    assert undeclared == []
