@@ -140,7 +140,12 @@ def _num(x: float | None, digits: int = 3) -> str:
         ok = x is not None and math.isfinite(float(x))
     except (TypeError, ValueError):
         ok = False
-    return f"{float(x):.{digits}g}" if ok else "—"
+    if not ok:
+        return "—"
+    v = float(x)
+    if v == 0 or 1e-3 <= abs(v) < 1e6:  # plain digits (2320, not 2.32e+03)
+        return np.format_float_positional(v, precision=digits, unique=False, fractional=False, trim="-")
+    return f"{v:.{digits}g}"
 
 
 def _interval(lo: float, hi: float) -> str:

@@ -60,3 +60,11 @@ def test_written_report_has_no_nan(tmp_path: Path) -> None:
     body = re.sub(r"<svg.*?</svg>", "", text, flags=re.S)
     assert not re.search(r"\bnan\b", body, re.I) and "– ± –" not in body
     assert "<h2>Metric glossary</h2>" in text and "<code>min_ttc_s</code>" in text
+
+
+def test_values_print_as_plain_digits() -> None:
+    from corridor.analysis.report import _num
+
+    assert [_num(2321.5), _num(0.93612), _num(-8.05), _num(0.0), _num(float("nan")), _num(None)] == \
+        ["2320", "0.936", "-8.05", "0", "—", "—"]
+    assert _num(1.5e-5) == "1.5e-05" and _num(2.5e7) == "2.5e+07"  # far from 1: exponent kept
