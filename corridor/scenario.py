@@ -94,6 +94,12 @@ def scenario_dir(folder: str | Path | None) -> Iterator[None]:
         _SCENARIO_DIR.reset(token)
 
 
+def resolving_files() -> bool:
+    """True inside ``scenario_dir``: files a scenario names are resolved and must exist (a validator
+    that reads them checks them only then)."""
+    return _SCENARIO_DIR.get() is not None
+
+
 def _scenario_file(text: str) -> str:
     """A file named by a scenario, relative to the scenario file's folder: its absolute path, which
     must be an existing file (refused at load, one line)."""

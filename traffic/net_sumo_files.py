@@ -24,7 +24,7 @@ import sumolib
 from pydantic import BaseModel, ConfigDict, field_validator, model_validator
 
 from corridor.errors import clip
-from corridor.scenario import ScenarioFile
+from corridor.scenario import ScenarioFile, resolving_files
 from corridor.traffic.landmarks import SumoFilesLandmarks
 from corridor.traffic.network import NET_FILE, BuildOutput, NetworkBuildError, register_builder
 
@@ -52,8 +52,8 @@ class SumoFilesParams(BaseModel):
     def _one_source(self) -> SumoFilesParams:
         if (self.net is None) == (self.sumocfg is None):
             raise ValueError("give exactly one of net (a .net.xml) or sumocfg (a .sumocfg)")
-        if self.sumocfg is not None and not Path(self.sumocfg).is_file():
-            return self  # validated without the scenario's folder (a report): not checked here
+        if not resolving_files():
+            return self  # validated without the scenario's folder (a report): not read here
         net, routes, additional = self.resolved()
         for kind, files in (("net", [net]), ("routes", routes), ("additional", additional)):
             for f in files:

@@ -13,7 +13,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 
 from corridor.errors import clip
-from corridor.scenario import MAX_DT_S, MIN_DT_S, NestedParamsError, Strict, key_text
+from corridor.scenario import MAX_DT_S, MIN_DT_S, NestedParamsError, Strict, key_text, resolving_files
 
 MAX_FLOW_VPH = 20_000.0  # per flow (scale included); a 10-lane freeway carries ~ 22 000 veh/h
 # SUMO options that change the simulation but write no file (anything else is refused: an option such
@@ -209,13 +209,9 @@ class RoadSpec(Strict):
     def _some_demand(self) -> RoadSpec:
         """A user's network without route files needs the scenario's own flows."""
         files = getattr(self.network.params, "resolved", None)  # sumo_files: (net, routes, additional)
-        if files is None or self.demand.flows:
-            return self
-        try:
-            route_files = files()[1]
-        except ValueError:  # validated without the scenario's folder (a report): not checked here
-            return self
-        if not route_files:
+        if files is None or self.demand.flows or not resolving_files():
+            return self  # (without the scenario's folder, e.g. in a report, the files are not read)
+        if not files()[1]:
             raise ValueError("the network has no route files (network.params.routes): give them, or "
                              "demand.flows on its named routes")
         return self

@@ -111,9 +111,11 @@ def test_sumocfg_gives_the_rows_of_its_files(own, tmp_path):
     cfg = _scenario(own, "own_cfg", "{type: sumo_files, params: {sumocfg: ../net/own.sumocfg}}", MONITORS)
     files = _scenario(own, "own_files", "{type: sumo_files, params: {net: ../net/spider.net.xml, "
                       "routes: ../net/spider.rou.xml}}", MONITORS)
-    a = run(cfg, runs=1, seed=3, out=tmp_path / "a", workers=1, report=False).rows
+    res = run(cfg, runs=1, seed=3, out=tmp_path / "a", workers=1, report=True)
+    a = res.rows
     b = run(files, runs=1, seed=3, out=tmp_path / "b", workers=1, report=False).rows
     assert a["status"][0] == "ok" and a["vehicles_departed"][0] > 50
+    assert (res.out / "report.html").stat().st_size > 10_000  # the report re-reads the scenario's params
     for col in ("vehicles_departed", "vehicles_arrived", "delay_mean_s", "min_ttc_s", "collisions", "tts_vh"):
         assert a[col][0] == b[col][0], col
 
