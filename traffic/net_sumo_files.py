@@ -170,7 +170,7 @@ def build_sumo_files(params: SumoFilesParams, work_dir: Path) -> BuildOutput:
     return BuildOutput(additional_files=tuple(f.name for f in add_files),
                        routes=_named_routes([*add_files, *route_files]),
                        landmarks=measure(work_dir / NET_FILE),
-                       route_files=tuple(f.name for f in route_files))
+                       route_files=tuple(f.name for f in route_files), user_files=True)
 
 
 def _plain(path: Path) -> str:

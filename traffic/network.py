@@ -50,6 +50,7 @@ class BuiltNetwork:
     landmarks: Landmarks  # typed, frozen facts of the builder (merge point, lanes, detectors, ...)
     params_hash: str
     route_files: tuple[Path, ...] = ()  # a user's own SUMO route files (their vehicles, types, routes)
+    user_files: bool = False  # the network's own files declare its routes and vehicles (a user's network)
 
 
 @dataclass(frozen=True)
@@ -60,6 +61,7 @@ class BuildOutput:
     routes: Mapping[str, Sequence[str]]
     landmarks: Landmarks
     route_files: tuple[str, ...] = ()  # SUMO route files in the work dir, loaded as they are
+    user_files: bool = False  # the routes are declared by those (or the additional) files
 
 
 @dataclass
@@ -299,6 +301,7 @@ def _build_into_cache(kind: str, params: BaseModel, build_fn: BuildFn, entry: Pa
             "routes": {k: list(v) for k, v in out.routes.items()},
             "landmarks": out.landmarks.model_dump(mode="json"),
             "route_files": list(out.route_files),
+            "user_files": out.user_files,
         }
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1, sort_keys=True), encoding="utf-8")
         try:
@@ -322,6 +325,7 @@ def _load_entry(entry: Path, digest: str) -> BuiltNetwork:
         landmarks=_landmarks(meta),
         params_hash=digest,
         route_files=tuple(entry / name for name in meta.get("route_files", ())),
+        user_files=bool(meta.get("user_files", False)),
     )
 
 

@@ -177,7 +177,7 @@ class SumoBackend(Backend):
                 raise ValueError(f"road.demand.flows.{fl.id}.route: unknown route {fl.route!r}; "
                                  f"the network has {', '.join(sorted(self.net.routes)) or 'no named route'}")
         routes: dict[str, tuple[str, ...]] = dict(self.net.routes)
-        if self.net.route_files:  # the user's files declare the routes and types: only what the flows add
+        if self.net.user_files:  # the user's files declare the routes and types: only what the flows add
             if not flows:
                 return []
             used = {fl.vtype for fl in flows}
@@ -263,7 +263,7 @@ class SumoBackend(Backend):
         connected = bool(spec and self._rng.random() < spec.connected_share)
         desired = ls.vehicle.getSpeedFactor(vid)
         max_speed = vt.max_speed if vt else 50.0
-        if spec is None and self.net.route_files:  # a vehicle of the user's route files: its own
+        if spec is None and self.net.user_files:  # a vehicle of the user's files: its own
             max_speed = ls.vehicle.getMaxSpeed(vid)  # type's top speed and route (free-flow time)
             if route not in self.tables.route_code_of:
                 self.tables.add_route(route, tuple(self._route_lanes(tuple(ls.vehicle.getRoute(vid)))))

@@ -132,6 +132,29 @@ def test_own_network_lanes_match_the_file(own):
     assert built.routes["through"] and built.route_files and built.route_files[0].exists()
 
 
+def test_additional_files_write_nothing_outside_the_batch_folder(own, tmp_path):
+    """A detector of the user's additional file names an output beside the scenario: SUMO writes
+    nowhere but the batch folder (the copy's ``file`` is NUL), and the run still counts its vehicles."""
+    first = ET.parse(own / "net" / "spider.rou.xml").getroot().find("vehicle/route").get("edges").split()
+    (own / "net" / "det.add.xml").write_text(
+        f'<additional>\n    <route id="side" edges="{" ".join(first)}"/>\n'
+        f'    <inductionLoop id="loop0" lane="{first[0]}_0" pos="5" period="30" file="../escaped_e1.xml"/>\n'
+        '    <edgeData id="ed" period="60" file="/tmp/escaped_edgedata.xml"/>\n</additional>\n')
+    sc = _scenario(own, "own_add", "{type: sumo_files, params: {net: ../net/spider.net.xml, "
+                   "additional: [../net/det.add.xml]}}",
+                   "  demand: {flows: {side: {route: side, flow_vph: 900, arrivals: uniform}}}\n"
+                   "  sumo: {outputs: [tripinfo]}\nmonitors:\n  kpis: {type: traffic_kpis, params: {count_landmark: null}}\n")
+    res = run(sc, runs=1, out=tmp_path / "out", workers=1, report=False)
+    row = res.rows.iloc[0]
+    assert row["status"] == "ok", row["error"]
+    # 900 veh/h, evenly spaced, on the additional file's route for 150 s: inserted or waiting at the end
+    assert row["vehicles_departed"] + row["insertion_backlog"] == round(900 * 150 / 3600) and row["vehicles_departed"] >= 20
+    assert not (own / "escaped_e1.xml").exists() and not (own / "net" / "escaped_e1.xml").exists()
+    assert not Path("/tmp/escaped_edgedata.xml").exists()
+    written = sorted(p.relative_to(res.out).as_posix() for p in res.out.rglob("*.xml"))
+    assert written == [f"sumo/{row['run_id']}/tripinfo.xml"]
+
+
 def _one_line_exit_2(capsys, *argv: str) -> str:
     code = main(list(argv))
     err = capsys.readouterr().err.strip()
