@@ -20,6 +20,7 @@ import sys
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -46,11 +47,16 @@ class BuiltNetwork:
     net_file: Path
     additional_files: tuple[Path, ...]  # detectors, TLS programs (may be empty)
     routes: Mapping[str, tuple[str, ...]]  # route name -> edge ids
-    lane_shapes: Mapping[str, np.ndarray]  # lane id -> (n, 2) polyline, SUMO x/y [m]
     landmarks: Landmarks  # typed, frozen facts of the builder (merge point, lanes, detectors, ...)
     params_hash: str
     route_files: tuple[Path, ...] = ()  # a user's own SUMO route files (their vehicles, types, routes)
     user_files: bool = False  # the network's own files declare its routes and vehicles (a user's network)
+
+    @cached_property
+    def lane_shapes(self) -> Mapping[str, np.ndarray]:
+        """Lane id -> (n, 2) polyline, SUMO x/y [m]; read on first use (the Rerun recorder): sumolib
+        parses a city-sized network file for tens of seconds, which a run without it never pays."""
+        return read_lane_shapes(self.net_file)
 
 
 @dataclass(frozen=True)
@@ -321,7 +327,6 @@ def _load_entry(entry: Path, digest: str) -> BuiltNetwork:
         net_file=net_file,
         additional_files=tuple(entry / name for name in meta["additional_files"]),
         routes={k: tuple(v) for k, v in meta["routes"].items()},
-        lane_shapes=read_lane_shapes(net_file),
         landmarks=_landmarks(meta),
         params_hash=digest,
         route_files=tuple(entry / name for name in meta.get("route_files", ())),

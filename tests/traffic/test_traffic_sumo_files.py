@@ -99,6 +99,8 @@ def test_own_network_runs_with_safety_metrics_and_sumo_outputs(own, tmp_path):
         assert "truck0" in seen and any(v.startswith("extra.") for v in seen) and any(v.isdigit() for v in seen)
         trips = ET.parse(files / "tripinfo.xml").getroot().findall("tripinfo")
         assert len(trips) == r["vehicles_arrived"]  # SUMO's own count of finished trips is the row's
+        after_warmup = sum(float(t.get("arrival")) >= 10.0 for t in trips)  # throughput: arrivals after it
+        assert r["throughput_vph"] == pytest.approx(after_warmup * 3600.0 / (DURATION_S - 10.0))
         steps = ET.parse(files / "summary.xml").getroot().findall("step")
         assert max(int(s.get("inserted")) for s in steps) == r["vehicles_departed"]
         assert ET.parse(files / "ssm.xml").getroot().tag == "SSMLog"
