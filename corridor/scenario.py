@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import os
 import re
 import stat
 from collections.abc import Iterator
@@ -110,9 +111,14 @@ def _scenario_file(text: str) -> str:
     if base is None:
         return str(path)
     full = path if path.is_absolute() else base / path
-    if not full.is_file():
+    try:
+        found = full.is_file()
+    except OSError:  # a name too long for the file system, ...
+        found = False
+    if not found:
         where = "" if path.is_absolute() else f" (relative to the scenario's folder {clip(str(base), 80)[1:-1]})"
-        raise ValueError(f"no such file: {clip(text, 80)}{where}")
+        what = "not a regular file" if os.path.lexists(full) else "no such file"
+        raise ValueError(f"{what}: {clip(text, 80)}{where}")
     return str(full.resolve())
 
 
