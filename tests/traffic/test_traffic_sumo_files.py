@@ -30,6 +30,14 @@ def _sumo_tool(name: str) -> Path:
     return Path(sumo.SUMO_HOME) / "tools" / name
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _own_cache(tmp_path_factory):
+    """The copies of these throw-away networks go to a temporary cache, not the user's."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("CORRIDOR_CACHE", str(tmp_path_factory.mktemp("cache")))
+        yield
+
+
 @pytest.fixture(scope="module")
 def own(tmp_path_factory) -> Path:
     """A folder ``net/`` with a generated network, its routes, an extra route file and a sumocfg."""
