@@ -19,7 +19,8 @@ MAX_FLOW_VPH = 20_000.0  # per flow (scale included); a 10-lane freeway carries 
 # SUMO options that change the simulation but write no file (anything else is refused: an option such
 # as --fcd-output PATH would overwrite PATH)
 SUMO_ALLOWED_OPTIONS = ("--lateral-resolution", "--max-depart-delay", "--ignore-junction-blocker",
-                        "--step-method.ballistic", "--extrapolate-departpos")
+                        "--step-method.ballistic", "--extrapolate-departpos", "--ignore-route-errors",
+                        "--junction-taz")  # the last two: for a user's own routes (OSM networks, TAZ trips)
 SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
 
 

@@ -165,6 +165,23 @@ def test_additional_files_write_nothing_outside_the_batch_folder(own, tmp_path):
     assert written == [f"sumo/{row['run_id']}/tripinfo.xml"]
 
 
+def test_routes_with_errors_run_with_sumos_own_option(own, tmp_path):
+    """A route with a gap (common in routes made for an older OSM extract) fails the run in SUMO;
+    ``--ignore-route-errors`` (allowed in road.sumo.extra_args: it writes no file) lets it run."""
+    routes = ET.parse(own / "net" / "spider.rou.xml").getroot().findall("vehicle/route")
+    good, a, b = routes[0].get("edges"), routes[0].get("edges").split()[0], routes[1].get("edges").split()[-1]
+    assert b not in {e.getID() for e in sumolib.net.readNet(str(own / "net" / "spider.net.xml")).getEdge(a).getOutgoing()}
+    (own / "net" / "gap.rou.xml").write_text(
+        f'<routes>\n    <vehicle id="ok0" depart="0"><route edges="{good}"/></vehicle>\n'
+        f'    <vehicle id="gap0" depart="1"><route edges="{a} {b}"/></vehicle>\n</routes>\n')
+    net = "{type: sumo_files, params: {net: ../net/spider.net.xml, routes: ../net/gap.rou.xml}}"
+    strict = run(_scenario(own, "gap", net), out=tmp_path / "a", workers=1, report=False).rows.iloc[0]
+    assert strict["status"] == "error" and "'gap0' has no valid route" in strict["error"]
+    lenient = _scenario(own, "gap_ok", net, "  sumo: {extra_args: [--ignore-route-errors, 'true']}\n")
+    row = run(lenient, out=tmp_path / "b", workers=1, report=False).rows.iloc[0]
+    assert row["status"] == "ok" and row["vehicles_departed"] >= 1
+
+
 def _one_line_exit_2(capsys, *argv: str) -> str:
     code = main(list(argv))
     err = capsys.readouterr().err.strip()
