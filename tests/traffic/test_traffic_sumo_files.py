@@ -182,6 +182,44 @@ def test_routes_with_errors_run_with_sumos_own_option(own, tmp_path):
     assert row["status"] == "ok" and row["vehicles_departed"] >= 1
 
 
+def _tiny_osm(path: Path) -> Path:
+    """An OpenStreetMap extract as the OSM API writes it: a 3 x 3 grid of two-way streets, ~150 m
+    blocks around 48.137 N, 11.575 E (the middle one a secondary road)."""
+    lines = ['<?xml version="1.0" encoding="UTF-8"?>', '<osm version="0.6" generator="corridor-test">']
+    for i in range(3):
+        for j in range(3):
+            lines.append(f'  <node id="{1 + 3 * i + j}" lat="{48.137 + i * 0.00135:.6f}" '
+                         f'lon="{11.575 + j * 0.002:.6f}" version="1" visible="true"/>')
+    rows = [[1 + 3 * i + j for j in range(3)] for i in range(3)]
+    for w, (nodes, kind) in enumerate([*((r, "secondary" if k == 1 else "residential") for k, r in enumerate(rows)),
+                                       *((list(c), "residential") for c in zip(*rows, strict=True))]):
+        lines += [f'  <way id="{100 + w}" version="1" visible="true">', *(f'    <nd ref="{n}"/>' for n in nodes),
+                  f'    <tag k="highway" v="{kind}"/>', '    <tag k="maxspeed" v="50"/>', "  </way>"]
+    path.write_text("\n".join([*lines, "</osm>"]) + "\n")
+    return path
+
+
+def test_an_osm_derived_network_runs_as_the_guide_says(tmp_path):
+    """docs/guide/own-network.md, step 1 and 2: netconvert --osm-files (the guide's options),
+    randomTrips, the YAML beside the files."""
+    osm = _tiny_osm(tmp_path / "town.osm")
+    subprocess.run([str(netconvert_binary()), "--osm-files", str(osm), "-o", str(tmp_path / "town.net.xml"),
+                    "--geometry.remove", "--ramps.guess", "--junctions.join", "--tls.guess-signals", "--tls.join",
+                    "--remove-edges.by-vclass", "pedestrian,bicycle", "--keep-edges.by-vclass", "passenger"],
+                   check=True, capture_output=True)
+    subprocess.run([sys.executable, str(_sumo_tool("randomTrips.py")), "-n", "town.net.xml", "-o", "town.trips.xml",
+                    "--route-file", "town.rou.xml", "-e", "120", "-p", "3", "--validate", "--seed", "42"],
+                   check=True, capture_output=True, cwd=tmp_path)
+    (tmp_path / "my_town.yaml").write_text(
+        "name: my_town\nduration: 150\nwarmup: 10\nroad:\n  network:\n    type: sumo_files\n"
+        "    params: {net: town.net.xml, routes: [town.rou.xml]}\n  sumo: {outputs: [fcd]}\n" + MONITORS)
+    row = run(tmp_path / "my_town.yaml", out=tmp_path / "out", workers=1, report=False).rows.iloc[0]
+    assert row["status"] == "ok", row["error"]
+    assert row["vehicles_departed"] >= 30 and row["vehicles_arrived"] > 0 and row["delay_mean_s"] > 0
+    fcd = ET.parse(tmp_path / "out" / "sumo" / row["run_id"] / "fcd.xml").getroot()
+    assert len({v.get("id") for v in fcd.iter("vehicle")}) == row["vehicles_departed"]
+
+
 def _one_line_exit_2(capsys, *argv: str) -> str:
     code = main(list(argv))
     err = capsys.readouterr().err.strip()
