@@ -1,4 +1,5 @@
-"""The road as data: the SUMO backend's ``Params`` (generated network, demand, SUMO options).
+"""The road as data: the SUMO backend's ``Params`` (network: generated, or a user's own files with
+``sumo_files``; demand; SUMO options and the SUMO output files a run writes into its batch folder).
 
 A scenario gives it as the backend entry ``backends.road = {type: sumo, params: {...}}`` or, the same
 thing, with the loader's shorthand ``road: {...}``; errors name the field as the file spelled it
@@ -25,7 +26,7 @@ SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
 
 
 class NetworkSpec(Strict):
-    """A generated network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, validated
+    """A network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, validated
     into that builder's own typed params model (errors name ``network.params.<field>``)."""
 
     type: str = "highway_onramp"

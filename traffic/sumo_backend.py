@@ -2,7 +2,10 @@
 subscriptions into the world snapshot, applies external-control commands.
 
 libsumo allows one simulation per process; the batch runner gives each run its own process.
-SUMO x/y [m] are used as the scenario's local ENU east/north (the generated networks are planar).
+SUMO x/y [m] are used as the scenario's local ENU east/north (the generated networks are planar; a
+user's own network keeps its own x/y).  A user's own route files (``sumo_files``) are loaded as
+they are, before the scenario's flows; SUMO's own output files (``road.sumo.outputs``) go to the
+batch folder through ``RunContext.output_path``.
 """
 
 from __future__ import annotations
