@@ -83,16 +83,34 @@ def _check_name(value: str, what: str) -> str:
 # relative paths of ``ScenarioFile`` fields are taken from it.  Unset (a report re-reading a
 # scenario), a relative path is kept as written and not checked.
 _SCENARIO_DIR: ContextVar[Path | None] = ContextVar("corridor_scenario_dir", default=None)
+_NAMED_FILES: ContextVar[set[str] | None] = ContextVar("corridor_named_files", default=None)
 
 
 @contextmanager
-def scenario_dir(folder: str | Path | None) -> Iterator[None]:
-    """Validate inside this block with relative ``ScenarioFile`` paths taken from ``folder``."""
+def scenario_dir(folder: str | Path | None) -> Iterator[set[str]]:
+    """Validate inside this block with relative ``ScenarioFile`` paths taken from ``folder``; yields
+    the set of the files resolved in it (absolute paths)."""
+    named: set[str] = set()
     token = _SCENARIO_DIR.set(Path(folder).resolve() if folder is not None else None)
+    files_token = _NAMED_FILES.set(named)
     try:
-        yield
+        yield named
     finally:
+        _NAMED_FILES.reset(files_token)
         _SCENARIO_DIR.reset(token)
+
+
+def file_stamps(files: set[str]) -> dict[str, list[int]]:
+    """path -> [size B, modification time ns] of files a scenario names (a batch folder records them:
+    ``--resume`` after one changed is refused)."""
+    out: dict[str, list[int]] = {}
+    for f in sorted(files):
+        try:
+            st = os.stat(f)
+        except OSError:
+            continue
+        out[f] = [st.st_size, st.st_mtime_ns]
+    return out
 
 
 def resolving_files() -> bool:
@@ -119,7 +137,11 @@ def _scenario_file(text: str) -> str:
         where = "" if path.is_absolute() else f" (relative to the scenario's folder {clip(str(base), 80)[1:-1]})"
         what = "not a regular file" if os.path.lexists(full) else "no such file"
         raise ValueError(f"{what}: {clip(text, 80)}{where}")
-    return str(full.resolve())
+    resolved = str(full.resolve())
+    named = _NAMED_FILES.get()
+    if named is not None:
+        named.add(resolved)
+    return resolved
 
 
 ScenarioFile = Annotated[str, AfterValidator(_scenario_file)]  # a component's params field naming a file
@@ -798,9 +820,16 @@ def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:
     """Load, resolve, override and validate; returns the typed scenario and its raw data.  Files the
     scenario names (``ScenarioFile`` fields) are relative to the scenario file's folder."""
+    sc, data, _ = load_with_files(path, sets)
+    return sc, data
+
+
+def load_with_files(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any], set[str]]:
+    """``load``, and the files the scenario names (``ScenarioFile`` fields of the base scenario)."""
     data = load_raw(path, sets)
-    with scenario_dir(Path(path).parent):
-        return _load_validated(path, data, sets)
+    with scenario_dir(Path(path).parent) as named:
+        sc, data = _load_validated(path, data, sets)
+    return sc, data, named
 
 
 def _load_validated(path: str | Path, data: dict[str, Any], sets: list[str] | None) -> tuple[Scenario, dict[str, Any]]:

@@ -220,6 +220,22 @@ def test_an_osm_derived_network_runs_as_the_guide_says(tmp_path):
     assert len({v.get("id") for v in fcd.iter("vehicle")}) == row["vehicles_departed"]
 
 
+def test_resume_after_the_network_changed_is_refused(own, tmp_path, capsys):
+    """The batch folder records the files the scenario names: rows of two versions never mix."""
+    net = tmp_path / "n.net.xml"
+    net.write_bytes((own / "net" / "spider.net.xml").read_bytes())
+    (tmp_path / "r.yaml").write_text(f"name: r\nduration: 20\nroad:\n  network: {{type: sumo_files, params: "
+                                     f"{{net: n.net.xml, routes: [{own / 'net' / 'spider.rou.xml'}]}}}}\n")
+    out = tmp_path / "out"
+    argv = [str(tmp_path / "r.yaml"), "--out", str(out), "--no-report", "--quiet", "--workers", "1"]
+    assert main(argv) == 0
+    assert main([*argv, "--resume", "--runs", "2"]) == 0  # unchanged files: resumed
+    capsys.readouterr()
+    net.write_bytes(net.read_bytes().replace(b'speed="13.89"', b'speed="8.00"', 1))  # an edited network
+    err = _one_line_exit_2(capsys, *argv, "--resume", "--runs", "3")
+    assert f"{net}' changed since the batch started" in err
+
+
 def _one_line_exit_2(capsys, *argv: str) -> str:
     code = main(list(argv))
     err = capsys.readouterr().err.strip()
