@@ -220,6 +220,23 @@ def test_an_osm_derived_network_runs_as_the_guide_says(tmp_path):
     assert len({v.get("id") for v in fcd.iter("vehicle")}) == row["vehicles_departed"]
 
 
+def test_sumo_outputs_are_observers_on_any_road_scenario(tmp_path):
+    """SUMO's own outputs on a generated network (merging.yaml): the files are written per run and
+    the rows are those of the same runs without them (writing files changes no trajectory)."""
+    common = ["duration=40", "warmup=0"]
+    merging = ROOT / "scenarios" / "merging.yaml"
+    plain = run(merging, sets=common, variants=["sumo_default"], out=tmp_path / "plain", workers=1, report=False)
+    res = run(merging, sets=[*common, "road.sumo.outputs=[fcd, tripinfo, summary, ssm]"], variants=["sumo_default"],
+              out=tmp_path / "out", workers=1, report=False)
+    a, b = plain.rows.iloc[0], res.rows.iloc[0]
+    assert b["status"] == "ok", b["error"]
+    volatile = {c for c in a.index if "wall" in c or "time_s" in c or c == "traceback"}
+    for col in sorted(set(a.index) - volatile):
+        assert (a[col] == b[col]) or (a[col] != a[col] and b[col] != b[col]), col  # NaN == NaN
+    files = sorted(p.name for p in (res.out / "sumo" / b["run_id"]).iterdir())
+    assert files == ["fcd.xml", "ssm.xml", "summary.xml", "tripinfo.xml"]
+
+
 def test_resume_after_the_network_changed_is_refused(own, tmp_path, capsys):
     """The batch folder records the files the scenario names: rows of two versions never mix."""
     net = tmp_path / "n.net.xml"
