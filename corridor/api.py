@@ -62,17 +62,17 @@ def run(scenario: str | Path = "merging", *, runs: int = 1, seed: int | None = N
     ``out`` defaults to ``results/<scenario name>``.  A folder that already holds a batch is refused
     unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given."""
     from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, load
+    from corridor.scenario import MAX_SEED, file_stamps, load_with_files
 
     if runs < 1:
         raise CorridorError(f"runs must be >= 1, got {runs}")
     path = resolve_scenario(str(scenario))
-    sc, raw = load(path, list(sets))
+    sc, raw, named = load_with_files(path, list(sets))
     first = sc.seed if seed is None else seed
     if first < 0 or first + runs - 1 > MAX_SEED:
         raise CorridorError(f"{path}: seeds {first}..{first + runs - 1} (--seed, --runs) must lie in 0..{MAX_SEED}")
     out_dir = Path(out) if out is not None else Path("results") / sc.name
-    bdir = open_batch_dir(out_dir, manifest_for(sc.name, str(path), raw, list(sets)), resume, overwrite)
+    bdir = open_batch_dir(out_dir, manifest_for(sc.name, str(path), raw, list(sets), file_stamps(named)), resume, overwrite)
     try:
         return _run_locked(sc, raw, path, bdir.path, runs, seed, list(variants), executor, workers, address,
                            progress, report, rerun, rerun_run)

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait as mp_wait
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,6 +62,7 @@ class RunPlan(Sequence[RunSpec]):
             names = [v for v in names if v in variants]
         self.variants = names
         self._rerun: dict[str, str] = {}
+        self.base_dir = str(Path(source).resolve().parent)  # files the scenario names are relative to it
 
     def __len__(self) -> int:
         return self.runs * len(self.variants)
@@ -74,7 +76,7 @@ class RunPlan(Sequence[RunSpec]):
         run_id = f"{v}-s{s}"
         return RunSpec(run_id=run_id, scenario=self.sc.name, source=self.source, variant=v, seed=s,
                        base=self.raw, overrides={**self.sc.sweep[v], **draws}, draws=draws,
-                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id))
+                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id), base_dir=self.base_dir)
 
     def __iter__(self) -> Iterator[RunSpec]:
         return (self[i] for i in range(len(self)))

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from corridor import __version__
-from corridor.errors import CorridorError
+from corridor.errors import CorridorError, clip
 
 MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
@@ -43,11 +43,17 @@ def scenario_hash(raw: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def manifest_for(name: str, source: str, raw: dict[str, Any], sets: list[str]) -> dict[str, Any]:
-    return {"corridor_batch": 1, "scenario": name, "source": source, "scenario_sha256": scenario_hash(raw),
-            "sets": list(sets), "version": __version__,
-            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-            "raw": json.loads(json.dumps(raw, default=str))}
+def manifest_for(name: str, source: str, raw: dict[str, Any], sets: list[str],
+                 files: dict[str, list[int]] | None = None) -> dict[str, Any]:
+    """What defines a batch; ``files``: path -> [size, mtime ns] of the files the scenario names (a
+    user's own SUMO network, say), recorded only when there are some."""
+    out = {"corridor_batch": 1, "scenario": name, "source": source, "scenario_sha256": scenario_hash(raw),
+           "sets": list(sets), "version": __version__,
+           "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+           "raw": json.loads(json.dumps(raw, default=str))}
+    if files:
+        out["files"] = files
+    return out
 
 
 def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:
@@ -181,4 +187,9 @@ def _check(out: Path, manifest: dict[str, Any], resume: bool, overwrite: bool) -
         diff = differences(old.get("raw", {}), manifest["raw"]) or "scenario content"
         raise CorridorError(f"--resume {out}: settings differ from the stored batch ({diff}); "
                             "resume with the same scenario and --set, or use --overwrite or another --out")
+    old_files, new_files = old.get("files", {}), manifest.get("files", {})
+    if old_files != new_files:
+        changed = sorted(f for f in old_files.keys() | new_files.keys() if old_files.get(f) != new_files.get(f))
+        raise CorridorError(f"--resume {out}: {clip(changed[0], 80)} changed since the batch started "
+                            "(size or modification time); rows would mix versions: use --overwrite or another --out")
     return True

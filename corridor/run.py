@@ -19,7 +19,7 @@ import numpy as np
 from corridor.engine import Component, RunContext, Simulation, path_inside
 from corridor.errors import CorridorError
 from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
-from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
+from corridor.scenario import ComponentSpec, Scenario, apply_overrides, scenario_dir, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
 # added last when the scenario declares ``specs``: evaluates them on the recorded signals at the end
@@ -38,6 +38,11 @@ class RunSpec:
     draws: dict[str, Any] = field(default_factory=dict)
     out_dir: str | None = None  # where per-run signals go (signals/<run_id>.npz)
     rerun_path: str | None = None  # record this run to a Rerun .rrd file
+    base_dir: str | None = None  # the scenario file's folder (files it names are relative to it);
+    #   None: the folder of ``source``
+
+    def scenario_folder(self) -> Path:
+        return Path(self.base_dir) if self.base_dir else Path(self.source).resolve().parent
 
 
 def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> Component:
@@ -104,8 +109,9 @@ def execute(spec: RunSpec) -> dict[str, Any]:
                            "seed": spec.seed, "status": "ok", "error": ""}
     row.update({f"draw.{k}": v for k, v in spec.draws.items()})
     try:
-        sc = validate(apply_overrides(spec.base, spec.overrides), f"{spec.source} [{spec.variant}]")
-        metrics, _, _ = simulate(sc, spec.seed, spec.out_dir, spec.run_id, spec.rerun_path)
+        with scenario_dir(spec.scenario_folder()):  # the components re-validate their params at build
+            sc = validate(apply_overrides(spec.base, spec.overrides), f"{spec.source} [{spec.variant}]")
+            metrics, _, _ = simulate(sc, spec.seed, spec.out_dir, spec.run_id, spec.rerun_path)
         row["sim_s"] = sc.duration
         row.update(metrics)
     except Exception as exc:  # a failing run is a row, never a lost batch

@@ -13,6 +13,7 @@ from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import RoadTables, Role
+from corridor.traffic.road_spec import check_landmark_positions
 from corridor.traffic.tick_block import TickBlock
 from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
@@ -159,9 +160,23 @@ class TrafficKpis(Component):
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-        count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
+        count_landmark: str | None = "past_merge_x"  # network landmark giving the counting line x [m];
+        #   None (a network without one, e.g. a user's own): throughput counts arrivals at destinations
         merge_area: MergeArea | None = None  # time loss inside this stretch, reported on its own
         prefix: str = Field("", max_length=32, pattern=r"^[A-Za-z0-9_.]*$")  # column prefix, e.g. "traffic."
+
+    @classmethod
+    def check_scenario(cls, params: Params, scenario: Any) -> None:
+        """At load: the counting line and the merge area are positions the road's network has."""
+        hint = {"count_landmark": params.count_landmark}
+        if params.merge_area is not None:
+            hint |= {"merge_area.start_landmark": params.merge_area.start_landmark,
+                     "merge_area.end_landmark": params.merge_area.end_landmark}
+        try:
+            check_landmark_positions(scenario, hint)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (count_landmark: null counts arrivals instead)"
+                             if "count_landmark" in str(exc) else str(exc)) from None
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -177,7 +192,7 @@ class TrafficKpis(Component):
 
     def setup(self, ctx: RunContext) -> None:
         lm = road_frame(ctx).tables.landmarks
-        self.line_x = lm.x(self.p.count_landmark)
+        self.line_x = lm.x(self.p.count_landmark) if self.p.count_landmark is not None else None
         a = self.p.merge_area
         self.area_x = (lm.x(a.start_landmark) - a.before_m, lm.x(a.end_landmark) + a.after_m) if a else None
 
@@ -210,14 +225,19 @@ class TrafficKpis(Component):
         np.add.at(self.energy, uid[counting], (accel * accel * self.period)[counting])  # sequential: tick order
         if self.area_x is not None:
             self._merge_area_loss(tb, uid, lane, x, speed)
+        ctx.signals.record_many("vehicles", b.t, b.rows)
+        ctx.signals.record_many("mean_speed", b.t, [float(np.add.reduce(speed[k:k + n])) / n  # = speed.mean()
+                                                    for k, n in zip(b.starts.tolist(), b.rows.tolist(), strict=True)])
+        if self.line_x is not None:
+            self._count_past_line(uid, x, counting)
+
+    def _count_past_line(self, uid: np.ndarray, x: np.ndarray, counting: np.ndarray) -> None:
+        """Count each vehicle once, at its first row past the counting line."""
         past = np.flatnonzero(x > self.line_x)
         seen, first = np.unique(uid[past], return_index=True)  # each vehicle's first row past the line
         new = past[first[~self.passed[seen]]]  # ... unless it was counted in an earlier block
         self.passed[seen] = True
         self.count += int(np.count_nonzero(counting[new]))
-        ctx.signals.record_many("vehicles", b.t, b.rows)
-        ctx.signals.record_many("mean_speed", b.t, [float(np.add.reduce(speed[k:k + n])) / n  # = speed.mean()
-                                                    for k, n in zip(b.starts.tolist(), b.rows.tolist(), strict=True)])
 
     def _merge_area_loss(self, tb: RoadTables, uid: np.ndarray, lane: np.ndarray, x: np.ndarray,
                          speed: np.ndarray) -> None:
@@ -258,7 +278,8 @@ class TrafficKpis(Component):
 
     def _finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
-        out: dict[str, Any] = {"throughput_vph": self.count / span_h, "tts_vh": self.tts_vh}
+        count = self.count if self.line_x is not None else self.trips.arrivals_after(self.warmup)
+        out: dict[str, Any] = {"throughput_vph": count / span_h, "tts_vh": self.tts_vh}
         delays = self.trips.delays(self.warmup, unfinished=True)
         out["insertion_backlog"] = self.trips.backlog()
         for role, d in delays.items():

@@ -116,6 +116,10 @@ class Trips(Component):
         n = self.n_departed
         return np.flatnonzero(self._arrived() & (self.tables.depart_s[:n] >= warmup_s)).astype(np.int64)
 
+    def arrivals_after(self, t_s: float) -> int:
+        """Vehicles that arrived at their destination at or after ``t_s`` [s]."""
+        return int(np.count_nonzero(self.arrive_s[:self.n_departed] >= t_s))
+
     def backlog(self) -> int:
         """Vehicles due to depart that could not be inserted yet, after the last step."""
         return self.last.events.backlog if self.last is not None else 0

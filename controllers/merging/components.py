@@ -52,6 +52,8 @@ from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, t
 from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
+from corridor.traffic.landmarks import OnrampLandmarks
+from corridor.traffic.road_spec import require_landmarks
 from corridor.traffic.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.track_pool import TrackPool
@@ -127,6 +129,11 @@ class V2XMerging(Controller):
         #   with Krauss drivers it makes no measurable difference (8 seeds: cps 12.80 / 12.82 s)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
+
+    @classmethod
+    def check_scenario(cls, params: Params, scenario: Any) -> None:
+        """At load: the road's network must have an on-ramp (merge point, acceleration lane)."""
+        require_landmarks(scenario, OnrampLandmarks, "V2X merging")
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
