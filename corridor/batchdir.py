@@ -85,6 +85,25 @@ class BatchDir:
     resumed: bool = False
     _lock_fd: int | None = field(default=None, repr=False)
 
+    def discard(self) -> None:
+        """Undo a fresh batch whose input was refused after the folder was opened (a column only a row
+        could show missing): delete what this batch wrote and the lock, and the folder if then empty, so
+        that the corrected command starts afresh.  Never for a resumed batch (its runs are kept)."""
+        if self.resumed:
+            return
+        for name in OWNED:
+            p = self.path / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink(missing_ok=True)
+        (self.path / LOCK).unlink(missing_ok=True)
+        self.close()
+        try:
+            self.path.rmdir()
+        except OSError:  # not empty: something else is there, keep it
+            pass
+
     def close(self) -> None:
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # releases the flock
