@@ -229,7 +229,8 @@ def overlay_sections(out_dir: Path, df: pd.DataFrame, scenario: Any = None,
         series = []
         for v, (_, sig) in runs.items():
             if ov.signal in sig and len(sig[ov.signal][0]) >= 2:
-                t, x = binned(*sig[ov.signal], how=ov.reduce)
+                t, x = sig[ov.signal]  # capped first: +inf (min_ttc: no closing pair) is drawn at the cap
+                t, x = binned(t, np.minimum(x, ov.cap / ov.scale) if ov.cap is not None else x, how=ov.reduce)
                 x = x * ov.scale
                 series.append((v, t, np.minimum(x, ov.cap) if ov.cap is not None else x))
         if not series:

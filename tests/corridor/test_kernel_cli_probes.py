@@ -169,3 +169,15 @@ def test_set_wins_over_the_variant(tmp_path: Path) -> None:
     near = run(sc, out=tmp_path / "b", report=False, workers=1,
                sets=["backends.sim.params.vehicles.a.x_m=0"]).rows
     assert near.loc[0, "sep_min_h_m"] < 100
+
+
+def test_summary_counts_runs_without_a_value() -> None:
+    """min_ttc_s is NaN in a run without a closing pair: the mean is over the others, and the cell
+    says how many runs had a value."""
+    import pandas as pd
+
+    from corridor.summary import summary_rows
+
+    df = pd.DataFrame({"variant": ["a"] * 3, "status": ["ok"] * 3, "min_ttc_s": [2.0, float("nan"), 4.0]})
+    head, rows = summary_rows(df, ["min_ttc_s"], collisions=False)
+    assert rows[0][head.index("min_ttc_s")] == "3 ± 1.41 (2/3)"
