@@ -34,7 +34,8 @@ MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
 # What a batch writes, and so what --overwrite may delete (nothing else in the folder is touched).
 OWNED = ("parts", "signals", "runs.parquet", "report.html", MANIFEST, ".runs.parquet.tmp",
-         "stages", "estimate.json", "falsify.json", "counterexample.yaml")  # the last four: --estimate/--falsify
+         "stages", "estimate.json", "falsify.json", "counterexample.yaml",  # these four: --estimate/--falsify
+         ".tmp")  # the runs' scratch folders (corridor.run.SCRATCH)
 
 
 def scenario_hash(raw: dict[str, Any]) -> str:
@@ -156,6 +157,7 @@ def open_batch_dir(out: Path, manifest: dict[str, Any], resume: bool = False,
     fd = _lock(out)
     try:
         resumed = _check(out, manifest, resume, overwrite)
+        shutil.rmtree(out / ".tmp", ignore_errors=True)  # scratch of runs killed mid-way (we hold the lock)
         if not resumed:
             tmp = out / f".{MANIFEST}.tmp"
             tmp.write_text(json.dumps(manifest, indent=1))
