@@ -107,6 +107,10 @@ class BatchDir:
 
     def close(self) -> None:
         if self._lock_fd is not None:
+            try:
+                (self.path / ".tmp").rmdir()  # the runs' scratch root, once empty
+            except OSError:
+                pass
             os.close(self._lock_fd)  # releases the flock
             self._lock_fd = None
 

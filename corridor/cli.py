@@ -37,8 +37,10 @@ Ctrl-C stops the batch at once and keeps every finished run (exit 130; continue 
 
 --set takes any field path of the scenario (see the YAML file): a.b.c=VALUE, VALUE in YAML syntax
 (3, 0.5, true, [1, 2], {a: 1}).  Randomized fields draw from their own stream per seed, so fixing one
-with --set leaves the draws of the others unchanged.  Errors in the scenario or the options print one
-line and exit 2; a batch in which some runs failed exits 1 (the failed runs are rows with status=error).
+with --set leaves the draws of the others unchanged.  A --set wins over a sweep variant that sets the
+same field (--set sweep.VARIANT.a.b=VALUE changes one variant only).  Errors in the scenario or the
+options print one line and exit 2; a batch in which some runs failed exits 1 (the failed runs are rows
+with status=error).
 
 Python: corridor.api.run(...) takes the same options and returns the rows and signals.
 """
