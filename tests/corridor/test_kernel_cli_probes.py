@@ -181,3 +181,15 @@ def test_summary_counts_runs_without_a_value() -> None:
     df = pd.DataFrame({"variant": ["a"] * 3, "status": ["ok"] * 3, "min_ttc_s": [2.0, float("nan"), 4.0]})
     head, rows = summary_rows(df, ["min_ttc_s"], collisions=False)
     assert rows[0][head.index("min_ttc_s")] == "3 ± 1.41 (2/3)"
+
+
+def test_report_section_of_an_estimate_without_failures_has_no_nan_bound() -> None:
+    from corridor.analysis.rare.section import estimate_section
+
+    data = {"event": "nmac > 0", "likely_failures": [], "result": {
+        "method": "ce", "estimate": 0.0, "ci95": [0.0, float("nan")], "runs": 100,
+        "plain_mc_same_runs": {"ci95": [0.0, 0.036]}, "plain_runs_same_precision": float("nan"),
+        "runs_ratio": float("nan")}}
+    text = estimate_section(data)
+    assert "[0, -]" not in text and "nan" not in text.lower()
+    assert "none: no failing run" in text and "no failing run among 100" in text
