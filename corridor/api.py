@@ -16,6 +16,7 @@ imported, so a typo fails in a fraction of a second.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,6 +109,8 @@ def check_options(*, runs: int | None = None, seed: int | None = None, sets: Seq
             raise CorridorError(f"{name} must be a list of strings, got the item {bad[0]!r:.40}")
     if executor not in EXECUTORS:
         raise CorridorError(f"executor {executor!r:.40}: must be one of {', '.join(EXECUTORS)}")
+    if executor == "ray" and importlib.util.find_spec("ray") is None:  # before the folder, not in run_batch
+        raise CorridorError("--executor ray needs Ray: pip install -e '.[ray]' in the corridor clone")
     if _int("workers", workers) < 1:
         raise CorridorError(f"workers must be >= 1, got {workers}")
 

@@ -193,3 +193,13 @@ def test_report_section_of_an_estimate_without_failures_has_no_nan_bound() -> No
     text = estimate_section(data)
     assert "[0, -]" not in text and "nan" not in text.lower()
     assert "none: no failing run" in text and "no failing run among 100" in text
+
+
+def test_ray_missing_is_refused_before_the_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # as without the [ray] extra: `import ray` fails
+    out = tmp_path / "o"
+    with pytest.raises(CorridorError, match="needs Ray"):
+        run(GAUSS, out=out, executor="ray")
+    assert not out.exists()
