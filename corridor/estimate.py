@@ -144,6 +144,23 @@ def drive(st: Setup, method: Any, tag: str, executor: str, workers: int, address
     return stages
 
 
+def column_watch(st: Setup, first: int = 50) -> Any:
+    """A batch ``on_row`` callback for the plain batch of ``naive``: EVENT's and ``--level``'s columns
+    are judged on the first ``first`` ok rows (a stage's worth), not after the whole budget."""
+    seen: set[str] = set()
+    count = [0]
+
+    def on_row(row: dict[str, Any]) -> None:
+        if row.get("status") != "ok" or count[0] >= first:
+            return
+        seen.update(row)
+        count[0] += 1
+        if count[0] == first:
+            check_columns(st.needed, seen, True)
+
+    return on_row
+
+
 def row_columns(rows: list[dict[str, Any]]) -> set[str]:
     """The columns of the ok rows (every column a run of the scenario wrote)."""
     return {k for r in rows if r.get("status") == "ok" for k in r}

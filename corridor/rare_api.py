@@ -19,6 +19,7 @@ from corridor.estimate import (
     MAX_BUDGET,
     EstimateRunError,
     Setup,
+    column_watch,
     drive,
     likely_failures,
     method_class,
@@ -149,7 +150,8 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
 
     plan = batch.expand(st.sc, st.raw, str(st.path), budget, st.seed, str(st.out), [st.variant], st.after)
     store = ResultStore(st.out)
-    batch.run_batch(plan, store, executor, workers, address, progress=progress)
+    batch.run_batch(plan, store, executor, workers, address, progress=progress,
+                    on_row=column_watch(st) if st.needed else None)
     df = store.compact(plan.rank)
     ok = df[df["status"] == "ok"]
     rows = ok.to_dict("records")
