@@ -39,10 +39,13 @@ def _number(node: ast.AST) -> float | None:
         return None if inner is None else -inner
     if isinstance(node, ast.Constant) and isinstance(node.value, int | float) and not isinstance(node.value, bool):
         try:
-            return float(node.value)
+            value = float(node.value)
         except OverflowError:  # an integer beyond the float range (a 400-digit literal)
+            value = math.inf
+        if not math.isfinite(value):  # 1e400 parses as inf
             raise CorridorError(f"--estimate: the number {clip(str(node.value), 20)} is beyond the float range "
-                                "(|x| < 1.8e308)") from None
+                                "(|x| < 1.8e308)")
+        return value
     return None
 
 

@@ -23,6 +23,7 @@ def _one_line(capsys: pytest.CaptureFixture[str]) -> str:
 
 @pytest.mark.parametrize("args,needle", [
     (["--estimate", "nmac > 1" + "0" * 400, "--method", "naive", "--budget", "2"], "float range"),
+    (["--estimate", "nmac > 1e400", "--method", "naive", "--budget", "2"], "float range"),
     (["--estimate", "nmac > 0", "--method", "falsify", "--budget", "200"], "--falsify SPEC"),
     (["--estimate", "nmac > 0", "--method", "ce", "--budget", "20"], "at least 100"),
     (["--estimate", "nmac > 0", "--method", "ce", "--budget", "60"], "at least 100"),
