@@ -34,7 +34,8 @@ MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
 # What a batch writes, and so what --overwrite may delete (nothing else in the folder is touched).
 OWNED = ("parts", "signals", "runs.parquet", "report.html", MANIFEST, ".runs.parquet.tmp",
-         "stages", "estimate.json", "falsify.json", "counterexample.yaml")  # the last four: --estimate/--falsify
+         "stages", "estimate.json", "falsify.json", "counterexample.yaml",  # these four: --estimate/--falsify
+         ".tmp")  # the runs' scratch folders (corridor.run.SCRATCH)
 
 
 def scenario_hash(raw: dict[str, Any]) -> str:
@@ -91,8 +92,31 @@ class BatchDir:
     resumed: bool = False
     _lock_fd: int | None = field(default=None, repr=False)
 
+    def discard(self) -> None:
+        """Undo a fresh batch whose input was refused after the folder was opened (a column only a row
+        could show missing): delete what this batch wrote and the lock, and the folder if then empty, so
+        that the corrected command starts afresh.  Never for a resumed batch (its runs are kept)."""
+        if self.resumed:
+            return
+        for name in OWNED:
+            p = self.path / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink(missing_ok=True)
+        (self.path / LOCK).unlink(missing_ok=True)
+        self.close()
+        try:
+            self.path.rmdir()
+        except OSError:  # not empty: something else is there, keep it
+            pass
+
     def close(self) -> None:
         if self._lock_fd is not None:
+            try:
+                (self.path / ".tmp").rmdir()  # the runs' scratch root, once empty
+            except OSError:
+                pass
             os.close(self._lock_fd)  # releases the flock
             self._lock_fd = None
 
@@ -143,6 +167,7 @@ def open_batch_dir(out: Path, manifest: dict[str, Any], resume: bool = False,
     fd = _lock(out)
     try:
         resumed = _check(out, manifest, resume, overwrite)
+        shutil.rmtree(out / ".tmp", ignore_errors=True)  # scratch of runs killed mid-way (we hold the lock)
         if not resumed:
             tmp = out / f".{MANIFEST}.tmp"
             tmp.write_text(json.dumps(manifest, indent=1))

@@ -58,7 +58,12 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
 def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
           out_dir: str | Path | None = None, run_id: str = "run") -> Simulation:
     """Assemble backends, controllers, monitors and recorders for one run; components write their
-    files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None)."""
+    files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None).
+    ``workdir`` is a run's own scratch folder (a backend writes its input files there, e.g. SUMO's
+    ``routes.rou.xml``): never the current directory."""
+    if Path(workdir).resolve() == Path.cwd().resolve():
+        raise ValueError("build(): the workdir is the current directory; give a scratch folder (e.g. "
+                         "tempfile.TemporaryDirectory()), backends write their input files there")
     comps: list[Component] = []
     for name, spec in sc.backends.items():
         comps.append(make_component("backends", name, spec, sc))
@@ -79,9 +84,22 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
     return Simulation(ctx, comps)
 
 
+SCRATCH = ".tmp"  # a batch folder's per-run scratch folders (removed when the batch folder is next opened)
+
+
+def scratch_root(out_dir: str | Path | None) -> Path | None:
+    """Where a run's scratch folder goes: under the batch folder (``DIR/.tmp``), so that a run killed
+    mid-way leaves nothing in the system temp folder; the system temp folder without a batch."""
+    if out_dir is None:
+        return None
+    root = Path(out_dir) / SCRATCH
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
-    with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
         metrics = sim.run()
     for kind in ("mode", "fallback"):

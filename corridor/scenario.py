@@ -14,7 +14,7 @@ import math
 import os
 import re
 import stat
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from contextvars import ContextVar
 from pathlib import Path
@@ -817,6 +817,19 @@ def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
     return ""
 
 
+def set_overrides(sets: Sequence[str]) -> dict[str, Any]:
+    """The ``--set`` values as overrides applied after a run's sweep variant: the command line wins
+    over a variant that sets the same field (``sweep.`` and ``randomize.`` paths are not re-applied:
+    they edit the variants and draws themselves)."""
+    out: dict[str, Any] = {}
+    for item in sets:
+        key, _, value = item.partition("=")
+        key = key.strip()
+        if key.split(".")[0] not in ("sweep", "randomize"):
+            out[key] = parse_value(value)
+    return out
+
+
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:
     """Load, resolve, override and validate; returns the typed scenario and its raw data.  Files the
     scenario names (``ScenarioFile`` fields) are relative to the scenario file's folder."""
@@ -840,9 +853,9 @@ def _load_validated(path: str | Path, data: dict[str, Any], sets: list[str] | No
         if not hint:
             raise
         raise ScenarioError(re.sub("; allowed: .*", "", str(exc)) + hint) from None
-    for item in sets or []:  # a variant the user --set is checked now, not in every run of the batch
-        parts = item.partition("=")[0].strip().split(".")
-        if len(parts) > 2 and parts[0] == "sweep" and parts[1] in sc.sweep:
-            validate(apply_overrides(data, sc.sweep[parts[1]]), f"{path} [sweep.{_key(parts[1])}]")
+    after = set_overrides(sets or [])
+    for variant, over in sc.sweep.items():  # every variant is checked now, not in every run of the batch
+        if over:
+            validate(apply_overrides(data, {**over, **after}), f"{path} [sweep.{_key(variant)}]")
     check_randomize(sc, data, str(path))
     return sc, data

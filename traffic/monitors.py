@@ -4,6 +4,7 @@ merge, travel-time delay of mainline and ramp vehicles).  They read only the sna
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -20,6 +21,10 @@ from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
 class SurrogateSafety(Component):
     """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events.
+
+    No closing pair (no follower faster than its leader after the warm-up): ``min_ttc_s`` is NaN (a
+    missing value: means skip it, the summary counts the runs without it), and the ``min_ttc`` signal
+    is +inf at a tick without one (the time to collision is infinite, so ``G(min_ttc > 1.5)`` holds).
 
     The ticks are processed in blocks of ``block_ticks`` (``corridor.traffic.tick_block``; the
     ``min_ttc`` signal is recorded when a block is processed, each value with its own tick's time)."""
@@ -82,7 +87,7 @@ class SurrogateSafety(Component):
             exposed = np.bincount(at[ttc < self.p.ttc_threshold_s], minlength=len(b))
             for k in exposed[counting & (exposed > 0)].tolist():  # tick by tick, as the sum was taken
                 self.tet += float(k) * self.period
-        ctx.signals.record_many("min_ttc", b.t, np.minimum(ttc_now, 99.0))
+        ctx.signals.record_many("min_ttc", b.t, ttc_now)
 
     def _hard_brakes(self, uid: np.ndarray, braking: np.ndarray, counting: np.ndarray, n_uids: int) -> None:
         """Count the rows where a vehicle starts braking hard (not braking at its previous tick)."""
@@ -105,7 +110,7 @@ class SurrogateSafety(Component):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         self._process(ctx)
-        return {"min_ttc_s": min(self.min_ttc, 99.0), "max_drac_mps2": self.max_drac,
+        return {"min_ttc_s": self.min_ttc if math.isfinite(self.min_ttc) else math.nan, "max_drac_mps2": self.max_drac,
                 "ttc_exposed_s": self.tet, "hard_brakes": self.hard_brakes}
 
 
