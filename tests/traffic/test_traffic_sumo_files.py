@@ -283,7 +283,7 @@ def _one_line_exit_2(capsys, *argv: str) -> str:
     ("unknown_output", NET_ROUTES, "  sumo: {outputs: [fcd, emissions]}\n", "road.sumo.outputs.1"),
     ("output_path", NET_ROUTES, "  sumo: {outputs: [../../../fcd.xml]}\n", "road.sumo.outputs.0"),
     ("output_mapping", NET_ROUTES, "  sumo: {outputs: {fcd: /tmp/fcd.xml}}\n", "road.sumo.outputs"),
-    ("output_option", NET_ROUTES, "  sumo: {extra_args: [--fcd-output, ../fcd.xml]}\n", "may write files"),
+    ("output_option", NET_ROUTES, "  sumo: {extra_args: [--fcd-output, ../fcd.xml]}\n", "writes files"),
     ("merging", NET_ROUTES, "controllers:\n  merge: {type: v2x_merging}\n",
      "controllers.merge: V2X merging needs the landmarks of a highway_onramp network (upstream_edge"),
     ("ramp_metering", NET_ROUTES, "controllers:\n  ramps: {type: ramp_alinea}\n",
