@@ -185,8 +185,8 @@ class SumoOptions(Strict):
             ok = name in SUMO_ALLOWED_OPTIONS or (
                 name.startswith(SUMO_ALLOWED_PREFIXES) and not name.endswith(("-output", "-log", ".output")))
             if not ok:
-                allowed = " ".join((*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
-                raise ValueError(f"{clip(name, 30)} writes files; allowed: {allowed}")
+                allowed = " ".join(o[2:] for o in (*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
+                raise ValueError(f"{clip(name, 30)} writes files; allowed (after --): {allowed}")
             expect_value = "=" not in arg
         return args
 
