@@ -1,6 +1,6 @@
 """Calibrate METANET's fundamental diagram from SUMO detector data of a ramp-metering scenario.
 
-    python -m corridor.traffic.calibrate scenarios/ramp_metering.yaml [--scale 1.1] [--seed 0]
+    python -m corridor.analysis.calibration scenarios/ramp_metering.yaml [--scale 1.1] [--seed 0]
 
 Runs the scenario once without control (``ramp_none``: meters off) with its ``ramp_detectors``,
 collects every mainline loop interval (up- and downstream of each merge) as a point
@@ -18,14 +18,14 @@ length (SUMO loops report the share of time a vehicle body covers the loop).  Ca
 V(rho_crit) rho_crit = v_free rho_crit exp(-1/a).  The loops downstream of the merges (ALINEA's
 feedback loops) are also fitted alone; their critical occupancy is stored as ``alinea_setpoint_pct``.
 The result, the points and the fit error are stored beside the scenario as
-``<name>.calibration.json``; ``ramp_mpc`` reads it when present.  The fitted diagram against the
-detector points is also written as ``<name>.calibration.html`` (``--html-only``: just that, from an
-existing JSON, without running SUMO); ``run_scenario`` puts the same charts into its report.
+``<name>.calibration.json``; ``ramp_mpc`` reads it when present.  The command above (in
+``corridor.analysis.calibration``, since drawing is the report's job) also writes the fitted diagram
+against the detector points as ``<name>.calibration.html``; ``run_scenario`` puts the same charts into
+its report.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import tempfile
@@ -149,41 +149,3 @@ def calibrate(scenario_path: Path, seed: int = 0, scale: float = 1.0, duration_s
            "points": {k: [round(float(x), 3) for x in v] for k, v in pts.items()}}
     out.write_text(json.dumps(doc, indent=1))
     return out
-
-
-def write_diagram_html(json_path: Path) -> Path:
-    """Write the fitted diagram against the detector points of a calibration JSON as ``*.html`` beside it."""
-    from corridor.analysis.report_series import diagram_section
-
-    out = json_path.with_suffix(".html")
-    out.write_text(f"<!doctype html><html><head><meta charset=utf-8><title>{json_path.name}</title></head>"
-                   f"<body style='font-family:sans-serif'>{diagram_section(json_path)}</body></html>")
-    return out
-
-
-def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("scenario", type=Path)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--scale", type=float, default=1.0, help="demand scale (higher: more congested points)")
-    ap.add_argument("--duration", type=float, default=None, help="[s] simulated time (default: scenario's)")
-    ap.add_argument("--out", type=Path, default=None,
-                    help="calibration JSON (default: <scenario>.calibration.json beside the scenario)")
-    ap.add_argument("--html-only", action="store_true",
-                    help="only draw the diagram of the existing calibration JSON (no SUMO run)")
-    a = ap.parse_args(argv)
-    if a.html_only:
-        src = a.out or a.scenario.with_suffix("").with_suffix(".calibration.json")
-        print(write_diagram_html(src))
-        return
-    path = calibrate(a.scenario, a.seed, a.scale, a.duration, a.out)
-    doc = json.loads(path.read_text())
-    print(f"{path}: v_free={doc['v_free_kmh']:.1f} km/h  rho_crit={doc['rho_crit']:.1f} veh/km/lane  "
-          f"a={doc['a']:.2f}  capacity={doc['capacity_vph_per_lane']:.0f} veh/h/lane  "
-          f"rmse={doc['rmse_kmh']:.1f} km/h  ({doc['n_points']} points); "
-          f"ALINEA set point {doc['alinea_setpoint_pct']:.1f} % (downstream loops); "
-          f"diagram: {write_diagram_html(path)}")
-
-
-if __name__ == "__main__":
-    main()

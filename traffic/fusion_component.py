@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.engine import Component, Need, Phase, RunContext
 from corridor.traffic.detectors import DIRECTIONS, NEEDS_DETECTORS, RampDetectors, RampMeasurement
 from corridor.traffic.fusion import FusionParams, SegmentFilter
+from corridor.traffic.macro.loop_state import load_station_map, loop_speed_kmh
 
 
 class SegmentFusion(Component):
@@ -70,13 +71,9 @@ class SegmentFusion(Component):
         m = self.params.segments_per_link
         self.kf = SegmentFilter(2 * self.n * m, self.params.filter)
         self.lanes = int(ctx.snapshot.road.tables.landmarks.lanes)  # loops average over the lanes
-        from corridor.controllers.ramp_metering.components import loop_speed_kmh
-
         self._speed = loop_speed_kmh  # space-mean speed of a station, as the direct mapping computes it
         self.station_map = None
         if self.params.station_map:
-            from corridor.controllers.ramp_metering.components import load_station_map
-
             self.station_map = load_station_map(self.params.station_map)
 
     def station_segment(self, key: str, side: str) -> int:

@@ -50,9 +50,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from corridor.channel import Channel, ChannelConfig
-from corridor.controllers.uav.models import TrackedAgent
 from corridor.engine import Component, Need, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 from .mavlink_link import LatestReports, LinkRates, MavlinkLink
 from .track_stack import TrackStack

@@ -27,7 +27,6 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.analysis.stl import as_formula, evaluate_spec
 from corridor.controllers.overtaking.mpc import (
     FAR_M,
     MpcProblem,
@@ -42,6 +41,7 @@ from corridor.controllers.overtaking.mpc import (
 )
 from corridor.events import EventLog
 from corridor.modes import HybridAutomaton, Transition
+from corridor.stl import as_formula, evaluate_spec
 from corridor.vehicles.bicycle import BicycleParams, clip_input
 from corridor.vehicles.predictor import PredictorParams, RoadVehiclePredictor
 

@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.analysis.stl import evaluate_spec
 from corridor.controllers.overtaking.controller import (
     OvertakingController,
     OvertakingObservation,
@@ -25,6 +24,7 @@ from corridor.controllers.overtaking.controller import (
     safety_spec,
 )
 from corridor.events import EventLog
+from corridor.stl import evaluate_spec
 from corridor.vehicles.bicycle import rk4_step
 
 

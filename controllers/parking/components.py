@@ -11,7 +11,7 @@ length whose rear axle is the rear edge of the box, so the planner gets wheelbas
 overhangs = ``margin_m`` and width + 2 ``margin_m`` (the margin is the clearance the plan keeps).
 
 It records no signal and judges nothing: success, pose error, clearance and manoeuvre time are
-measured by the ``parking`` monitor (``corridor.analysis.parking_monitor``).  ``finish`` returns the
+measured by the ``parking`` monitor (``corridor.analysis.monitoring.parking``).  ``finish`` returns the
 controller's own figures (final mode, re-plans, aborts and why, planning time per call, planned
 direction changes).
 """

@@ -19,7 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from corridor.analysis.monitors import CollisionMonitor
+from corridor.analysis.monitoring.collisions import CollisionMonitor
 from corridor.engine import Backend, RunContext, Simulation
 from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 

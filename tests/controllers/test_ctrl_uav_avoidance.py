@@ -128,7 +128,8 @@ def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_pilot
 def _at_relevance_edge(ctrl: Any, speed_mps: float, extra_m: float) -> Any:
     """An observation with one UAV head-on (closing at the worst case) just outside / inside the
     controller's relevance range, its track uncertainty within the margin."""
-    from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent
+    from corridor.controllers.uav.models import AvoidanceObservation
+    from corridor.vehicles.tracks.agent import TrackedAgent
 
     own_v = np.array([ctrl.cruise["a"], 0.0, 0.0])
     rel = ctrl.relevance("a", own_v)

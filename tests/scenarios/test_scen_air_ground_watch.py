@@ -81,7 +81,7 @@ def test_perfect_information_baseline_feeds_the_mpc_the_ground_truth():
     """``segment_truth`` (the diagnostic baseline: the MPC on SUMO's segment truth) hands the MPC what
     ``segment_watch`` measures as truth (one SUMO step earlier: DECIDE reads the last integrated state),
     taken to the station scale by the scenario's station map."""
-    from corridor.controllers.ramp_metering.components import load_station_map
+    from corridor.traffic.macro.loop_state import load_station_map
 
     sc = variant("loops_failed", 121.0, "controllers.truth.type=segment_truth",
                  "controllers.ramps.params.estimator=truth", "monitors.watch.params.start_s=120")

@@ -144,7 +144,7 @@ def run(road: ScriptedRoad, components: list[Any], duration_s: float, with_uav: 
 
 
 def surrogate_safety_on_a_scripted_follower() -> None:
-    from corridor.traffic.monitors import SurrogateSafety
+    from corridor.analysis.monitoring.road import SurrogateSafety
 
     # follower front at 100 m doing 20 m/s, leader (5 m long) front at 130 m doing 10 m/s
     road = ScriptedRoad([Scripted("lead", MAIN, 130.0, 10.0), Scripted("follow", MAIN, 100.0, 20.0)])

@@ -12,8 +12,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.analysis.stl import STLSignalError, as_formula, evaluate_spec
 from corridor.engine import Component, Phase, RunContext
+from corridor.stl import STLSignalError, as_formula, evaluate_spec
 
 
 class SpecMonitor(Component):

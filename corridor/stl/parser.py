@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
 
-from corridor.analysis.stl.formula import (
+from corridor.stl.formula import (
     COMPARISONS,
     FUNCTIONS,
     INF,

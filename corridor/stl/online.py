@@ -32,9 +32,9 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from corridor.analysis.stl.formula import Always, Eventually, Formula, Predicate, Until, rebalance
-from corridor.analysis.stl.parser import MAX_NESTING, as_formula
-from corridor.analysis.stl.space import (
+from corridor.stl.formula import Always, Eventually, Formula, Predicate, Until, rebalance
+from corridor.stl.parser import MAX_NESTING, as_formula
+from corridor.stl.space import (
     STLSignalError,
     apply_operator,
     check_dt,

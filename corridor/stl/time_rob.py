@@ -36,9 +36,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corridor.analysis.stl.formula import Formula, Predicate
-from corridor.analysis.stl.parser import as_formula
-from corridor.analysis.stl.space import (
+from corridor.stl.formula import Formula, Predicate
+from corridor.stl.parser import as_formula
+from corridor.stl.space import (
     check_dt,
     check_signals,
     evaluate_tree,

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from corridor.analysis.stl.formula import Formula
-from corridor.analysis.stl.parser import as_formula
-from corridor.analysis.stl.space import check_dt, check_signals, space_robustness
-from corridor.analysis.stl.time_rob import time_robustness
+from corridor.stl.formula import Formula
+from corridor.stl.parser import as_formula
+from corridor.stl.space import check_dt, check_signals, space_robustness
+from corridor.stl.time_rob import time_robustness
 
 
 @dataclass(frozen=True)

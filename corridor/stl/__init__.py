@@ -1,12 +1,12 @@
 """Signal temporal logic: formulas, parser, space and time robustness, online monitoring.
 
->>> from corridor.analysis.stl import evaluate_spec
+>>> from corridor.stl import evaluate_spec
 >>> result = evaluate_spec("G[0,30](gap_lead > 5)", {"gap_lead": gaps}, dt=0.1)  # doctest: +SKIP
 """
 
 from __future__ import annotations
 
-from corridor.analysis.stl.formula import (
+from corridor.stl.formula import (
     Always,
     And,
     BinOp,
@@ -26,11 +26,11 @@ from corridor.analysis.stl.formula import (
     any_of,
     var,
 )
-from corridor.analysis.stl.online import OnlineMonitor
-from corridor.analysis.stl.parser import STLSyntaxError, as_formula, parse_formula
-from corridor.analysis.stl.space import STLSignalError, space_robustness
-from corridor.analysis.stl.spec import SpecResult, evaluate_spec
-from corridor.analysis.stl.time_rob import TimeRobustness, time_robustness
+from corridor.stl.online import OnlineMonitor
+from corridor.stl.parser import STLSyntaxError, as_formula, parse_formula
+from corridor.stl.space import STLSignalError, space_robustness
+from corridor.stl.spec import SpecResult, evaluate_spec
+from corridor.stl.time_rob import TimeRobustness, time_robustness
 
 __all__ = [
     "Always", "And", "BinOp", "Call", "Const", "Eventually", "Expr", "Formula", "Implies", "Neg", "Not",

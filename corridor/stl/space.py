@@ -36,8 +36,8 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from corridor.analysis.stl import kernels
-from corridor.analysis.stl.formula import (
+from corridor.stl import kernels
+from corridor.stl.formula import (
     Always,
     And,
     BinOp,
@@ -55,7 +55,7 @@ from corridor.analysis.stl.formula import (
     Var,
     fold,
 )
-from corridor.analysis.stl.parser import as_formula
+from corridor.stl.parser import as_formula
 
 _INDEX_EPS = 1e-9  # [samples] tolerance when turning interval bounds in seconds into indices
 

@@ -9,18 +9,18 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from corridor.analysis.monitoring.tick_block import TickBlock
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import RoadTables, Role
-from corridor.traffic.tick_block import TickBlock
 from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
 
 class SurrogateSafety(Component):
     """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events.
 
-    The ticks are processed in blocks of ``block_ticks`` (``corridor.traffic.tick_block``; the
+    The ticks are processed in blocks of ``block_ticks`` (``corridor.analysis.monitoring.tick_block``; the
     ``min_ttc`` signal is recorded when a block is processed, each value with its own tick's time)."""
 
     phase = Phase.DETECT
@@ -121,7 +121,7 @@ class TrafficKpis(Component):
     phase = Phase.DETECT
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD, "trips": NEEDS_TRIPS}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
-    block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.traffic.tick_block)
+    block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.analysis.monitoring.tick_block)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
