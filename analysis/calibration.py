@@ -1,5 +1,5 @@
 """The calibration command: fit METANET's fundamental diagram from SUMO detector data
-(``corridor.traffic.calibrate``) and draw the fit against the detector points.
+(``corridor.traffic.macro.calibrate``) and draw the fit against the detector points.
 
     python -m corridor.analysis.calibration scenarios/ramp_metering.yaml [--scale 1.1] [--seed 0]
     python -m corridor.analysis.calibration scenarios/ramp_metering.yaml --html-only
@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 
 from corridor.analysis.report_series import diagram_section
-from corridor.traffic.calibrate import calibrate
+from corridor.traffic.macro.calibrate import calibrate
 
 
 def write_diagram_html(json_path: Path) -> Path:

@@ -33,7 +33,7 @@ import numpy as np
 import pandas as pd
 
 from corridor.analysis.stats import clopper_pearson, mean_ci
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.sumo.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
 from corridor.variants import component_class as _component_class
 from corridor.variants import registries as _registries

@@ -31,8 +31,8 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.controllers.overtaking.controller import box_clearance, safety_signals
 from corridor.controllers.overtaking.mpc import FAR_M, RoadGeometry, body_centre
 from corridor.engine import Component, Need, Phase, RunContext
-from corridor.traffic.landmarks import RuralLandmarks
-from corridor.traffic.trips import road_frame
+from corridor.traffic.networks.landmarks import RuralLandmarks
+from corridor.traffic.sumo.trips import road_frame
 
 PASSED_FORGET_M = 150.0  # [m] a passed lead this far behind is no longer "the lead" of the signals
 

@@ -26,8 +26,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Need, Phase, RunContext
-from corridor.traffic.detectors import NEEDS_DETECTORS
-from corridor.traffic.trips import NEEDS_TRIPS, road_frame
+from corridor.traffic.sensing.detectors import NEEDS_DETECTORS
+from corridor.traffic.sumo.trips import NEEDS_TRIPS, road_frame
 
 
 def spillback_events(queue_veh: np.ndarray, storage_veh: float) -> int:

@@ -16,10 +16,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Phase, RunContext
-from corridor.traffic.landmarks import BeltwayLandmarks
-from corridor.traffic.meters import DIRECTIONS, MeterOff, SetMeterRate
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.trips import road_frame
+from corridor.traffic.networks.landmarks import BeltwayLandmarks
+from corridor.traffic.sumo.meters import DIRECTIONS, MeterOff, SetMeterRate
+from corridor.traffic.sumo.road_spec import road_spec
+from corridor.traffic.sumo.trips import road_frame
 
 
 class RampMeters(Component):

@@ -14,7 +14,7 @@ from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
 from corridor.engine import Component, Need, Phase, RunContext
 from corridor.snapshot import RoadTables, Role
-from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
+from corridor.traffic.sumo.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
 
 class SurrogateSafety(Component):

@@ -2,7 +2,7 @@
 error against SUMO's ground truth, camera coverage, and the downlink's delivery.
 
 Every ``period_s`` it takes the ground truth per METANET segment from the snapshot
-(``corridor.traffic.segments``: vehicles on each segment / (length x lanes)) and compares
+(``corridor.traffic.networks.segments``: vehicles on each segment / (length x lanes)) and compares
 
 - ``rmse_loops``: the loops by the direct mapping the MPC uses without fusion (mean of the station
   downstream of merge k and the one upstream of the next merge, occupancy x 10 / vehicle length),
@@ -29,9 +29,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Component, Need, Phase, RunContext
-from corridor.traffic.detectors import DIRECTIONS, NEEDS_DETECTORS, RampDetectors
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.segments import RingIndex, RingSegments
+from corridor.traffic.networks.segments import RingIndex, RingSegments
+from corridor.traffic.sensing.detectors import DIRECTIONS, NEEDS_DETECTORS, RampDetectors
+from corridor.traffic.sumo.road_spec import road_spec
 
 
 class SegmentWatch(Component):

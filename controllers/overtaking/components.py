@@ -31,9 +31,9 @@ from corridor.controllers.overtaking.controller import (
 from corridor.controllers.overtaking.mpc import body_centre
 from corridor.engine import Controller, Need, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.traffic.landmarks import RuralLandmarks
-from corridor.traffic.trips import road_frame
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
+from corridor.traffic.networks.landmarks import RuralLandmarks
+from corridor.traffic.sumo.trips import road_frame
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
 
 
 class OvertakingSumo(Controller):

@@ -25,7 +25,7 @@ from corridor.controllers.overtaking.controller import (
 )
 from corridor.events import EventLog
 from corridor.stl import evaluate_spec
-from corridor.vehicles.bicycle import rk4_step
+from corridor.vehicles.ground.bicycle import rk4_step
 
 
 class OvertakingWorldParams(BaseModel):

@@ -36,8 +36,8 @@ from corridor.controllers.parking.spot_detection import DetectorParams, SlotDete
 from corridor.controllers.parking.tracking import TrackingParams
 from corridor.engine import Controller, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.vehicles.highway_env_parking import ParkingInput, ParkingLot
-from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
+from corridor.vehicles.ground.highway_env_parking import ParkingInput, ParkingLot
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingLotController(Controller):

@@ -2,7 +2,7 @@
 (and ``ramp_fixed``, every meter at one rate).
 
 All three read the ``ramp_detectors`` peer (loops, ramp queues) and return meter commands of
-``corridor.traffic.meters`` (applied by the SUMO backend).  They tick every ``tick_s`` (a few
+``corridor.traffic.sumo.meters`` (applied by the SUMO backend).  They tick every ``tick_s`` (a few
 seconds, so route guidance catches drivers while they are on their origin arterial) and decide new
 rates every ``control_step_s`` (60 s).
 
@@ -28,7 +28,6 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, Need, RunContext
-from corridor.traffic.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
 from corridor.traffic.macro.loop_state import (
     RHO_FLOOR,
     SUMO_DIR_OF_MODEL,
@@ -36,7 +35,8 @@ from corridor.traffic.macro.loop_state import (
     load_calibration,
     load_station_map,
 )
-from corridor.traffic.meters import (
+from corridor.traffic.sensing.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
+from corridor.traffic.sumo.meters import (
     ChoiceSet,
     MeterOff,
     MeterTiming,
@@ -46,8 +46,8 @@ from corridor.traffic.meters import (
     guidance_assignments,
     parse_od_route,
 )
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.trips import road_frame
+from corridor.traffic.sumo.road_spec import road_spec
+from corridor.traffic.sumo.trips import road_frame
 
 
 class RampParams(BaseModel):
@@ -211,7 +211,7 @@ class RampMpcParams(RampParams):
     # its density/speed state from; None: the loops by the direct mapping (``estimate_state``)
     estimator: str | None = None
     # with an estimator: the file of the map from segment-mean density (what the estimator estimates) to
-    # the station scale the model is calibrated on (``corridor.traffic.station_map``); None: identity
+    # the station scale the model is calibrated on (``corridor.traffic.macro.station_map``); None: identity
     station_map: str | None = None
 
 
@@ -304,8 +304,8 @@ class RampMpc(RampControl):
 
     def _build(self, ctx: RunContext) -> None:
         from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
-        from corridor.traffic.metanet import MetanetParams
-        from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+        from corridor.traffic.macro.metanet import MetanetParams
+        from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
         p, lm = self.p, road_frame(ctx).tables.landmarks
         self.n = n = len(lm.interchanges)
@@ -388,7 +388,7 @@ class RampMpc(RampControl):
     def fused_state(self, x0: np.ndarray, keys: list[str], t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The state with the estimator's densities and speeds (queues stay the ramp detectors'), and
         the occupancy [%] downstream of each metered merge from the fused density (ALINEA fallback)."""
-        from corridor.traffic.metanet import equilibrium_speed
+        from corridor.traffic.macro.metanet import equilibrium_speed
 
         self.fusion.refresh(t_s)
         net, ns = self.net, self.net.n_seg

@@ -92,7 +92,7 @@ def _sumo_report_at_diagonal_pose(cache: str) -> tuple[list[tuple[str, str]], fl
 
     import libsumo
 
-    from corridor.traffic.network import build_network
+    from corridor.traffic.networks.registry import build_network
 
     net = build_network("parking_street", {"occupancy": 0.0}, Path(cache))
     libsumo.start(["sumo", "-n", str(net.net_file), "--no-step-log", "--no-warnings", "--step-length", "0.1",

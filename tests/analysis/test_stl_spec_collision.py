@@ -25,7 +25,7 @@ from corridor.engine import Signals
 from corridor.run import simulate
 from corridor.scenario import load
 from corridor.stl import STLSignalError
-from corridor.vehicles.bicycle import BicycleParams
+from corridor.vehicles.ground.bicycle import BicycleParams
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "overtaking.yaml"
 CLEARANCE_SPEC = "G(clearance > 0)"

@@ -18,15 +18,15 @@ from corridor.controllers.ramp_metering.components import (
     setpoint_from_calibration,
 )
 from corridor.scenario import load
-from corridor.traffic.detectors import RampMeasurement
 from corridor.traffic.macro.loop_state import (
     estimate_state,
     load_calibration,
     loop_speed_kmh,
 )
-from corridor.traffic.metanet import MetanetParams
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.macro.metanet import MetanetParams
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.sensing.detectors import RampMeasurement
+from corridor.traffic.sumo.road_spec import road_spec
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
 

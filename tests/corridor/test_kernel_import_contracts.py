@@ -34,6 +34,6 @@ def test_a_kernel_module_importing_a_domain_package_breaks_the_contracts():
     assert proc.returncode != 0
     out = proc.stdout
     assert "Domains along the tick" in out and "BROKEN" in out
-    assert "corridor.events -> corridor.traffic.commands" in out
+    assert "corridor.events -> corridor.traffic.sumo.commands" in out
     assert "corridor.controllers.ramp_metering.alinea -> libsumo" in out
     assert "1 kept, 3 broken" in out, out[-3000:]  # kernel layers, algorithms, libsumo; jsbsim kept

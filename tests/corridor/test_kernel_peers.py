@@ -146,8 +146,8 @@ def test_the_packaged_components_declare_their_peers() -> None:
     from corridor.analysis.monitoring.road import TrafficKpis
     from corridor.controllers.overtaking.components import OvertakingSumo
     from corridor.controllers.ramp_metering.components import RampControl
-    from corridor.traffic.sumo_backend import SumoBackend
-    from corridor.vehicles.ego_bicycle import EgoBicycle
+    from corridor.traffic.sumo.backend import SumoBackend
+    from corridor.vehicles.ground.ego_bicycle import EgoBicycle
 
     assert "road" in SumoBackend.provides and "ego" in EgoBicycle.provides
     assert EgoBicycle.needs["sumo"].role == "road" and EgoBicycle.period_source == "peer:sumo"

@@ -32,7 +32,7 @@ def test_road_and_air_share_one_run(tmp_path):
     assert metrics["nmac_uav_uav"] == 0 and metrics["collisions"] == 0
     assert metrics["link_sent"] > 0 and metrics["mavlink_bad_data"] == 0
     # the raw MAVLink log decodes with pymavlink's own parser (the generated dialect)
-    from corridor.vehicles.mavlink_dialect import dialect
+    from corridor.vehicles.mavlink.dialect import dialect
 
     data = (tmp_path / "mavlink" / "link-ct-s0.tlog").read_bytes()
     parser = dialect().MAVLink(None)

@@ -13,7 +13,7 @@ import pytest
 import sumolib
 from pydantic import ValidationError
 
-from corridor.traffic.network import (
+from corridor.traffic.networks.registry import (
     BUILDERS,
     NetworkBuildError,
     PlainNet,

@@ -20,7 +20,7 @@ import pytest
 
 from corridor.engine import Backend, RunContext, Simulation
 from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
-from corridor.traffic.landmarks import OnrampLandmarks
+from corridor.traffic.networks.landmarks import OnrampLandmarks
 
 DT = 0.1  # [s]
 LENGTH = 5.0  # [m]
@@ -158,7 +158,7 @@ def surrogate_safety_on_a_scripted_follower() -> None:
 
 
 def trips_closed_form_delay() -> None:
-    from corridor.traffic.trips import Trips
+    from corridor.traffic.sumo.trips import Trips
 
     # free-flow time of route main: 1000 m at min(50, 25 x 1.0) m/s = 40 s; it drives 1000 m at
     # 20 m/s (50 s) after waiting 2 s to be inserted: delay 50 + 2 - 40 = 12 s.  One vehicle is
@@ -176,7 +176,7 @@ def trips_closed_form_delay() -> None:
 
 def v2x_commands_the_connected_ramp_vehicle() -> None:
     from corridor.controllers.merging.components import V2XMerging
-    from corridor.traffic.commands import SetSpeed
+    from corridor.traffic.sumo.commands import SetSpeed
 
     script = [Scripted("m0", MAIN, 850.0, 22.0), Scripted("m1", MAIN, 810.0, 22.0),
               Scripted("r0", RAMP, 830.0, 15.0, connected=True), Scripted("r1", RAMP, 790.0, 15.0)]

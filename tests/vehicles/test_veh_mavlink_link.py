@@ -11,7 +11,7 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from corridor.channel import BernoulliLoss, Channel, ChannelConfig
 from corridor.vehicles.geodesy import Origin
-from corridor.vehicles.mavlink_link import (
+from corridor.vehicles.mavlink.link import (
     GCS_SYSID,
     LinkRates,
     MavlinkDecoder,

@@ -1,12 +1,12 @@
 """Loop-station readings as METANET state: the traffic centre's side of the ramp MPC.
 
-The beltway's loop stations (``corridor.traffic.detectors``) report occupancy, flow and time-mean
+The beltway's loop stations (``corridor.traffic.sensing.detectors``) report occupancy, flow and time-mean
 speed per interval; the MPC's METANET model wants density and space-mean speed per segment.  This
 module holds that mapping (``estimate_state``, the direct mapping without a filter, and
 ``loop_speed_kmh``, the space-mean speed of one station) and the data files it is calibrated with:
-the fundamental-diagram fit (``load_calibration``; written by ``corridor.traffic.calibrate``) and the
-station map (``load_station_map``; ``corridor.traffic.station_map``).  The segment fusion
-(``corridor.traffic.fusion_component``) and the ``ramp_mpc`` controller both use it.
+the fundamental-diagram fit (``load_calibration``; written by ``corridor.traffic.macro.calibrate``) and the
+station map (``load_station_map``; ``corridor.traffic.macro.station_map``).  The segment fusion
+(``corridor.traffic.macro.fusion_component``) and the ``ramp_mpc`` controller both use it.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from corridor.traffic.detectors import RampMeasurement
+from corridor.traffic.sensing.detectors import RampMeasurement
 
 SUMO_DIR_OF_MODEL = ("ccw", "cw")  # METANET direction 0 runs k -> k+1 (SUMO "ccw"), 1 runs k -> k-1
 RHO_FLOOR = 0.1  # [veh/km/lane] lowest density handed to the MPC (empty loops at the start)
@@ -24,7 +24,7 @@ DEFAULT_FD = {"v_free_kmh": 100.0, "rho_crit": 28.0, "a": 1.867, "rho_max": 160.
 
 
 def load_calibration(name: str | None) -> dict[str, float]:
-    """Fundamental-diagram parameters from a calibration JSON (``corridor.traffic.calibrate``).
+    """Fundamental-diagram parameters from a calibration JSON (``corridor.traffic.macro.calibrate``).
 
     A relative name is looked up in the working directory, its ``scenarios/`` folder and the
     repository's ``scenarios/`` folder; missing file -> the defaults of ``DEFAULT_FD``.
@@ -91,7 +91,7 @@ def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
     Queues are the vehicles on each on-ramp storage (E2).  Densities are floored at ``RHO_FLOOR``: at
     rho = 0 the derivative of (rho/rho_crit)^a is NaN in CasADi and IPOPT stops at once.
     """
-    from corridor.traffic.metanet import equilibrium_speed
+    from corridor.traffic.macro.metanet import equilibrium_speed
 
     rho, v = np.zeros(net.n_seg), np.zeros(net.n_seg)
     for dirn, d in enumerate(SUMO_DIR_OF_MODEL):
@@ -116,7 +116,7 @@ def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
 
 def load_station_map(name: str) -> Any:
     """The ``StationMap`` in data file ``name`` (see ``scenario_data_file``); a missing file is an error."""
-    from corridor.traffic.station_map import StationMap
+    from corridor.traffic.macro.station_map import StationMap
 
     path = scenario_data_file(name)
     if path is None:

@@ -1,6 +1,6 @@
 """``TrackedAgent``: another aircraft as the ego sees it through its link and tracker.
 
-The MAVLink link (``corridor.vehicles.air_link``) hands these to the UAV avoidance controllers; it is
+The MAVLink link (``corridor.vehicles.mavlink.air_link``) hands these to the UAV avoidance controllers; it is
 a vehicle-side type, so the link does not import the controllers.
 """
 
