@@ -112,7 +112,7 @@ def test_goal_quad_flies_straight_to_its_goal_without_any_controller(tmp_path: P
 def test_link_counts_and_drops_garbage_and_corrupted_frames(tmp_path: Path) -> None:
     from corridor.run import build
     from corridor.vehicles.geodesy import Origin
-    from corridor.vehicles.mavlink.link import MavlinkEndpoint
+    from corridor.vehicles.mavlink.encode import MavlinkEndpoint
 
     sc = validate({"name": "t", "duration": 2.0, "dt": 0.1, "backends": {
         "air": {"type": "jsbsim_fleet", "params": {"aircraft": [

@@ -3,19 +3,13 @@
 Every UAV is a MAVLink system (its own ``sysid``) that sends HEARTBEAT at 1 Hz and
 GLOBAL_POSITION_INT + LOCAL_POSITION_NED at 10 Hz; a piloted aircraft is seen through ADSB_VEHICLE
 (as if re-broadcast by an ADS-B receiver); the ground station (sysid 255) sends HEARTBEAT and
-SET_POSITION_TARGET_LOCAL_NED commands. Encoding and decoding are pymavlink's (dialect ``common``,
-MAVLink 2 framing, magic 0xFD, CRC-16/X.25 with CRC_EXTRA).
+SET_POSITION_TARGET_LOCAL_NED commands.  Encoding is :mod:`corridor.vehicles.mavlink.encode`,
+decoding :mod:`corridor.vehicles.mavlink.decode` (pymavlink's, dialect ``common``, MAVLink 2 framing).
 
 Frames due at the same instant from one sender travel in one datagram (one ``channel.send``), as on
-UDP. Each received datagram is parsed on its own (:meth:`MavlinkDecoder.decode_datagram`): a frame
-whose CRC does not match is counted in ``bad_crc`` and the parser resynchronises at the next 0xFD
-byte; bytes that are not a frame (garbage, truncated frames, unknown message ids, bad flags) are
-counted in ``bad_data``. Nothing corrupted can raise. One corrupted frame can add more than one count
-when its body happens to contain 0xFD bytes (each candidate start is checked, as the C library does).
-
-Frames: local NED is the scenario's ENU origin (x north, y east, z down); altitudes in
-GLOBAL_POSITION_INT / ADSB_VEHICLE are heights above the WGS-84 ellipsoid (no geoid model; the
-scenario origin's height defines the datum), ``relative_alt`` is ENU up.
+UDP.  Receiving has one path (:meth:`MavlinkLink._copies`): the delivered copies, grouped by shared
+decode, which :meth:`MavlinkLink.receive` hands out as traffic reports per receiver and
+:meth:`MavlinkLink.receive_latest_table` folds into the newest report per receiver and source.
 """
 
 from __future__ import annotations
@@ -30,374 +24,16 @@ from typing import Any, NamedTuple
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink2
 
-from corridor.vehicles.geodesy import Origin, heading_from_enu_yaw, wrap_pi
-
-MAGIC_V2 = mavlink2.PROTOCOL_MARKER_V2  # 0xFD
-_HEADER_LEN = mavlink2.HEADER_LEN_V2  # 10 bytes
-_SIGNATURE_LEN = mavlink2.MAVLINK_SIGNATURE_BLOCK_LEN  # 13 bytes
-GCS_SYSID = 255
-_TM_IGNORE_POS = 0b111  # POSITION_TARGET_TYPEMASK_{X,Y,Z}_IGNORE
-_TM_IGNORE_VEL = 0b111000
-_TM_IGNORE_ACC = 0b111000000
-_TM_IGNORE_YAW = mavlink2.POSITION_TARGET_TYPEMASK_YAW_IGNORE
-_TM_IGNORE_YAW_RATE = mavlink2.POSITION_TARGET_TYPEMASK_YAW_RATE_IGNORE
-
-
-def _ms(t_s: float) -> int:
-    """Simulation time [s] -> MAVLink time_boot_ms (uint32, wraps)."""
-    return int(round(t_s * 1000.0)) & 0xFFFFFFFF
-
-
-_TWO_PI = 2.0 * math.pi
-
-
-def _cdeg(yaw_rad: float) -> int:
-    """ENU yaw [rad] -> compass heading in centidegrees [0, 35999].
-
-    ``heading_from_enu_yaw`` and ``np.degrees`` on a plain float, written with ``math`` (the same
-    IEEE operations: Python's float ``%`` and numpy's ``mod`` both are fmod plus a sign fix-up)."""
-    return round(math.degrees((0.5 * math.pi - float(yaw_rad)) % _TWO_PI) * 100.0) % 36000
-
-
-# ------------------------------------------------------------------------------------------ encoding
-class MavlinkEndpoint:
-    """One MAVLink 2 system/component: turns states and commands into framed bytes.
-
-    ``origin`` anchors the local NED frame and the geodetic conversion.
-    """
-
-    def __init__(self, sysid: int, origin: Origin, compid: int = 1, mav_type: int = mavlink2.MAV_TYPE_QUADROTOR,
-                 dialect: ModuleType | None = None):
-        if not 1 <= sysid <= 255:
-            raise ValueError(f"MAVLink sysid must be in 1..255, got {sysid}")
-        self.sysid, self.compid, self.mav_type = sysid, compid, mav_type
-        self.origin = origin
-        self.mav = (dialect or mavlink2).MAVLink(None, srcSystem=sysid, srcComponent=compid)
-
-    def pack(self, msg: Any) -> bytes:
-        """Frame one message with this endpoint's ids and sequence number (MAVLink 2, 0xFD)."""
-        buf = bytes(msg.pack(self.mav))  # pack() does not advance the sequence number: we do
-        self.mav.seq = (self.mav.seq + 1) % 256
-        self.mav.total_packets_sent += 1
-        self.mav.total_bytes_sent += len(buf)
-        return buf
-
-    def heartbeat(self) -> bytes:
-        """HEARTBEAT: a GCS reports MAV_TYPE_GCS / no autopilot; aircraft report guided + armed."""
-        autopilot = mavlink2.MAV_AUTOPILOT_INVALID if self.mav_type == mavlink2.MAV_TYPE_GCS else (
-            mavlink2.MAV_AUTOPILOT_GENERIC
-        )
-        mode = 0 if self.mav_type == mavlink2.MAV_TYPE_GCS else (
-            mavlink2.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink2.MAV_MODE_FLAG_SAFETY_ARMED
-        )
-        return self.pack(self.mav.heartbeat_encode(self.mav_type, autopilot, mode, 0, mavlink2.MAV_STATE_ACTIVE))
-
-    def global_position_int(
-        self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float,
-        geodetic: tuple[float, float, float] | None = None,
-    ) -> bytes:
-        """GLOBAL_POSITION_INT: lat/lon [1e-7 deg], alt [mm], relative_alt = ENU up [mm], NED cm/s.
-
-        ``geodetic`` = (lat [deg], lon [deg], h [m]) of ``p_enu`` when the caller converted a whole
-        fleet at once (the per-message conversion is the costly part of encoding)."""
-        lat, lon, h = geodetic if geodetic is not None else self.origin.to_geodetic(np.asarray(p_enu, float))
-        ve, vn, vu = _floats3(v_enu)
-        msg = self.mav.global_position_int_encode(
-            _ms(t_s), round(float(lat) * 1e7), round(float(lon) * 1e7), round(float(h) * 1e3),
-            round(float(p_enu[2]) * 1e3), _cm_s(vn), _cm_s(ve), _cm_s(-vu), _cdeg(yaw_rad),
-        )
-        return self.pack(msg)
-
-    def local_position_ned(self, t_s: float, p_enu: np.ndarray, v_enu: np.ndarray) -> bytes:
-        """LOCAL_POSITION_NED around the scenario origin [m, m/s]."""
-        e, n, u = _floats3(p_enu)
-        ve, vn, vu = _floats3(v_enu)
-        return self.pack(self.mav.local_position_ned_encode(_ms(t_s), n, e, -u, vn, ve, -vu))
-
-    def adsb_vehicle(
-        self, icao: int, callsign: str, p_enu: np.ndarray, v_enu: np.ndarray, tslc_s: int = 0,
-        geodetic: tuple[float, float, float] | None = None,
-    ) -> bytes:
-        """ADSB_VEHICLE report of a piloted aircraft (geometric altitude, course over ground);
-        ``geodetic`` as in :meth:`global_position_int`."""
-        lat, lon, h = geodetic if geodetic is not None else self.origin.to_geodetic(np.asarray(p_enu, float))
-        ve, vn, vu = (float(x) for x in v_enu)
-        flags = (
-            mavlink2.ADSB_FLAGS_VALID_COORDS | mavlink2.ADSB_FLAGS_VALID_ALTITUDE
-            | mavlink2.ADSB_FLAGS_VALID_HEADING | mavlink2.ADSB_FLAGS_VALID_VELOCITY
-            | mavlink2.ADSB_FLAGS_VALID_CALLSIGN
-        )
-        msg = self.mav.adsb_vehicle_encode(
-            icao & 0xFFFFFFFF, int(round(float(lat) * 1e7)), int(round(float(lon) * 1e7)),
-            mavlink2.ADSB_ALTITUDE_TYPE_GEOMETRIC, int(round(float(h) * 1e3)),
-            _cdeg(float(np.arctan2(vn, ve))), min(int(round(np.hypot(ve, vn) * 100.0)), 0xFFFF),
-            _cm_s(vu), callsign.encode()[:8], mavlink2.ADSB_EMITTER_TYPE_LIGHT, min(tslc_s, 255), flags, 1200,
-        )
-        return self.pack(msg)
-
-    def set_position_target_local_ned(
-        self,
-        t_s: float,
-        target_sysid: int,
-        p_enu: np.ndarray | None = None,
-        v_enu: np.ndarray | None = None,
-        yaw_rad: float | None = None,
-    ) -> bytes:
-        """SET_POSITION_TARGET_LOCAL_NED to ``target_sysid``; omitted parts are masked as ignored."""
-        mask = _TM_IGNORE_ACC | _TM_IGNORE_YAW_RATE
-        p, v = np.zeros(3), np.zeros(3)
-        if p_enu is None:
-            mask |= _TM_IGNORE_POS
-        else:
-            p = np.asarray(p_enu, float)
-        if v_enu is None:
-            mask |= _TM_IGNORE_VEL
-        else:
-            v = np.asarray(v_enu, float)
-        yaw_ned = 0.0 if yaw_rad is None else float(wrap_pi(heading_from_enu_yaw(yaw_rad)))
-        if yaw_rad is None:
-            mask |= _TM_IGNORE_YAW
-        msg = self.mav.set_position_target_local_ned_encode(
-            _ms(t_s), target_sysid, 1, mavlink2.MAV_FRAME_LOCAL_NED, mask,
-            p[1], p[0], -p[2], v[1], v[0], -v[2], 0.0, 0.0, 0.0, yaw_ned, 0.0,
-        )
-        return self.pack(msg)
-
-
-def _floats3(v: np.ndarray | Iterable[float]) -> tuple[float, float, float]:
-    """A 3-vector (numpy array, list or tuple) as three Python floats."""
-    x, y, z = v.tolist() if isinstance(v, np.ndarray) else v
-    return float(x), float(y), float(z)
-
-
-def _cm_s(v_mps: float) -> int:
-    """[m/s] -> int16 [cm/s], clamped."""
-    return max(-32768, min(32767, round(v_mps * 100.0)))
-
-
-# ------------------------------------------------------------------------------------------ decoding
-@dataclass
-class DecodeCounters:
-    """What a decoder saw: good messages, CRC rejections, undecodable byte runs, bytes dropped."""
-
-    messages: int = 0
-    bad_crc: int = 0
-    bad_data: int = 0
-    bytes_dropped: int = 0
-
-    def add(self, other: DecodeCounters) -> None:
-        self.messages += other.messages
-        self.bad_crc += other.bad_crc
-        self.bad_data += other.bad_data
-        self.bytes_dropped += other.bytes_dropped
-
-
-class MavlinkDecoder:
-    """Bytes -> MAVLink 2 messages with CRC checking, resynchronisation and counters; never raises.
-
-    ``feed`` is the stream interface (an incomplete trailing frame waits for more bytes);
-    ``decode_datagram`` parses one datagram on its own (incomplete frames are dropped and counted).
-    """
-
-    def __init__(self, dialect: ModuleType | None = None) -> None:
-        self.mav = (dialect or mavlink2).MAVLink(None)  # a dialect generated from common.xml + its own messages
-        self._counters = DecodeCounters()
-        # copies whose parse was shared (MavlinkLink decodes a datagram once for all receivers):
-        # counter values of that parse -> number of copies, folded into ``counters`` when read
-        self._shared: dict[tuple[int, int, int, int], int] = {}
-        self._buf = b""
-
-    @property
-    def counters(self) -> DecodeCounters:
-        """What this decoder saw, every received copy counted (shared parses included)."""
-        if self._shared:
-            c = self._counters
-            for (messages, bad_crc, bad_data, dropped), n in self._shared.items():
-                c.messages += n * messages
-                c.bad_crc += n * bad_crc
-                c.bad_data += n * bad_data
-                c.bytes_dropped += n * dropped
-            self._shared.clear()
-        return self._counters
-
-    def feed(self, data: bytes) -> list[Any]:
-        msgs, rest, c = _scan(self.mav, self._buf + bytes(data), final=False)
-        self._buf = rest
-        self._counters.add(c)
-        return msgs
-
-    def decode_datagram(self, data: bytes) -> list[Any]:
-        msgs, _, c = _scan(self.mav, bytes(data), final=True)
-        self._counters.add(c)
-        return msgs
-
-
-def _frame_len(buf: bytes, i: int) -> int:
-    """Total length of the MAVLink 2 frame that starts at ``buf[i]`` (header present)."""
-    n = _HEADER_LEN + buf[i + 1] + 2
-    return n + _SIGNATURE_LEN if buf[i + 2] & mavlink2.MAVLINK_IFLAG_SIGNED else n
-
-
-def _scan(mav: Any, buf: bytes, final: bool) -> tuple[list[Any], bytes, DecodeCounters]:
-    """Find and decode every MAVLink 2 frame in ``buf``; returns (messages, unparsed tail, counters)."""
-    c = DecodeCounters()
-    msgs: list[Any] = []
-    i, n = 0, len(buf)
-    while i < n:
-        j = buf.find(b"\xfd", i)
-        if j < 0:
-            j = n
-        if j > i:  # garbage before the next candidate start
-            c.bad_data += 1
-            c.bytes_dropped += j - i
-            i = j
-            continue
-        if n - i < _HEADER_LEN + 2 or n - i < _frame_len(buf, i):
-            if not final:
-                return msgs, buf[i:], c
-            c.bad_data += 1  # truncated frame (or a 0xFD inside garbage): drop one byte and rescan
-            c.bytes_dropped += 1
-            i += 1
-            continue
-        m = _decode_frame(mav, buf[i : i + _frame_len(buf, i)], c)
-        if m is None:
-            c.bytes_dropped += 1
-            i += 1
-        else:
-            msgs.append(m)
-            c.messages += 1
-            i += _frame_len(buf, i)
-    return msgs, b"", c
-
-
-def _decode_frame(mav: Any, frame: bytes, c: DecodeCounters) -> Any | None:
-    """pymavlink's decode of one candidate frame; None (and a count) when it is rejected."""
-    if frame[2] & ~mavlink2.MAVLINK_IFLAG_SIGNED:
-        c.bad_data += 1
-        return None
-    try:
-        m = mav.decode(bytearray(frame))
-    except Exception as err:  # noqa: BLE001 - corrupted bytes must never crash the run
-        # MAVError of whichever dialect module decoded (each generated module has its own class)
-        if type(err).__name__ == "MAVError" and "CRC" in str(getattr(err, "message", err)):
-            c.bad_crc += 1
-        else:
-            c.bad_data += 1
-        return None
-    if type(m).__name__ in ("MAVLink_unknown", "MAVLink_bad_data"):
-        c.bad_data += 1
-        return None
-    return m
-
-
-# -------------------------------------------------------------------------------------- observations
-@dataclass(frozen=True)
-class TrafficReport:
-    """What a receiver learned about another aircraft from one datagram (ENU frame).
-
-    ``t_meas_s`` is the sender's measurement time (time_boot_ms); yaw is ENU [rad] (NaN if unknown).
-    """
-
-    src: str
-    sysid: int
-    kind: str  # "uav" (LOCAL_POSITION_NED / GLOBAL_POSITION_INT) or "adsb"
-    t_sent_s: float
-    t_recv_s: float
-    t_meas_s: float
-    p_enu: np.ndarray
-    v_enu: np.ndarray
-    yaw_rad: float
-
-
-@dataclass(frozen=True)
-class Setpoint:
-    """A SET_POSITION_TARGET_LOCAL_NED that reached its target (ENU; None where masked out)."""
-
-    dst: str
-    t_sent_s: float
-    t_recv_s: float
-    p_enu: np.ndarray | None
-    v_enu: np.ndarray | None
-    yaw_rad: float | None
-
-
-def report_from_messages(
-    msgs: Iterable[Any], origin: Origin, src: str, t_sent_s: float, t_recv_s: float
-) -> TrafficReport | None:
-    """One TrafficReport from a datagram's messages: LOCAL_POSITION_NED preferred, then
-    GLOBAL_POSITION_INT, then ADSB_VEHICLE; None when the datagram carries no position."""
-    by_type = {m.get_type(): m for m in msgs}
-    if (m := by_type.get("LOCAL_POSITION_NED")) is not None:
-        p = np.array([m.y, m.x, -m.z])
-        v = np.array([m.vy, m.vx, -m.vz])
-        yaw = float("nan")
-        if (g := by_type.get("GLOBAL_POSITION_INT")) is not None and g.hdg != 0xFFFF:
-            yaw = float(wrap_pi(0.5 * np.pi - np.radians(g.hdg / 100.0)))
-        return TrafficReport(src, m.get_srcSystem(), "uav", t_sent_s, t_recv_s, m.time_boot_ms / 1e3, p, v, yaw)
-    if (m := by_type.get("GLOBAL_POSITION_INT")) is not None:
-        p = origin.to_enu(m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
-        v = np.array([m.vy, m.vx, -m.vz]) / 100.0
-        yaw = float(wrap_pi(0.5 * np.pi - np.radians(m.hdg / 100.0)))
-        return TrafficReport(src, m.get_srcSystem(), "uav", t_sent_s, t_recv_s, m.time_boot_ms / 1e3, p, v, yaw)
-    if (m := by_type.get("ADSB_VEHICLE")) is not None:
-        p = origin.to_enu(m.lat * 1e-7, m.lon * 1e-7, m.altitude * 1e-3)
-        course = 0.5 * np.pi - np.radians(m.heading / 100.0)
-        spd = m.hor_velocity / 100.0
-        v = np.array([spd * np.cos(course), spd * np.sin(course), m.ver_velocity / 100.0])
-        return TrafficReport(
-            src, m.ICAO_address, "adsb", t_sent_s, t_recv_s, t_sent_s - m.tslc, p, v, float(wrap_pi(course))
-        )
-    return None
-
-
-def setpoint_from_message(m: Any, dst: str, t_sent_s: float, t_recv_s: float) -> Setpoint:
-    """SET_POSITION_TARGET_LOCAL_NED -> Setpoint in ENU, honouring its type_mask."""
-    p = None if m.type_mask & _TM_IGNORE_POS == _TM_IGNORE_POS else np.array([m.y, m.x, -m.z])
-    v = None if m.type_mask & _TM_IGNORE_VEL == _TM_IGNORE_VEL else np.array([m.vy, m.vx, -m.vz])
-    yaw = None if m.type_mask & _TM_IGNORE_YAW else float(wrap_pi(0.5 * np.pi - m.yaw))
-    return Setpoint(dst, t_sent_s, t_recv_s, p, v, yaw)
-
-
-@dataclass(frozen=True)
-class _ReportFields:
-    """The receiver-independent part of a TrafficReport (what the datagram says)."""
-
-    sysid: int
-    kind: str
-    t_meas_s: float  # ADS-B: NaN, filled from the send time and ``tslc_s``
-    p_enu: np.ndarray
-    v_enu: np.ndarray
-    yaw_rad: float
-    tslc_s: float = 0.0
-
-    def received(self, src: str, t_sent_s: float, t_recv_s: float) -> TrafficReport:
-        t_meas = t_sent_s - self.tslc_s if self.kind == "adsb" else self.t_meas_s
-        return TrafficReport(src, self.sysid, self.kind, t_sent_s, t_recv_s, t_meas, self.p_enu, self.v_enu,
-                             self.yaw_rad)
-
-
-class ReceivedReport(NamedTuple):
-    """One receiver's copy of a position report, not yet expanded into a :class:`TrafficReport`
-    (a NamedTuple over the shared decode: the cheap form for consumers that keep only the newest
-    report per source, see :meth:`MavlinkLink.receive_latest`)."""
-
-    t_meas_s: float  # [s] the sender's measurement time
-    fields: _ReportFields  # shared by every receiver of the datagram (arrays read-only)
-    src: str
-    t_sent_s: float
-    t_recv_s: float
-
-    @property
-    def p_enu(self) -> np.ndarray:
-        return self.fields.p_enu
-
-    @property
-    def v_enu(self) -> np.ndarray:
-        return self.fields.v_enu
-
-    def report(self) -> TrafficReport:
-        """The full :class:`TrafficReport` (what ``receive`` returns for this copy)."""
-        return self.fields.received(self.src, self.t_sent_s, self.t_recv_s)
+from corridor.vehicles.geodesy import Origin
+from corridor.vehicles.mavlink.decode import (
+    DecodeCounters,
+    Decoded,
+    MavlinkDecoder,
+    Setpoint,
+    TrafficReport,
+    setpoint_from_message,
+)
+from corridor.vehicles.mavlink.encode import GCS_SYSID, MavlinkEndpoint
 
 
 class LatestReports:
@@ -452,33 +88,18 @@ class _Copy(NamedTuple):
     t_recv_s: float
 
 
-@dataclass(frozen=True)
-class _Decoded:
-    """One datagram decoded and converted once, shared by every receiver of a copy of its bytes."""
+class _Copies(NamedTuple):
+    """The copies of one datagram that share one decode: sender, send time and order, and its
+    receivers (channel node indices of listening members) with their receive times."""
 
-    counters: DecodeCounters
-    report: _ReportFields | None
-    setpoints: tuple[Any, ...]
-    counter_key: tuple[int, int, int, int]  # the counters' values (a copy's tally key)
-    estimates: tuple[Any, ...] = ()  # TRAFFIC_SEGMENT_ESTIMATE messages (dialect corridor_traffic)
-
-    @staticmethod
-    def of(msgs: list[Any], counters: DecodeCounters, origin: Origin) -> _Decoded:
-        report = None
-        if msgs:
-            r = report_from_messages(msgs, origin, "", 0.0, 0.0)
-            if r is not None:
-                r.p_enu.flags.writeable = False  # shared by every receiver
-                r.v_enu.flags.writeable = False
-                tslc = next((float(m.tslc) for m in msgs if m.get_type() == "ADSB_VEHICLE"), 0.0)
-                report = _ReportFields(r.sysid, r.kind, r.t_meas_s, r.p_enu, r.v_enu, r.yaw_rad, tslc)
-        sps = tuple(m for m in msgs if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED")
-        key = (counters.messages, counters.bad_crc, counters.bad_data, counters.bytes_dropped)
-        est = tuple(m for m in msgs if m.get_type() == "TRAFFIC_SEGMENT_ESTIMATE")
-        return _Decoded(counters, report, sps, key, est)
+    src: str
+    t_sent_s: float  # [s]
+    seq: int  # send order (ties in the channel's delivery order)
+    decoded: Decoded
+    dst_idx: np.ndarray  # node indices (``channel.node_names``)
+    t_recv_s: np.ndarray  # [s] per receiver
 
 
-# ---------------------------------------------------------------------------------------------- link
 @dataclass(frozen=True)
 class LinkRates:
     """Send rates [Hz]: HEARTBEAT, UAV position (GLOBAL_POSITION_INT + LOCAL_POSITION_NED), ADS-B."""
@@ -553,7 +174,7 @@ class MavlinkLink:
         self._nodes: dict[str, _Node] = {}
         self._by_sysid: dict[int, str] = {}
         self._decoders: dict[str, MavlinkDecoder] = {}
-        self._cache: dict[bytes, _Decoded] = {}
+        self._cache: dict[bytes, Decoded] = {}
         self._tally: dict[tuple[int, int, int, int], np.ndarray] = {}  # counter key -> copies per node index
         self._listen: np.ndarray | None = None  # per node index: a listening member
         self._rx_of_node = np.zeros(0, dtype=np.int64)  # node index -> LatestReports row (-1: none)
@@ -695,61 +316,25 @@ class MavlinkLink:
 
     # -------------------------------------------------------------------------------- receiving
     def receive(self, t_s: float) -> Inbox:
-        """Deliver, corrupt (if configured), decode; traffic reports and set-points of this instant.
+        """Deliver, corrupt (if configured), decode; traffic reports and set-points of this instant,
+        every copy in the channel's delivery order (by receive time, sender, receiver, send order).
 
         A broadcast datagram reaches many receivers as copies of the same bytes: each distinct payload
-        is decoded and converted once per call (:class:`_Decoded`), and its receivers share the result
+        is decoded and converted once per call (:class:`Decoded`), and its receivers share the result
         (the counters are still added per received copy, as if every receiver had parsed it)."""
         inbox = Inbox()
-        reports = inbox.reports
-        for d, decoded in self._received(t_s):
-            if decoded.report is not None:
-                reports.setdefault(d.dst, []).append(decoded.report.received(d.src, d.t_sent_s, d.t_recv_s))
-            if decoded.setpoints:
-                self._route_setpoints(inbox, d, decoded)
-            if decoded.estimates and d.dst == self.gcs_id:
-                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
+        names = self.channel.node_names
+        copies = [(t_recv, c.src, names[i], c.seq, c) for c in self._copies(t_s)
+                  for i, t_recv in zip(c.dst_idx.tolist(), c.t_recv_s.tolist(), strict=True)]
+        for t_recv, src, dst, _, c in sorted(copies, key=lambda r: r[:4]):
+            rep = c.decoded.report
+            if rep is not None:
+                inbox.reports.setdefault(dst, []).append(rep.received(src, c.t_sent_s, t_recv))
+            if c.decoded.setpoints:
+                self._route_setpoints(inbox, _Copy(src, dst, c.t_sent_s, t_recv), c.decoded)
+            if c.decoded.estimates and dst == self.gcs_id:
+                self.estimates.extend((t_recv, src, c.t_sent_s, m) for m in c.decoded.estimates)
         return inbox
-
-    def receive_latest(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
-        """:meth:`receive` for consumers that keep only the newest report per (receiver, source):
-        ``latest[dst][src]`` is replaced by every received report that is not older (sender's
-        measurement time) than the one it holds; receivers not in ``latest`` are skipped. The same
-        deliveries, decoding and counters as ``receive``, without building a TrafficReport per
-        copy (a swarm's broadcasts are N^2 copies per tick). Returns the set-points.
-
-        Without bit errors every copy of a datagram carries the same bytes, so the channel's copies
-        are taken message by message (``deliver_batches``): one decode and one measurement time per
-        datagram, then per receiver only the counters and the newest-report check. Of several
-        reports with the same measurement time the later-delivered one is kept, as in delivery order.
-        """
-        if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_batches"):
-            return self._receive_latest_copies(t_s, latest)
-        self._cache.clear()
-        decoders, routed = self._decoders, []
-        for b in self.channel.deliver_batches(t_s):
-            hit = self._decoded(b.payload)
-            if hit is None:
-                continue
-            key, rep, src, t_sent = hit.counter_key, hit.report, b.src, b.t_sent_s
-            t_meas = (t_sent - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s) if rep is not None else 0.0
-            for dst, t_recv in zip(b.dst, b.t_recv_s, strict=True):
-                dec = decoders.get(dst)
-                if dec is None:
-                    continue
-                dec._shared[key] = dec._shared.get(key, 0) + 1
-                if rep is not None and (pend := latest.get(dst)) is not None:
-                    old = pend.get(src)
-                    if old is None or t_meas > old.t_meas_s or (t_meas == old.t_meas_s and t_recv >= old.t_recv_s):
-                        pend[src] = ReceivedReport(t_meas, rep, src, t_sent, t_recv)
-                if hit.setpoints:
-                    routed.append((t_recv, src, dst, b.seq, t_sent, hit))
-                if hit.estimates and dst == self.gcs_id:
-                    self.estimates.extend((t_recv, src, t_sent, m) for m in hit.estimates)
-        inbox = Inbox()
-        for t_recv, src, dst, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
-            self._route_setpoints(inbox, _Copy(src, dst, t_sent, t_recv), hit)
-        return inbox.setpoints
 
     def latest_table(self, receivers: list[str], sources: list[str]) -> LatestReports:
         """An empty :class:`LatestReports` for ``receivers`` (listening members) x ``sources``."""
@@ -763,60 +348,69 @@ class MavlinkLink:
         return table
 
     def receive_latest_table(self, t_s: float, table: LatestReports) -> list[Setpoint]:
-        """:meth:`receive_latest` into a :class:`LatestReports` (made by :meth:`latest_table`): the
-        same deliveries, decoding, counters and kept reports, with the copies of a datagram handled
-        as arrays (receiver rows, receive times, per-receiver counter tallies) instead of one Python
-        step per copy. With bit errors (each copy's bytes may differ) it goes copy by copy."""
-        if self.bit_error_rate > 0.0 or not hasattr(self.channel, "deliver_indexed"):
-            return self._receive_latest_table_copies(t_s, table)
-        self._cache.clear()
-        routed, listen = [], self._listening_nodes()
-        if self._rx_of_node.size < listen.size:  # nodes the channel learnt after latest_table
-            self._rx_of_node = np.r_[self._rx_of_node, np.full(listen.size - self._rx_of_node.size, -1)]
-        rx_of = self._rx_of_node
-        tally = self._tally
-        for b in self.channel.deliver_indexed(t_s):
-            hit = self._decoded(b.payload)
-            if hit is None:
-                continue
-            dst = b.dst_idx[listen[b.dst_idx]]
-            counts = tally.get(hit.counter_key)
-            if counts is None:
-                counts = tally[hit.counter_key] = np.zeros(listen.size, dtype=np.int64)
-            counts[dst] += 1
-            rep, col = hit.report, self._src_col.get(b.src)
+        """:meth:`receive` for consumers that keep only the newest report per (receiver, source), in a
+        :class:`LatestReports` (made by :meth:`latest_table`): the same deliveries, decoding and
+        counters, with the copies of a datagram handled as arrays (receiver rows, receive times)
+        instead of a :class:`TrafficReport` per copy (a swarm's broadcasts are N^2 copies per tick).
+        Of several reports with the same measurement time the later-delivered one is kept, as in
+        delivery order.  Returns the set-points (in delivery order)."""
+        copies = self._copies(t_s)
+        if self._rx_of_node.size < len(self.channel.node_names):  # nodes the channel learnt after latest_table
+            self._rx_of_node = np.r_[self._rx_of_node,
+                                     np.full(len(self.channel.node_names) - self._rx_of_node.size, -1)]
+        rx_of, names, routed = self._rx_of_node, self.channel.node_names, []
+        for c in copies:
+            rep, col = c.decoded.report, self._src_col.get(c.src)
             if rep is not None and col is not None:
-                rows = rx_of[dst]
+                rows = rx_of[c.dst_idx]
                 keep = rows >= 0
-                t_meas = b.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
-                t_recv = b.t_recv_s[listen[b.dst_idx]]
-                table.offer(rows[keep], col, t_meas, t_recv[keep], rep.p_enu, rep.v_enu)
-            if hit.setpoints or hit.estimates:
-                names = self.channel.node_names
-                for i, t_recv in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
-                    if hit.setpoints and names[i] in self._decoders:
-                        routed.append((t_recv, b.src, names[i], b.seq, b.t_sent_s, hit))
-                    if hit.estimates and names[i] == self.gcs_id:  # camera estimates for the ground station
-                        self.estimates.extend((t_recv, b.src, b.t_sent_s, m) for m in hit.estimates)
+                t_meas = c.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
+                table.offer(rows[keep], col, t_meas, c.t_recv_s[keep], rep.p_enu, rep.v_enu)
+            if c.decoded.setpoints or c.decoded.estimates:
+                for i, t_recv in zip(c.dst_idx.tolist(), c.t_recv_s.tolist(), strict=True):
+                    if c.decoded.setpoints:
+                        routed.append((t_recv, c.src, names[i], c.seq, c))
+                    if c.decoded.estimates and names[i] == self.gcs_id:  # camera estimates for the ground station
+                        self.estimates.extend((t_recv, c.src, c.t_sent_s, m) for m in c.decoded.estimates)
         inbox = Inbox()
-        for t_recv, src, dst_id, _, t_sent, hit in sorted(routed, key=lambda r: r[:4]):  # deliver's order
-            self._route_setpoints(inbox, _Copy(src, dst_id, t_sent, t_recv), hit)
+        for t_recv, src, dst, _, c in sorted(routed, key=lambda r: r[:4]):  # delivery order
+            self._route_setpoints(inbox, _Copy(src, dst, c.t_sent_s, t_recv), c.decoded)
         return inbox.setpoints
 
-    def _receive_latest_table_copies(self, t_s: float, table: LatestReports) -> list[Setpoint]:
-        """:meth:`receive_latest_table` copy by copy (bit errors: each copy decoded on its own)."""
-        inbox = Inbox()
-        rows = {id: k for k, id in enumerate(table.receivers)}
-        for d, decoded in self._received(t_s):
-            rep, row, col = decoded.report, rows.get(d.dst), self._src_col.get(d.src)
-            if rep is not None and row is not None and col is not None:
-                t_meas = d.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
-                table.offer(np.array([row]), col, t_meas, np.array([d.t_recv_s]), rep.p_enu, rep.v_enu)
-            if decoded.setpoints:
-                self._route_setpoints(inbox, d, decoded)
-            if decoded.estimates and d.dst == self.gcs_id:
-                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
-        return inbox.setpoints
+    def _copies(self, t_s: float) -> list[_Copies]:
+        """The one receive path: the copies delivered at ``t_s`` to listening members, grouped by
+        shared decode, with each copy counted in its receiver's decoder.
+
+        Without bit errors every copy of a datagram carries the same bytes: the channel's batches (one
+        per sent message, in send order) are decoded once each.  With bit errors each copy's bytes may
+        differ: the copies are taken in the channel's delivery order and each is corrupted and decoded
+        on its own (a group of one)."""
+        self._cache.clear()
+        out: list[_Copies] = []
+        if self.bit_error_rate > 0.0:
+            index = self.channel.node_index
+            for seq, d in enumerate(self.channel.deliver(t_s)):
+                if d.dst not in self._decoders:
+                    continue
+                hit = self._decoded(d.payload, corrupt=True)
+                if hit is not None:
+                    out.append(_Copies(d.src, d.t_sent_s, seq, hit, np.array([index(d.dst)]), np.array([d.t_recv_s])))
+        else:
+            batches = self.channel.deliver_indexed(t_s)
+            listen = self._listening_nodes()
+            for b in batches:
+                hit = self._decoded(b.payload)
+                if hit is not None:
+                    keep = listen[b.dst_idx]
+                    out.append(_Copies(b.src, b.t_sent_s, b.seq, hit, b.dst_idx[keep], b.t_recv_s[keep]))
+        listen = self._listening_nodes()
+        tally = self._tally
+        for c in out:
+            counts = tally.get(c.decoded.counter_key)
+            if counts is None:
+                counts = tally[c.decoded.counter_key] = np.zeros(listen.size, dtype=np.int64)
+            np.add.at(counts, c.dst_idx, 1)
+        return out
 
     def _listening_nodes(self) -> np.ndarray:
         """Bool per channel node index: a listening link member (its copies are counted)."""
@@ -837,38 +431,6 @@ class MavlinkLink:
                 shared[key] = shared.get(key, 0) + int(counts[i])
         self._tally = {}
 
-    def _receive_latest_copies(self, t_s: float, latest: dict[str, dict[str, ReceivedReport]]) -> list[Setpoint]:
-        """:meth:`receive_latest` copy by copy (each copy's bytes may differ: bit errors)."""
-        inbox = Inbox()
-        for d, decoded in self._received(t_s):
-            rep = decoded.report
-            if rep is not None and (pend := latest.get(d.dst)) is not None:
-                t_meas = d.t_sent_s - rep.tslc_s if rep.kind == "adsb" else rep.t_meas_s
-                old = pend.get(d.src)
-                if old is None or t_meas >= old.t_meas_s:
-                    pend[d.src] = ReceivedReport(t_meas, rep, d.src, d.t_sent_s, d.t_recv_s)
-            if decoded.setpoints:
-                self._route_setpoints(inbox, d, decoded)
-            if decoded.estimates and d.dst == self.gcs_id:
-                self.estimates.extend((d.t_recv_s, d.src, d.t_sent_s, m) for m in decoded.estimates)
-        return inbox.setpoints
-
-    def _received(self, t_s: float) -> list[tuple[Any, _Decoded]]:
-        """Every delivered copy for a listening member with its (shared) decode, in delivery order;
-        each copy's counters are added to its receiver's decoder."""
-        self._cache.clear()
-        decoders, out = self._decoders, []
-        corrupt = self.bit_error_rate > 0.0
-        for d in self.channel.deliver(t_s):
-            dec = decoders.get(d.dst)
-            hit = None if dec is None else self._decoded(d.payload, corrupt)
-            if hit is None:
-                continue
-            key = hit.counter_key
-            dec._shared[key] = dec._shared.get(key, 0) + 1
-            out.append((d, hit))
-        return out
-
     def _corrupt(self, payload: bytes) -> bytes:
         if self.bit_error_rate <= 0.0:
             return payload
@@ -882,7 +444,7 @@ class MavlinkLink:
             buf[b // 8] ^= 1 << (b % 8)
         return bytes(buf)
 
-    def _decoded(self, payload: Any, corrupt: bool = False) -> _Decoded | None:
+    def _decoded(self, payload: Any, corrupt: bool = False) -> Decoded | None:
         """The decode of a datagram's bytes (after bit errors if ``corrupt``), memoised within one
         receive for copies of the same bytes; None if the payload is not bytes."""
         if not isinstance(payload, bytes | bytearray):
@@ -896,13 +458,13 @@ class MavlinkLink:
             hit = self._cache[payload] = self._decode_once(payload)
         return hit
 
-    def _decode_once(self, payload: bytes) -> _Decoded:
+    def _decode_once(self, payload: bytes) -> Decoded:
         """Datagram decode + conversion (memoised within one receive for copies of the same bytes)."""
         scratch = MavlinkDecoder(self.dialect)
         msgs = scratch.decode_datagram(payload)
-        return _Decoded.of(msgs, scratch.counters, self.origin)
+        return Decoded.of(msgs, scratch.counters, self.origin)
 
-    def _route_setpoints(self, inbox: Inbox, d: Any, decoded: _Decoded) -> None:
+    def _route_setpoints(self, inbox: Inbox, d: Any, decoded: Decoded) -> None:
         my_sysid = self._nodes[d.dst].endpoint.sysid
         for m in decoded.setpoints:
             if m.target_system == my_sysid:
