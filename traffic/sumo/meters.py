@@ -4,7 +4,7 @@ Controllers return these from ``step``; the SUMO backend applies them in the *ac
 controller calls libsumo to write.
 
 Meter rates.  A beltway meter is a one-link traffic light ``meter_{d}{k}`` with a green phase and a
-red phase (``net_beltway``).  A rate r [veh/h] is realised as *one vehicle per green*: the cycle is
+red phase (``corridor.traffic.networks.beltway``).  A rate r [veh/h] is realised as *one vehicle per green*: the cycle is
 ``3600 / r`` seconds, the green lasts ``green_s`` (about 2 s, enough for one vehicle to pass the stop
 line) and the red the rest of the cycle.  The red never drops below ``min_red_s``, so the highest
 metered rate is ``3600 / (green_s + min_red_s)``; a rate at or above ``open_rate_vph`` switches the

@@ -161,7 +161,7 @@ class MavlinkLink:
         dialect: ModuleType | None = None,
     ) -> None:
         self.channel = channel
-        self.dialect = dialect  # None: pymavlink's common; else a generated superset (mavlink_dialect)
+        self.dialect = dialect  # None: pymavlink's common; else a generated superset (corridor.vehicles.mavlink.dialect)
         # TRAFFIC_SEGMENT_ESTIMATE messages the ground station received: (t_recv [s], src, t_sent [s], msg)
         self.estimates: list[tuple[float, str, float, Any]] = []
         self.origin = origin if isinstance(origin, Origin) else Origin(*origin)
