@@ -29,7 +29,7 @@ import jsbsim
 from corridor.engine import Phase
 from corridor.run import build
 from corridor.scenario import apply_overrides, load, validate
-from corridor.vehicles.jsbsim_fleet import JSBSimLogSink, quiet_fds
+from corridor.vehicles.air.jsbsim_fleet import JSBSimLogSink, quiet_fds
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "uav_swarm.yaml"
 VARIANTS = ("none", "potential_field", "control_tube")

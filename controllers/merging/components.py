@@ -51,12 +51,12 @@ from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, 
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import RoadTables, Role
-from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.landmarks import OnrampLandmarks
-from corridor.traffic.road_spec import require_landmarks
-from corridor.traffic.trips import road_frame
+from corridor.traffic.networks.landmarks import OnrampLandmarks
+from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
+from corridor.traffic.sumo.road_spec import require_landmarks
+from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
-from corridor.vehicles.track_pool import TrackPool
+from corridor.vehicles.tracks.pool import TrackPool
 
 RSU = "rsu"
 HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, cooperative, speed gain,

@@ -11,7 +11,7 @@ length whose rear axle is the rear edge of the box, so the planner gets wheelbas
 overhangs = ``margin_m`` and width + 2 ``margin_m`` (the margin is the clearance the plan keeps).
 
 It records no signal and judges nothing: success, pose error, clearance and manoeuvre time are
-measured by the ``parking`` monitor (``corridor.analysis.parking_monitor``).  ``finish`` returns the
+measured by the ``parking`` monitor (``corridor.analysis.monitoring.parking``).  ``finish`` returns the
 controller's own figures (final mode, re-plans, aborts and why, planning time per call, planned
 direction changes).
 """
@@ -36,8 +36,8 @@ from corridor.controllers.parking.spot_detection import DetectorParams, SlotDete
 from corridor.controllers.parking.tracking import TrackingParams
 from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.vehicles.highway_env_parking import ParkingInput, ParkingLot
-from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
+from corridor.vehicles.ground.highway_env_parking import ParkingInput, ParkingLot
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingLotController(Controller):

@@ -34,10 +34,10 @@ from corridor.controllers.parking.manoeuvre import (
 from corridor.controllers.parking.spot_detection import DetectorParams, Slot, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
 from corridor.engine import Controller, Metric, Need, RunContext
-from corridor.traffic.landmarks import StreetParkingLandmarks
-from corridor.traffic.trips import road_frame
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
-from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
+from corridor.traffic.networks.landmarks import StreetParkingLandmarks
+from corridor.traffic.sumo.trips import road_frame
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingStreetController(Controller):

@@ -49,7 +49,7 @@ import pytest  # noqa: E402
 
 from corridor.errors import ScenarioError  # noqa: E402
 from corridor.scenario import load  # noqa: E402
-from corridor.traffic.road_spec import road_spec  # noqa: E402
+from corridor.traffic.sumo.road_spec import road_spec  # noqa: E402
 
 
 def write(tmp_path: Path, text: str | bytes, name: str = "s.yaml") -> Path:

@@ -18,7 +18,7 @@ import sumolib
 
 from corridor.api import run
 from corridor.cli import main
-from corridor.traffic.network import netconvert_binary
+from corridor.traffic.networks.registry import netconvert_binary
 
 ROOT = Path(__file__).resolve().parents[2]
 DURATION_S = 150.0
@@ -132,7 +132,7 @@ def test_sumocfg_gives_the_rows_of_its_files(own, tmp_path):
 
 def test_own_network_lanes_match_the_file(own):
     """The road frame's lanes are the network's: landmarks measured on the file."""
-    from corridor.traffic.network import build_network
+    from corridor.traffic.networks.registry import build_network
 
     params = {"net": str(own / "net" / "spider.net.xml"), "routes": [str(own / "net" / "extra.rou.xml")]}
     built = build_network("sumo_files", params)

@@ -9,8 +9,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.traffic.landmarks import Landmarks
-from corridor.traffic.network import BuildOutput, PlainNet, register_builder, run_netconvert
+from corridor.traffic.networks.landmarks import Landmarks
+from corridor.traffic.networks.registry import BuildOutput, PlainNet, register_builder, run_netconvert
 
 
 class RingParams(BaseModel):
