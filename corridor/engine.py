@@ -419,7 +419,10 @@ class Simulation:
         self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, [b.snapshot_part() for b in self._backends])
 
     def step(self) -> None:
-        """One tick; reads as the pipeline of DESIGN.md."""
+        """One tick: sense, communicate, decide, act, integrate, detect, record.
+
+        The pipeline is described in docs/architecture.md ("The tick").
+        """
         self._run(Phase.SENSE)
         self._run(Phase.COMMUNICATE)
         self._run(Phase.DECIDE)

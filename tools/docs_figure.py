@@ -1,16 +1,21 @@
-"""Make the front page's picture, docs/assets/uav_encounter.png, from a short uav_encounter batch.
+"""Make the docs' pictures: docs/assets/uav_encounter.png (the front page) and docs/assets/tpcap_case1.png.
 
 One seed of ``scenarios/uav_encounter.yaml`` (crossing geometry, 45 s) in its three variants, run
 through ``corridor.api.run``; the picture is drawn from the runs' recorded signals only:
 left, the two quadcopters' and the c172x's tracks seen from above (as the link's Kalman tracks record
 them); right, the smallest 3-D separation between any two aircraft over time, per variant.
 
-    python tools/docs_figure.py [--out docs/assets/uav_encounter.png] [--seed 0]
+The second is the parking planner's own plot of TPCAP case 1 (``corridor.controllers.parking.tpcap
+--plot``).
+
+    python tools/docs_figure.py [--assets docs/assets] [--seed 0]
 """
 
 from __future__ import annotations
 
 import argparse
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
@@ -53,7 +58,7 @@ def draw(signals: dict[str, dict], out: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "assets" / "uav_encounter.png")
+    ap.add_argument("--assets", type=Path, default=ROOT / "docs" / "assets")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
@@ -62,8 +67,11 @@ def main() -> None:
         if len(res.failed):
             raise SystemExit(f"a run failed: {res.failed[['run_id', 'error']].to_string()}")
         signals = {v: res.signals(f"{v}-s{args.seed}") for v in VARIANTS}
-        draw(signals, args.out)
-    print(args.out)
+        draw(signals, args.assets / "uav_encounter.png")
+        case = ROOT / "tests" / "data" / "tpcap" / "Case1.csv"
+        subprocess.run([sys.executable, "-m", "corridor.controllers.parking.tpcap", str(case), "--out",
+                        str(Path(tmp) / "traj.csv"), "--plot", str(args.assets / "tpcap_case1.png")], check=True)
+    print(f"{args.assets}/uav_encounter.png, {args.assets}/tpcap_case1.png")
 
 
 if __name__ == "__main__":
