@@ -3,7 +3,7 @@
 A fenced code block is runnable when the line before its fence is the HTML comment ``<!-- runs -->``
 (it must exit 0) or ``<!-- runs: exit N -->`` (it must exit with code N); mkdocs renders neither
 comment.  Each block runs in a scratch folder of its own that links the repository's ``scenarios/``,
-``tests/`` and ``.venv`` (so ``source .venv/bin/activate`` and ``scenarios/merging.yaml`` work as in
+``tests/``, ``benchmarks/``, ``tools/`` and ``.venv`` (so ``source .venv/bin/activate`` and ``scenarios/merging.yaml`` work as in
 a clone): ``bash`` blocks with ``set -e``, ``python`` blocks with this interpreter.
 """
 
@@ -68,7 +68,7 @@ def all_blocks() -> list[Block]:
 
 def scratch_folder(tmp: Path) -> Path:
     """A folder that looks like a clone to the docs' commands (links, nothing copied)."""
-    for name in ("scenarios", "tests"):
+    for name in ("scenarios", "tests", "benchmarks", "tools"):
         (tmp / name).symlink_to(ROOT / name)
     (tmp / ".venv").symlink_to(Path(sys.prefix))
     return tmp
