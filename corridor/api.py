@@ -33,6 +33,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass(frozen=True)
 class BatchResult:
+    """A finished batch: its rows, its folder and the scenario it ran."""
+
     rows: pd.DataFrame  # one row per run of the batch (the content of runs.parquet)
     out: Path  # the batch folder
     scenario: Scenario  # the validated base scenario (--set applied; variants and draws are per run)
@@ -49,6 +51,7 @@ class BatchResult:
 
     @property
     def failed(self) -> pd.DataFrame:
+        """The rows whose run did not end ``ok`` (``status`` error), with their ``error`` message."""
         return self.rows[self.rows["status"] != "ok"]
 
 
@@ -60,7 +63,8 @@ def run(scenario: str | Path = "merging", *, runs: int = 1, seed: int | None = N
     """Run a scenario (a file, or a packaged scenario's name) as a batch; see ``run_scenario --help``.
 
     ``out`` defaults to ``results/<scenario name>``.  A folder that already holds a batch is refused
-    unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given."""
+    unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given.
+    """
     from corridor.cli import resolve_scenario
     from corridor.scenario import MAX_SEED, load
 

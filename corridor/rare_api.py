@@ -122,8 +122,11 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
 
 
 def _compare(res: dict[str, Any]) -> dict[str, Any]:
-    """Beside the estimate: the plain Monte Carlo interval of as many runs with as many failures as
-    the estimate implies, and the plain runs needed for the estimate's precision."""
+    """Add what plain Monte Carlo would give beside the estimate.
+
+    That is the plain interval of as many runs with as many failures as the estimate implies, and
+    the plain runs needed for the estimate's precision.
+    """
     from corridor.stats import clopper_pearson
 
     n, p = res.get("runs", 0), res.get("estimate", math.nan)
@@ -138,8 +141,11 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
             sets: Sequence[str] = (), variant: str | None = None, out: str | Path | None = None,
             resume: bool = False, overwrite: bool = False, executor: str = "local", workers: int = 2,
             address: str | None = None, progress: bool = False, report: bool = True) -> dict[str, Any]:
-    """Minimise spec ``spec``'s robustness over the randomized inputs; on a violation write
-    ``DIR/counterexample.yaml`` (the scenario with the violating inputs and seed fixed)."""
+    """Minimise spec ``spec``'s robustness over the randomized inputs (CMA-ES).
+
+    On a violation it writes ``DIR/counterexample.yaml`` (the scenario with the violating inputs and
+    seed fixed).
+    """
     sc, raw, path, var, first, out_dir = _setup(scenario, sets, variant, seed, budget, out, "falsify")
     ev = parse_event(f"spec:{spec}", [s.name for s in sc.specs])
     if not sc.randomize:
@@ -173,8 +179,11 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
 
 def write_counterexample(dest: Path, path: Path, sets: list[str], variant: str, row: dict[str, Any],
                          inputs: list[str], spec: str) -> None:
-    """The scenario (``extends`` and ``--set`` resolved) with the run's seed and every draw fixed in its
-    variant's overrides: ``run_scenario counterexample.yaml`` runs exactly that run again."""
+    """Write the scenario with the run's seed and every draw fixed in its variant's overrides.
+
+    ``extends`` and ``--set`` are resolved, so ``run_scenario counterexample.yaml`` runs exactly that
+    run again.
+    """
     import yaml
 
     from corridor.estimate import _plain
