@@ -6,7 +6,8 @@ left, the two quadcopters' and the c172x's tracks seen from above (as the link's
 them); right, the smallest 3-D separation between any two aircraft over time, per variant.
 
 The second is the parking planner's own plot of TPCAP case 1 (``corridor.controllers.parking.tpcap
---plot``).
+--plot``).  The scenario pages also show plots of corridor's batch report as it draws them (inline SVG
+in ``report.html``), cut out of the reports of short batches: docs/assets/<scenario>_<plot>.svg.
 
     python tools/docs_figure.py [--assets docs/assets] [--seed 0]
 """
@@ -14,6 +15,7 @@ The second is the parking planner's own plot of TPCAP case 1 (``corridor.control
 from __future__ import annotations
 
 import argparse
+import re
 import subprocess
 import sys
 import tempfile
@@ -56,10 +58,43 @@ def draw(signals: dict[str, dict], out: Path) -> None:
     plt.close(fig)
 
 
+# scenario -> (--set overrides, variants, {report section title: asset name})
+REPORT_PLOTS: dict[str, tuple[list[str], list[str], dict[str, str]]] = {
+    "merging": (["duration=300"], [], {"Mean speed": "merging_mean_speed",
+                                       "Time lost around the merge": "merging_merge_loss"}),
+    "ramp_metering": (["duration=1200"], ["mpc"], {"Mainline speed contour": "ramp_metering_contour",
+                                                   "Meter rates": "ramp_metering_meter_rates"}),
+}
+
+
+def report_svg(html: str, title: str) -> str:
+    """The first inline SVG of the report section headed ``title`` (a ValueError if there is none)."""
+    start = html.find(f"<h2>{title}</h2>")
+    found = re.search(r"<svg.*?</svg>", html[start:], flags=re.S) if start >= 0 else None
+    if found is None:
+        raise ValueError(f"report.html has no plot under {title!r}")
+    return found.group(0)
+
+
+def report_plots(assets: Path, tmp: Path, seed: int) -> list[Path]:
+    """Run each scenario of ``REPORT_PLOTS`` briefly and keep the named plots of its report."""
+    written = []
+    for name, (sets, variants, plots) in REPORT_PLOTS.items():
+        res = run(ROOT / "scenarios" / f"{name}.yaml", runs=1, seed=seed, sets=sets, variants=variants,
+                  out=tmp / name)
+        html = (res.out / "report.html").read_text(encoding="utf-8")
+        for title, asset in plots.items():
+            path = assets / f"{asset}.svg"
+            path.write_text(report_svg(html, title) + "\n", encoding="utf-8")
+            written.append(path)
+    return written
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--assets", type=Path, default=ROOT / "docs" / "assets")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--no-reports", action="store_true", help="skip the report plots of the scenario pages")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         res = run(ROOT / "scenarios" / "uav_encounter.yaml", runs=1, seed=args.seed, sets=SETS,
@@ -71,7 +106,8 @@ def main() -> None:
         case = ROOT / "tests" / "data" / "tpcap" / "Case1.csv"
         subprocess.run([sys.executable, "-m", "corridor.controllers.parking.tpcap", str(case), "--out",
                         str(Path(tmp) / "traj.csv"), "--plot", str(args.assets / "tpcap_case1.png")], check=True)
-    print(f"{args.assets}/uav_encounter.png, {args.assets}/tpcap_case1.png")
+        written = [] if args.no_reports else report_plots(args.assets, Path(tmp), args.seed)
+    print(f"{args.assets}/uav_encounter.png, {args.assets}/tpcap_case1.png", *written)
 
 
 if __name__ == "__main__":
