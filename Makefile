@@ -10,7 +10,7 @@ DEV_STAMP := $(VENV)/.installed-dev
 RUNS ?= 4
 OUT ?= results/merging
 
-.PHONY: run test test-all lint bench docs clean
+.PHONY: run test test-all lint bench docs clean chromium
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -26,12 +26,16 @@ $(DEV_STAMP): $(STAMP) pyproject.toml
 run: $(STAMP)
 	$(BIN)/run_scenario scenarios/merging.yaml --runs $(RUNS) --out $(OUT) --overwrite
 
-test: $(DEV_STAMP)
+# the report's browser test drives Debian's Chromium (playwright, no browser download)
+chromium:
+	@test -x /usr/bin/chromium || (apt-get update -qq && apt-get install -y -qq chromium)
+
+test: $(DEV_STAMP) chromium
 	$(BIN)/ruff check .
 	$(BIN)/python tools/lint_imports.py
 	$(BIN)/pytest -q -n 2
 
-test-all: $(DEV_STAMP)
+test-all: $(DEV_STAMP) chromium
 	$(BIN)/pytest -q -n 2 -m ''
 
 lint: $(DEV_STAMP)

@@ -17,12 +17,20 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind
 
 
 class AirPairs(Component):
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('sep_min_*_m', 'm',
+               'Smallest 3-D distance within a pair class (uav_uav, uav_aircraft, uav_medical; sep_min_h_*: horizontal).'),
+        Metric('nmac_*', '1',
+               'NMACs within a pair class (uav_uav, uav_aircraft, uav_medical).', safety_event=True),
+        Metric('los_*', '1',
+               'Losses of separation within a pair class (uav_uav, uav_aircraft, uav_medical).', safety_event=True),
+    )
     period_source: ClassVar[str | None] = "dt"
 
     class Params(BaseModel):

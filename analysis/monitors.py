@@ -9,7 +9,7 @@ from pydantic import BaseModel, ConfigDict
 
 from corridor.analysis.ccd import Poses, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind, Role
 
 # plain ints: numpy compares an IntEnum member ~100x slower than an int (it probes the enum class)
@@ -32,6 +32,12 @@ class CollisionMonitor(Component):
     pairs are decided by the oriented-box check, which sees every controlled row's real pose."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('collisions', '1',
+               "Pairs of entities whose footprints overlapped (SUMO's own report plus oriented-box overlap), each pair counted once.", safety_event=True),
+        Metric('first_collision_s', 's',
+               'Simulated time of the first collision (NaN: none).'),
+    )
     period_source: ClassVar[str | None] = "dt"
 
     class Params(BaseModel):

@@ -20,11 +20,15 @@ the ego's place is judged the same way.
   so the creeping of a final correction is not counted).
 
 Signals: ``clearance`` [m], ``speed`` [m/s] (signed, from the displacement along the heading) and
-``pos_err`` [m] each period.
+``pos_err`` [m] each period.  At the end it writes ``parking/lot-<run_id>.json`` for the report's lot
+figure: the lot's outlines (``landmarks.outlines()``), the parked cars' boxes, the goal pose, every
+planned path the run's events carried (``data["polyline"]`` of ``plan`` events) and the driven path
+(the ego's box centre each period).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any, ClassVar
 
@@ -33,12 +37,36 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.parking.clearance import box_polygons, clearances
 from corridor.controllers.parking.spot_detection import Slot, match_slots, true_slots
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind
+
+LOT_FILE = "parking/lot.json"  # per run: parking/lot-<run_id>.json
 
 
 class ParkingMonitor(Component):
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('success', '1',
+               "1 if the ego stopped within the monitor's position and heading tolerance of the bay pose."),
+        Metric('pos_err_m', 'm',
+               "Final distance of the ego's reference point from the goal pose."),
+        Metric('heading_err_rad', 'rad',
+               'Final absolute heading error to the goal pose.'),
+        Metric('min_clearance_m', 'm',
+               "Smallest distance between the ego's footprint and any obstacle."),
+        Metric('manoeuvre_time_s', 's',
+               'Time from the first move (or the slot choice) to the last move.'),
+        Metric('direction_changes', '1',
+               'Forward/reverse switches during the manoeuvre.'),
+        Metric('slot_precision', '1',
+               'Share of the detected free slots that are real free slots.'),
+        Metric('slot_recall', '1',
+               'Share of the real free slots that were detected.'),
+        Metric('slots_detected', '1',
+               "Free slots the ego's sensors detected."),
+        Metric('slots_true', '1',
+               'Free slots in the scene.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):
@@ -63,6 +91,7 @@ class ParkingMonitor(Component):
         self.final: tuple[float, float, float] | None = None  # (pos err, heading err, v)
         self.parked: np.ndarray | None = None  # (m, 4, 2) the parked cars of the first snapshot
         self._prev: tuple[float, np.ndarray] | None = None  # (t [s], ego centre xy [m])
+        self._driven: list[tuple[float, float, float]] = []  # (t [s], x [m], y [m]) of the ego's centre
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -74,6 +103,7 @@ class ParkingMonitor(Component):
             cars = np.flatnonzero((s.ids != self.p.ego) & (s.kind == Kind.CAR) & (s.speed < 0.01))
             self.parked = box_polygons(s.position[cars, :2], s.heading[cars], s.size[cars, 0], s.size[cars, 1])
         goal = self._goal(ctx)
+        self._driven.append((ctx.t, float(s.position[k, 0]), float(s.position[k, 1])))
         h = float(s.heading[k])
         v = self._signed_speed(ctx.t, s.position[k, :2], h)
         others = np.flatnonzero(s.ids != self.p.ego)
@@ -133,7 +163,21 @@ class ParkingMonitor(Component):
                 "slot_recall": tp / n_true if n_true else math.nan,
                 "slots_detected": n_found, "slots_true": n_true}
 
+    def _write_lot(self, ctx: RunContext) -> None:
+        """The lot, the plans and the driven path, for the report (``parking/lot-<run_id>.json``)."""
+        marks = ctx.snapshot.road.tables.landmarks if ctx.snapshot.road is not None else None
+        outlines = marks.outlines() if callable(getattr(marks, "outlines", None)) else {}
+        goal = self._goal(ctx)
+        doc = {"outlines": {k: [np.asarray(q, float).tolist() for q in v] for k, v in outlines.items()},
+               "parked": [] if self.parked is None else np.asarray(self.parked, float).tolist(),
+               "goal": None if goal is None else [float(x) for x in goal],
+               "plans": [{"t": ev.t, "xy": np.asarray(ev.data["polyline"], float).tolist()}
+                         for ev in ctx.events.of_kind("plan") if ev.data.get("polyline") is not None],
+               "driven": self._driven}
+        ctx.output_path(LOT_FILE).write_text(json.dumps(doc))
+
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._write_lot(ctx)
         if self.final is None:
             out = {c: math.nan for c in self.metric_columns()}
             return {**out, "success": 0, **self._score_slots(ctx)}

@@ -41,7 +41,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.ccd import MAX_STEP_M, closest_approach, interval_below
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import Kind
 
 
@@ -49,6 +49,30 @@ class SeparationMonitor(Component):
     """DETECT-phase monitor of aircraft separation (registered as ``uav_separation``)."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('nmac', '1',
+               'Near mid-air collisions: aircraft pairs entering the NMAC cylinder (horizontal and vertical thresholds of the monitor).', safety_event=True),
+        Metric('los', '1',
+               'Losses of separation: aircraft pairs entering the loss-of-separation cylinder.', safety_event=True),
+        Metric('nmac_pairs', '1',
+               'Distinct aircraft pairs that had an NMAC.', safety_event=True),
+        Metric('sep_min_h_m', 'm',
+               'Smallest horizontal distance between any two aircraft (continuous closest approach).'),
+        Metric('sep_min_v_m', 'm',
+               'Smallest vertical distance between two aircraft while horizontally close (NaN: never close).'),
+        Metric('sep_min_3d_m', 'm',
+               'Smallest 3-D distance between any two aircraft.'),
+        Metric('goal_reached_frac', '1',
+               'Share of the UAVs that reached their goal.'),
+        Metric('time_to_goal_mean_s', 's',
+               'Mean time to reach the goal over the UAVs that reached it.'),
+        Metric('time_to_goal_max_s', 's',
+               'Longest time to reach the goal over the UAVs that reached it.'),
+        Metric('path_ratio_mean', '1',
+               'Mean over UAVs of flown path length / straight start-goal distance.'),
+        Metric('path_ratio_max', '1',
+               'Largest flown path length / straight start-goal distance.'),
+    )
     # the air backend holding the goals (none: no goal metrics)
     needs: ClassVar[dict[str, Need]] = {"air": Need(role="air", name_at="params.backend", optional=True)}
     air: Any = None  # that peer (set by the engine at build)

@@ -13,7 +13,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict
 
 from corridor.analysis.stl import STLSignalError, as_formula, evaluate_spec
-from corridor.engine import Component, Phase, RunContext
+from corridor.engine import Component, Metric, Phase, RunContext
 
 
 class SpecMonitor(Component):
@@ -21,6 +21,13 @@ class SpecMonitor(Component):
 
     phase = Phase.RECORD
     period_source: ClassVar[str | None] = "run"  # one no-op tick at t = 0
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric("spec.*.satisfied", "1", "1 if the run satisfied STL spec <name> (a violation counts in the verdict)."),
+        Metric("spec.*.space", "1", "Space robustness of STL spec <name>: > 0 satisfied with that margin, in the "
+               "units of the signals it compares."),
+        Metric("spec.*.time", "s", "Time robustness of STL spec <name>: how far in time the signals could shift "
+               "and keep the verdict."),
+    )
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

@@ -161,6 +161,22 @@ class RunContext:
 
 
 @dataclass(frozen=True)
+class Metric:
+    """A column a component's ``finish`` writes, as the report's glossary and verdict read it.
+
+    ``name``: the column (``*`` stands for any text: ``nmac_*`` covers ``nmac_uav_uav``, ...);
+    ``unit``: SI with the unit's name (``m``, ``s``, ``m/s``, ``rad``, ``veh``, ``1`` for a count or a
+    ratio); ``meaning``: one sentence; ``safety_event``: the column counts safety events (a collision,
+    an NMAC, a loss of separation): a run with a value > 0 had one, and the report's verdict counts it.
+    """
+
+    name: str
+    unit: str
+    meaning: str
+    safety_event: bool = False
+
+
+@dataclass(frozen=True)
 class Need:
     """A peer a component needs, resolved by the engine at build (``Simulation.__init__``).
 
@@ -206,6 +222,8 @@ class Component:
     provides: ClassVar[frozenset[str]] = frozenset()
     period_source: ClassVar[str | None] = None
     period_override: float | None = None  # [s] the scenario's ``period:`` of this component
+    # the columns ``finish`` writes (report glossary and verdict); None: not declared, () : none
+    metrics: ClassVar[tuple[Metric, ...] | None] = None
 
     def __init__(self, name: str) -> None:
         self.name = name

@@ -11,13 +11,25 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import os
 import re
 import stat
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from corridor.channel import ChannelConfig
 from corridor.errors import ScenarioError, clip
@@ -69,6 +81,84 @@ def _check_name(value: str, what: str) -> str:
         raise ValueError(f"{what} {clip(value)} must be 1-64 letters, digits, '_', '-' or '.', start with a "
                          "letter or digit and not contain '..' (it names files)")
     return value
+
+
+# ---------------------------------------------------------------- files a scenario names
+# The folder of the scenario file being validated (set by ``load`` and by a run, see ``scenario_dir``):
+# relative paths of ``ScenarioFile`` fields are taken from it.  Unset (a report re-reading a
+# scenario), a relative path is kept as written and not checked.
+_SCENARIO_DIR: ContextVar[Path | None] = ContextVar("corridor_scenario_dir", default=None)
+_NAMED_FILES: ContextVar[set[str] | None] = ContextVar("corridor_named_files", default=None)
+
+
+@contextmanager
+def scenario_dir(folder: str | Path | None) -> Iterator[set[str]]:
+    """Validate inside this block with relative ``ScenarioFile`` paths taken from ``folder``.
+
+    Yields:
+        The set of the files resolved in it (absolute paths).
+    """
+    named: set[str] = set()
+    token = _SCENARIO_DIR.set(Path(folder).resolve() if folder is not None else None)
+    files_token = _NAMED_FILES.set(named)
+    try:
+        yield named
+    finally:
+        _NAMED_FILES.reset(files_token)
+        _SCENARIO_DIR.reset(token)
+
+
+def file_stamps(files: set[str]) -> dict[str, list[int]]:
+    """Size [B] and modification time [ns] of each file a scenario names: path -> [size, mtime].
+
+    A batch folder records them: ``--resume`` after one changed is refused.
+    """
+    out: dict[str, list[int]] = {}
+    for f in sorted(files):
+        try:
+            st = os.stat(f)
+        except OSError:
+            continue
+        out[f] = [st.st_size, st.st_mtime_ns]
+    return out
+
+
+def resolving_files() -> bool:
+    """True inside ``scenario_dir``: files a scenario names are resolved and must exist.
+
+    A validator that reads them checks them only then.
+    """
+    return _SCENARIO_DIR.get() is not None
+
+
+def _scenario_file(text: str) -> str:
+    """The absolute path of a file named by a scenario, relative to the scenario file's folder.
+
+    It must be an existing file (refused at load, one line).
+    """
+    base = _SCENARIO_DIR.get()
+    path = Path(text).expanduser()
+    if not text or "\0" in text:
+        raise ValueError(f"{clip(text)} is not a file path")
+    if base is None:
+        return str(path)
+    full = path if path.is_absolute() else base / path
+    try:
+        found = full.is_file()
+    except OSError:  # a name too long for the file system, ...
+        found = False
+    if not found:
+        where = "" if path.is_absolute() else f" (relative to the scenario's folder {clip(str(base), 80)[1:-1]})"
+        what = "not a regular file" if os.path.lexists(full) else "no such file"
+        raise ValueError(f"{what}: {clip(text, 80)}{where}")
+    resolved = str(full.resolve())
+    named = _NAMED_FILES.get()
+    if named is not None:
+        named.add(resolved)
+    return resolved
+
+
+ScenarioFile = Annotated[str, AfterValidator(_scenario_file)]  # a component's params field naming a file
 
 
 # ---------------------------------------------------------------- components, specs, batches
@@ -677,13 +767,31 @@ def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] =
                 known = known if len(known) <= 120 else known[:known.rfind(", ", 0, 118)] + ", …"
                 hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {known}"
                 raise ScenarioError(f"{source}: {where}.type: unknown {registry.what} {clip(spec.type)}{hint}")
-            params_model = getattr(registry.get(spec.type), "Params", None)
+            cls = registry.get(spec.type)
+            params_model = getattr(cls, "Params", None)
+            params: Any = spec.params
             if params_model is not None:
                 try:
-                    params_model.model_validate(spec.params)
+                    params = params_model.model_validate(spec.params)
                 except ValidationError as exc:
                     raise ScenarioError(format_error(source, exc, params_model, f"{where}.params",
                                                      shorthands if table == "backends" else frozenset())) from None
+            _check_component(cls, params, sc, f"{source}: {where}")
+
+
+def _check_component(cls: Any, params: Any, sc: Scenario, where: str) -> None:
+    """Run a component's own load-time check of the scenario around it, if it has one.
+
+    ``check_scenario(params, sc)`` is optional: a controller that needs landmarks the road's network
+    does not have says so here.
+    """
+    check = getattr(cls, "check_scenario", None)
+    if check is None:
+        return
+    try:
+        check(params, sc)
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: {str(exc).strip()}") from None
 
 
 def check_randomize(sc: Scenario, data: dict[str, Any], source: str) -> None:
@@ -773,9 +881,39 @@ def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
     return ""
 
 
+def set_overrides(sets: Sequence[str]) -> dict[str, Any]:
+    """The ``--set`` values as overrides applied after a run's sweep variant.
+
+    The command line wins over a variant that sets the same field (``sweep.`` and ``randomize.``
+    paths are not re-applied: they edit the variants and draws themselves).
+    """
+    out: dict[str, Any] = {}
+    for item in sets:
+        key, _, value = item.partition("=")
+        key = key.strip()
+        if key.split(".")[0] not in ("sweep", "randomize"):
+            out[key] = parse_value(value)
+    return out
+
+
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:
-    """Load, resolve, override and validate; returns the typed scenario and its raw data."""
+    """Load, resolve, override and validate; returns the typed scenario and its raw data.
+
+    Files the scenario names (``ScenarioFile`` fields) are relative to the scenario file's folder.
+    """
+    sc, data, _ = load_with_files(path, sets)
+    return sc, data
+
+
+def load_with_files(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any], set[str]]:
+    """``load``, and the files the scenario names (``ScenarioFile`` fields of the base scenario)."""
     data = load_raw(path, sets)
+    with scenario_dir(Path(path).parent) as named:
+        sc, data = _load_validated(path, data, sets)
+    return sc, data, named
+
+
+def _load_validated(path: str | Path, data: dict[str, Any], sets: list[str] | None) -> tuple[Scenario, dict[str, Any]]:
     try:
         sc = validate(data, str(path))
     except ScenarioError as exc:
@@ -783,9 +921,9 @@ def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dic
         if not hint:
             raise
         raise ScenarioError(re.sub("; allowed: .*", "", str(exc)) + hint) from None
-    for item in sets or []:  # a variant the user --set is checked now, not in every run of the batch
-        parts = item.partition("=")[0].strip().split(".")
-        if len(parts) > 2 and parts[0] == "sweep" and parts[1] in sc.sweep:
-            validate(apply_overrides(data, sc.sweep[parts[1]]), f"{path} [sweep.{_key(parts[1])}]")
+    after = set_overrides(sets or [])
+    for variant, over in sc.sweep.items():  # every variant is checked now, not in every run of the batch
+        if over:
+            validate(apply_overrides(data, {**over, **after}), f"{path} [sweep.{_key(variant)}]")
     check_randomize(sc, data, str(path))
     return sc, data

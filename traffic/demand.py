@@ -11,7 +11,7 @@ by ``begin``, so all flows are sorted across FlowDefs.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Collection, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -126,12 +126,14 @@ def write_routes(
     flows: Sequence[FlowDef],
     end_s: float,
     step_s: float = 60.0,
+    known_routes: Collection[str] = (),
 ) -> Path:
-    """Write a SUMO routes file with ``vtypes``, named ``routes`` and stepwise ``flows`` up to ``end_s``."""
+    """Write a SUMO routes file with ``vtypes``, named ``routes`` and stepwise ``flows`` up to ``end_s``
+    (a flow may also use a route of ``known_routes``, declared by another route file of the run)."""
     if end_s <= 0 or step_s <= 0:
         raise ValueError(f"end_s ({end_s}) and step_s ({step_s}) must be > 0")
     for flow in flows:
-        if flow.route not in routes:
+        if flow.route not in routes and flow.route not in known_routes:
             raise ValueError(f"flow {flow.id!r}: unknown route {flow.route!r}")
         if flow.vtype not in {v.id for v in vtypes}:
             raise ValueError(f"flow {flow.id!r}: unknown vtype {flow.vtype!r}")

@@ -24,7 +24,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import DetectorFrame
 from corridor.traffic.landmarks import BeltwayLandmarks, MeteredRamp
 from corridor.traffic.loop_faults import LoopFaults, Reading, StationFault, apply_fault, draw_faults
@@ -74,6 +74,10 @@ class RampDetectors(Component):
 
     phase = Phase.SENSE
     provides: ClassVar[frozenset[str]] = frozenset({"ramp_detectors"})
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('loops_failed', '1',
+               'Loop detectors failed by the fault model.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"  # [s] queue sampling
 
     class Params(BaseModel):

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.detectors import DIRECTIONS, NEEDS_DETECTORS, RampDetectors, RampMeasurement
 from corridor.traffic.fusion import FusionParams, SegmentFilter
 
@@ -29,6 +29,20 @@ class SegmentFusion(Component):
     needs: ClassVar[dict[str, Need]] = {"det": NEEDS_DETECTORS,
                                         "link": Need(role="air_link", name_at="params.link", optional=True)}
     provides: ClassVar[frozenset[str]] = frozenset({"segment_estimate"})
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('fusion_uav_estimates', '1',
+               'UAV segment estimates received.'),
+        Metric('fusion_uav_aoi_mean_s', 's',
+               'Mean age of the UAV estimates on arrival.'),
+        Metric('fusion_uav_aoi_max_s', 's',
+               'Largest age of a UAV estimate on arrival.'),
+        Metric('fusion_stations_downweighted', '1',
+               'Detector stations whose weight fell below 0.5 (judged faulty).'),
+        Metric('fusion_stations_zero', '1',
+               'Detector stations that reported zeros.'),
+        Metric('fusion_zero_rejected', '1',
+               'Zero reports rejected.'),
+    )
     period_source: ClassVar[str | None] = "params.period_s"
     det: RampDetectors
 

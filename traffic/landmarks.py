@@ -171,12 +171,27 @@ class StreetParkingLandmarks(Landmarks):
     end_x: float  # [m] a counting line near the street's east end (``traffic_kpis``)
 
 
+class SumoFilesLandmarks(Landmarks):
+    """``sumo_files``: a user's own SUMO network.  corridor knows no merge, ramp or bay on it: only
+    what is measured on the network file."""
+
+    kind: Literal["sumo_files"] = "sumo_files"
+    edges: int  # normal (non-internal) edges
+    lanes: int  # their lanes
+    lanes_length_m: float  # [m] summed over those lanes
+    bbox_m: tuple[float, float, float, float]  # [m] x min, y min, x max, y max of the network
+
+
 LANDMARK_MODELS: dict[str, type[Landmarks]] = {
     m.model_fields["kind"].default: m
-    for m in (OnrampLandmarks, RuralLandmarks, BeltwayLandmarks, StreetParkingLandmarks)
+    for m in (OnrampLandmarks, RuralLandmarks, BeltwayLandmarks, StreetParkingLandmarks, SumoFilesLandmarks)
 }
 
 
 def parse_landmarks(data: dict[str, Any]) -> Landmarks:
-    """The typed landmarks of a cache entry's JSON (by its ``kind``)."""
-    return LANDMARK_MODELS[data["kind"]].model_validate(data)
+    """The typed landmarks of a cache entry's JSON (by its ``kind``; a kind no model claims, e.g. a
+    plug-in builder's, is read as the plain ``Landmarks``)."""
+    model = LANDMARK_MODELS.get(data["kind"])
+    if model is None:
+        return Landmarks.model_validate({k: data[k] for k in Landmarks.model_fields})
+    return model.model_validate(data)

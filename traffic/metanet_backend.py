@@ -15,7 +15,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Backend, Need, RunContext
+from corridor.engine import Backend, Metric, Need, RunContext
 from corridor.traffic.metanet import MetanetNetwork, MetanetParams, total_time_spent_step
 from corridor.traffic.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
 
@@ -37,6 +37,14 @@ class MetanetBackend(Backend):
     """One METANET network stepped at its model step; TTS and queues as metrics."""
 
     provides: ClassVar[frozenset[str]] = frozenset({"metanet"})
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('tts_vh', 'veh*h',
+               'Total time spent in the macroscopic model (mainline and origin queues).'),
+        Metric('queue_max_*', 'veh',
+               'Longest queue at origin <name>.'),
+        Metric('queue_max_over_storage', '1',
+               'Largest metered queue relative to its storage.'),
+    )
     period_source: ClassVar[str | None] = "p.step_s"  # [s] the model step
 
     class Params(BaseModel):

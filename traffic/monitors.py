@@ -4,6 +4,7 @@ merge, travel-time delay of mainline and ramp vehicles).  They read only the sna
 
 from __future__ import annotations
 
+import math
 from typing import Any, ClassVar
 
 import numpy as np
@@ -11,8 +12,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.safety import lane_leaders, ttc_drac
 from corridor.analysis.stats import jain_index
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import RoadTables, Role
+from corridor.traffic.road_spec import check_landmark_positions
 from corridor.traffic.tick_block import TickBlock
 from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 
@@ -20,10 +22,24 @@ from corridor.traffic.trips import NEEDS_ROAD, NEEDS_TRIPS, road_frame
 class SurrogateSafety(Component):
     """Minimum TTC, maximum DRAC, time exposed to TTC below a threshold, hard-braking events.
 
+    No closing pair (no follower faster than its leader after the warm-up): ``min_ttc_s`` is NaN (a
+    missing value: means skip it, the summary counts the runs without it), and the ``min_ttc`` signal
+    is +inf at a tick without one (the time to collision is infinite, so ``G(min_ttc > 1.5)`` holds).
+
     The ticks are processed in blocks of ``block_ticks`` (``corridor.traffic.tick_block``; the
     ``min_ttc`` signal is recorded when a block is processed, each value with its own tick's time)."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('min_ttc_s', 's',
+               'Smallest time-to-collision over leader-follower pairs after the warm-up.'),
+        Metric('max_drac_mps2', 'm/s^2',
+               'Largest deceleration rate to avoid a crash after the warm-up.'),
+        Metric('ttc_exposed_s', 's',
+               'Time exposed to a TTC below the threshold, summed over vehicles (TET).'),
+        Metric('hard_brakes', '1',
+               'Times a vehicle started braking harder than the hard-brake threshold.'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
     block_ticks: ClassVar[int] = 100
@@ -71,7 +87,7 @@ class SurrogateSafety(Component):
             exposed = np.bincount(at[ttc < self.p.ttc_threshold_s], minlength=len(b))
             for k in exposed[counting & (exposed > 0)].tolist():  # tick by tick, as the sum was taken
                 self.tet += float(k) * self.period
-        ctx.signals.record_many("min_ttc", b.t, np.minimum(ttc_now, 99.0))
+        ctx.signals.record_many("min_ttc", b.t, ttc_now)
 
     def _hard_brakes(self, uid: np.ndarray, braking: np.ndarray, counting: np.ndarray, n_uids: int) -> None:
         """Count the rows where a vehicle starts braking hard (not braking at its previous tick)."""
@@ -94,7 +110,7 @@ class SurrogateSafety(Component):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         self._process(ctx)
-        return {"min_ttc_s": min(self.min_ttc, 99.0), "max_drac_mps2": self.max_drac,
+        return {"min_ttc_s": self.min_ttc if math.isfinite(self.min_ttc) else math.nan, "max_drac_mps2": self.max_drac,
                 "ttc_exposed_s": self.tet, "hard_brakes": self.hard_brakes}
 
 
@@ -119,15 +135,53 @@ class TrafficKpis(Component):
     ``insertion_backlog`` is the number still waiting to enter the network at the end."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('throughput_vph', 'veh/h',
+               'Vehicles crossing the counting line (past the merge) per hour after the warm-up.'),
+        Metric('tts_vh', 'veh*h',
+               'Total time spent: vehicles on the road plus waiting to enter, integrated after the warm-up.'),
+        Metric('insertion_backlog', 'veh',
+               'Vehicles still waiting to enter the network at the end.'),
+        Metric('delay_mean_s', 's',
+               'Mean travel-time delay of the measured vehicles (unfinished trips count with their delay so far).'),
+        Metric('delay_total_vh', 'veh*h',
+               'Summed delay of the measured vehicles.'),
+        Metric('delay_*_mean_s', 's',
+               'Mean delay by role (mainline, ramp).'),
+        Metric('delay_*_p95_s', 's',
+               '95th percentile of the delay by role (mainline, ramp).'),
+        Metric('n_*', 'veh',
+               'Measured vehicles by role (mainline, ramp).'),
+        Metric('delay_jain_index', '1',
+               "Jain's fairness index between the mainline and ramp mean delays (1: equal)."),
+        Metric('energy_proxy_mean', 'm^2/s^3',
+               'Mean over arrived vehicles of the integral of acceleration squared.'),
+        Metric('merge_loss_*_s', 's',
+               'Mean time lost inside the merge area per vehicle, by role (mainline, ramp, mean: all).'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD, "trips": NEEDS_TRIPS}
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
     block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.traffic.tick_block)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
-        count_landmark: str = "past_merge_x"  # network landmark giving the counting line x [m]
+        count_landmark: str | None = "past_merge_x"  # network landmark giving the counting line x [m];
+        #   None (a network without one, e.g. a user's own): throughput counts arrivals at destinations
         merge_area: MergeArea | None = None  # time loss inside this stretch, reported on its own
         prefix: str = Field("", max_length=32, pattern=r"^[A-Za-z0-9_.]*$")  # column prefix, e.g. "traffic."
+
+    @classmethod
+    def check_scenario(cls, params: Params, scenario: Any) -> None:
+        """At load: the counting line and the merge area are positions the road's network has."""
+        hint = {"count_landmark": params.count_landmark}
+        if params.merge_area is not None:
+            hint |= {"merge_area.start_landmark": params.merge_area.start_landmark,
+                     "merge_area.end_landmark": params.merge_area.end_landmark}
+        try:
+            check_landmark_positions(scenario, hint)
+        except ValueError as exc:
+            raise ValueError(f"{exc} (count_landmark: null counts arrivals instead)"
+                             if "count_landmark" in str(exc) else str(exc)) from None
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -143,7 +197,7 @@ class TrafficKpis(Component):
 
     def setup(self, ctx: RunContext) -> None:
         lm = road_frame(ctx).tables.landmarks
-        self.line_x = lm.x(self.p.count_landmark)
+        self.line_x = lm.x(self.p.count_landmark) if self.p.count_landmark is not None else None
         a = self.p.merge_area
         self.area_x = (lm.x(a.start_landmark) - a.before_m, lm.x(a.end_landmark) + a.after_m) if a else None
 
@@ -176,14 +230,19 @@ class TrafficKpis(Component):
         np.add.at(self.energy, uid[counting], (accel * accel * self.period)[counting])  # sequential: tick order
         if self.area_x is not None:
             self._merge_area_loss(tb, uid, lane, x, speed)
+        ctx.signals.record_many("vehicles", b.t, b.rows)
+        ctx.signals.record_many("mean_speed", b.t, [float(np.add.reduce(speed[k:k + n])) / n  # = speed.mean()
+                                                    for k, n in zip(b.starts.tolist(), b.rows.tolist(), strict=True)])
+        if self.line_x is not None:
+            self._count_past_line(uid, x, counting)
+
+    def _count_past_line(self, uid: np.ndarray, x: np.ndarray, counting: np.ndarray) -> None:
+        """Count each vehicle once, at its first row past the counting line."""
         past = np.flatnonzero(x > self.line_x)
         seen, first = np.unique(uid[past], return_index=True)  # each vehicle's first row past the line
         new = past[first[~self.passed[seen]]]  # ... unless it was counted in an earlier block
         self.passed[seen] = True
         self.count += int(np.count_nonzero(counting[new]))
-        ctx.signals.record_many("vehicles", b.t, b.rows)
-        ctx.signals.record_many("mean_speed", b.t, [float(np.add.reduce(speed[k:k + n])) / n  # = speed.mean()
-                                                    for k, n in zip(b.starts.tolist(), b.rows.tolist(), strict=True)])
 
     def _merge_area_loss(self, tb: RoadTables, uid: np.ndarray, lane: np.ndarray, x: np.ndarray,
                          speed: np.ndarray) -> None:
@@ -224,7 +283,8 @@ class TrafficKpis(Component):
 
     def _finish(self, ctx: RunContext) -> dict[str, Any]:
         span_h = (ctx.duration - self.warmup) / 3600.0
-        out: dict[str, Any] = {"throughput_vph": self.count / span_h, "tts_vh": self.tts_vh}
+        count = self.count if self.line_x is not None else self.trips.arrivals_after(self.warmup)
+        out: dict[str, Any] = {"throughput_vph": count / span_h, "tts_vh": self.tts_vh}
         delays = self.trips.delays(self.warmup, unfinished=True)
         out["insertion_backlog"] = self.trips.backlog()
         for role, d in delays.items():

@@ -462,7 +462,7 @@ def _landmarks(
     })
 
 
-@register_builder("beltway", BeltwayParams)
+@register_builder("beltway", BeltwayParams, BeltwayLandmarks)
 def build_beltway(params: BeltwayParams, work_dir: Path) -> BuildOutput:
     """Build the ring, its detectors file and routes into ``work_dir``."""
     net_file = run_netconvert(work_dir, _plain(params))

@@ -110,7 +110,7 @@ def _landmarks(p: HighwayOnrampParams, net_file: Path) -> OnrampLandmarks:
     )
 
 
-@register_builder("highway_onramp", HighwayOnrampParams)
+@register_builder("highway_onramp", HighwayOnrampParams, OnrampLandmarks)
 def build_highway_onramp(params: HighwayOnrampParams, work_dir: Path) -> BuildOutput:
     """Build the merge network into ``work_dir``."""
     net_file = run_netconvert(work_dir, _plain(params))

@@ -108,7 +108,7 @@ def _landmarks(p: ParkingStreetParams, net_file: Path, centres: np.ndarray, head
         length_m=float(net.getLane("east_0").getLength()), end_x=float(p.length_m - 10.0))
 
 
-@register_builder("parking_street", ParkingStreetParams)
+@register_builder("parking_street", ParkingStreetParams, StreetParkingLandmarks)
 def build_parking_street(params: ParkingStreetParams, work_dir: Path) -> BuildOutput:
     net_file = run_netconvert(work_dir, _plain(params))
     net = sumolib.net.readNet(str(net_file))

@@ -63,7 +63,7 @@ def _landmarks(p: RuralTwoLaneParams, net_file: Path) -> RuralLandmarks:
     )
 
 
-@register_builder("rural_two_lane", RuralTwoLaneParams)
+@register_builder("rural_two_lane", RuralTwoLaneParams, RuralLandmarks)
 def build_rural_two_lane(params: RuralTwoLaneParams, work_dir: Path) -> BuildOutput:
     """Build the two-way road into ``work_dir``."""
     net_file = run_netconvert(work_dir, _plain(params))

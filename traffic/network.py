@@ -20,6 +20,7 @@ import sys
 import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -46,9 +47,16 @@ class BuiltNetwork:
     net_file: Path
     additional_files: tuple[Path, ...]  # detectors, TLS programs (may be empty)
     routes: Mapping[str, tuple[str, ...]]  # route name -> edge ids
-    lane_shapes: Mapping[str, np.ndarray]  # lane id -> (n, 2) polyline, SUMO x/y [m]
     landmarks: Landmarks  # typed, frozen facts of the builder (merge point, lanes, detectors, ...)
     params_hash: str
+    route_files: tuple[Path, ...] = ()  # a user's own SUMO route files (their vehicles, types, routes)
+    user_files: bool = False  # the network's own files declare its routes and vehicles (a user's network)
+
+    @cached_property
+    def lane_shapes(self) -> Mapping[str, np.ndarray]:
+        """Lane id -> (n, 2) polyline, SUMO x/y [m]; read on first use (the Rerun recorder): sumolib
+        parses a city-sized network file for tens of seconds, which a run without it never pays."""
+        return read_lane_shapes(self.net_file)
 
 
 @dataclass(frozen=True)
@@ -58,6 +66,8 @@ class BuildOutput:
     additional_files: tuple[str, ...]
     routes: Mapping[str, Sequence[str]]
     landmarks: Landmarks
+    route_files: tuple[str, ...] = ()  # SUMO route files in the work dir, loaded as they are
+    user_files: bool = False  # the routes are declared by those (or the additional) files
 
 
 @dataclass
@@ -72,13 +82,20 @@ class PlainNet:
 
 BuildFn = Callable[[Any, Path], BuildOutput]
 BUILDERS: dict[str, tuple[type[BaseModel], BuildFn]] = {}
+LANDMARKS: dict[str, type[Landmarks]] = {}  # builder name -> the landmarks model its networks carry
+# a plug-in package adds a builder by an entry point of this group: ``name = "pkg.module"``, a module
+# that registers ``name`` with ``register_builder`` when imported
+ENTRY_POINTS = "corridor.networks"
 
 
-def register_builder(name: str, model: type[BaseModel]) -> Callable[[BuildFn], BuildFn]:
-    """Decorator: register ``fn(params, work_dir) -> BuildOutput`` under ``name``."""
+def register_builder(name: str, model: type[BaseModel],
+                     landmarks: type[Landmarks] = Landmarks) -> Callable[[BuildFn], BuildFn]:
+    """Decorator: register ``fn(params, work_dir) -> BuildOutput`` under ``name``; ``landmarks`` is
+    the model of the landmarks it reports (checked at load by the components that need some)."""
 
     def decorate(fn: BuildFn) -> BuildFn:
         BUILDERS[name] = (model, fn)
+        LANDMARKS[name] = landmarks
         return fn
 
     return decorate
@@ -89,10 +106,25 @@ def params_model(kind: str) -> type[BaseModel]:
     return _lookup(kind)[0]
 
 
+def landmarks_model(kind: str) -> type[Landmarks]:
+    """The landmarks model of the networks of builder ``kind`` (known without building one)."""
+    _lookup(kind)
+    return LANDMARKS.get(kind, Landmarks)
+
+
 def _lookup(kind: str) -> tuple[type[BaseModel], BuildFn]:
+    if kind not in BUILDERS:
+        _load_plugin(kind)
     if kind not in BUILDERS:
         raise KeyError(f"unknown network kind {kind!r}; known: {', '.join(sorted(BUILDERS))}")
     return BUILDERS[kind]
+
+
+def _load_plugin(kind: str) -> None:
+    """Import the module a plug-in's ``corridor.networks`` entry point names for ``kind``."""
+    for ep in importlib.metadata.entry_points(group=ENTRY_POINTS):
+        if ep.name == kind:
+            importlib.import_module(ep.value.partition(":")[0])
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -225,7 +257,16 @@ def params_hash(kind: str, params: BaseModel) -> str:
         "format": CACHE_FORMAT,
         "code": _code_digest(kind),
     }
+    files = getattr(params, "input_files", None)  # a builder reading a user's files: their versions
+    if files is not None:
+        key["files"] = [_file_stamp(Path(f)) for f in files()]
     return hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()[:20]
+
+
+def _file_stamp(path: Path) -> list[Any]:
+    """(path, size [B], modification time [ns]) of an input file: an edited file is a new entry."""
+    st = path.stat()
+    return [str(path), st.st_size, st.st_mtime_ns]
 
 
 def _code_digest(kind: str) -> str:
@@ -265,6 +306,8 @@ def _build_into_cache(kind: str, params: BaseModel, build_fn: BuildFn, entry: Pa
             "additional_files": list(out.additional_files),
             "routes": {k: list(v) for k, v in out.routes.items()},
             "landmarks": out.landmarks.model_dump(mode="json"),
+            "route_files": list(out.route_files),
+            "user_files": out.user_files,
         }
         (tmp / META_FILE).write_text(json.dumps(meta, indent=1, sort_keys=True), encoding="utf-8")
         try:
@@ -284,11 +327,20 @@ def _load_entry(entry: Path, digest: str) -> BuiltNetwork:
         net_file=net_file,
         additional_files=tuple(entry / name for name in meta["additional_files"]),
         routes={k: tuple(v) for k, v in meta["routes"].items()},
-        lane_shapes=read_lane_shapes(net_file),
-        landmarks=parse_landmarks(meta["landmarks"]),
+        landmarks=_landmarks(meta),
         params_hash=digest,
+        route_files=tuple(entry / name for name in meta.get("route_files", ())),
+        user_files=bool(meta.get("user_files", False)),
     )
 
 
+def _landmarks(meta: Mapping[str, Any]) -> Landmarks:
+    """The typed landmarks of a cache entry (the model its builder registered, else by their kind)."""
+    model = LANDMARKS.get(meta["kind"])
+    if model is not None and model is not Landmarks:
+        return model.model_validate(meta["landmarks"])
+    return parse_landmarks(meta["landmarks"])
+
+
 # Builders register themselves on import; imported last because they use the helpers above.
-from corridor.traffic import net_beltway, net_highway, net_parking_street, net_rural  # noqa: E402, F401, I001
+from corridor.traffic import net_beltway, net_highway, net_parking_street, net_rural, net_sumo_files  # noqa: E402, F401, I001

@@ -30,7 +30,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.overtaking.controller import box_clearance, safety_signals
 from corridor.controllers.overtaking.mpc import FAR_M, RoadGeometry, body_centre
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.landmarks import RuralLandmarks
 from corridor.traffic.trips import road_frame
 
@@ -41,6 +41,12 @@ class OvertakingSafety(Component):
     """Safety and completion signals of an ego overtaking on the rural two-lane road."""
 
     phase = Phase.SENSE
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('min_gap_lead_m', 'm',
+               'Smallest bumper gap to the lead vehicle while sharing its lane.'),
+        Metric('min_gap_oncoming_m', 'm',
+               'Smallest gap to an oncoming vehicle while in the oncoming lane.'),
+    )
     needs: ClassVar[dict[str, Need]] = {"ego": Need(role="ego", name_at="p.ego")}  # the ego bicycle backend
     period_source: ClassVar[str | None] = "p.period_s"
 

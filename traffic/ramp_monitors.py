@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.detectors import NEEDS_DETECTORS
 from corridor.traffic.trips import NEEDS_TRIPS, road_frame
 
@@ -48,6 +48,50 @@ class RampKpis(Component):
 
     phase = Phase.DETECT
     needs: ClassVar[dict[str, Need]] = {"trips": NEEDS_TRIPS, "det": NEEDS_DETECTORS}
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('tts_vh', 'veh*h',
+               'Total time spent in the network after the warm-up (vehicles on the road plus queued).'),
+        Metric('tts_pending_vh', 'veh*h',
+               'Time spent by vehicles waiting to enter the network.'),
+        Metric('delay_total_vh', 'veh*h',
+               'Summed travel-time delay of the measured vehicles.'),
+        Metric('delay_mean_s', 's',
+               'Mean travel-time delay of the measured vehicles.'),
+        Metric('throughput_vph', 'veh/h',
+               'Measured vehicles per hour.'),
+        Metric('queue_max_veh', 'veh',
+               'Longest ramp queue over all ramps.'),
+        Metric('queue_max_*', 'veh',
+               'Longest queue of ramp <name>.'),
+        Metric('queue_mean_*', 'veh',
+               'Mean queue of ramp <name>.'),
+        Metric('queue_max_over_storage', '1',
+               "Largest ramp queue relative to the ramp's storage (> 1: spillback)."),
+        Metric('spillback_events', '1',
+               'Times a ramp queue exceeded its storage.'),
+        Metric('ramp_wait_mean_s', 's',
+               'Mean waiting time on the ramps.'),
+        Metric('ramp_wait_spread_s', 's',
+               "Largest minus smallest ramp's mean waiting time."),
+        Metric('ramp_wait_std_s', 's',
+               "Standard deviation of the ramps' mean waiting times."),
+        Metric('mpc_solve_p50_s', 's',
+               'Median MPC solve time (wall clock).'),
+        Metric('mpc_solve_p95_s', 's',
+               '95th percentile MPC solve time (wall clock).'),
+        Metric('mpc_solves', '1',
+               'MPC solves.'),
+        Metric('mpc_fallbacks', '1',
+               'MPC steps that fell back (no usable solution).'),
+        Metric('mpc_suboptimal', '1',
+               'MPC solves that stopped before optimality.'),
+        Metric('mpc_cpu_capped', '1',
+               'MPC solves stopped by their CPU budget.'),
+        Metric('mpc_iter_p50', '1',
+               'Median IPOPT iterations per MPC solve.'),
+        Metric('mpc_iter_max', '1',
+               'Largest IPOPT iteration count of an MPC solve.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):

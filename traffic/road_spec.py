@@ -1,4 +1,5 @@
-"""The road as data: the SUMO backend's ``Params`` (generated network, demand, SUMO options).
+"""The road as data: the SUMO backend's ``Params`` (network: generated, or a user's own files with
+``sumo_files``; demand; SUMO options and the SUMO output files a run writes into its batch folder).
 
 A scenario gives it as the backend entry ``backends.road = {type: sumo, params: {...}}`` or, the same
 thing, with the loader's shorthand ``road: {...}``; errors name the field as the file spelled it
@@ -13,18 +14,19 @@ from typing import Any, Literal
 from pydantic import BaseModel, Field, SerializeAsAny, ValidationError, field_validator, model_validator
 
 from corridor.errors import clip
-from corridor.scenario import MAX_DT_S, MIN_DT_S, NestedParamsError, Strict, key_text
+from corridor.scenario import MAX_DT_S, MIN_DT_S, NestedParamsError, Strict, key_text, resolving_files
 
 MAX_FLOW_VPH = 20_000.0  # per flow (scale included); a 10-lane freeway carries ~ 22 000 veh/h
 # SUMO options that change the simulation but write no file (anything else is refused: an option such
 # as --fcd-output PATH would overwrite PATH)
 SUMO_ALLOWED_OPTIONS = ("--lateral-resolution", "--max-depart-delay", "--ignore-junction-blocker",
-                        "--step-method.ballistic", "--extrapolate-departpos")
+                        "--step-method.ballistic", "--extrapolate-departpos", "--ignore-route-errors",
+                        "--junction-taz")  # the last two: for a user's own routes (OSM networks, TAZ trips)
 SUMO_ALLOWED_PREFIXES = ("--time-to-teleport", "--collision.", "--default.")
 
 
 class NetworkSpec(Strict):
-    """A generated network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, validated
+    """A network: a builder of ``corridor.traffic.network.BUILDERS`` and its params, validated
     into that builder's own typed params model (errors name ``network.params.<field>``)."""
 
     type: str = "highway_onramp"
@@ -135,12 +137,31 @@ class DemandSpec(Strict):
         return self
 
 
+# SUMO's own outputs a scenario may ask for (``road.sumo.outputs``) and the options that write them;
+# the file is always ``<batch folder>/sumo/<run_id>/<kind>.xml``
+SUMO_OUTPUT_OPTIONS: dict[str, tuple[str, ...]] = {
+    "fcd": ("--fcd-output",),
+    "tripinfo": ("--tripinfo-output",),
+    "summary": ("--summary-output",),
+    "ssm": ("--device.ssm.probability", "1", "--device.ssm.file"),  # every vehicle carries the SSM device
+}
+SumoOutput = Literal["fcd", "tripinfo", "summary", "ssm"]
+
+
 class SumoOptions(Strict):
     step_length: float = Field(0.1, ge=MIN_DT_S, le=MAX_DT_S, json_schema_extra={"unit": "s"})
+    outputs: list[SumoOutput] = Field(default_factory=list)  # SUMO's own files, in <out>/sumo/<run_id>/
     collision_action: Literal["warn", "teleport", "remove", "none"] = "warn"
     collision_check_junctions: bool = True
     time_to_teleport: float = 300.0  # [s]; < 0 disables
     extra_args: list[str] = Field(default_factory=list)  # SUMO_ALLOWED_OPTIONS / _PREFIXES only
+
+    @field_validator("outputs")
+    @classmethod
+    def _once_each(cls, kinds: list[str]) -> list[str]:
+        if len(set(kinds)) != len(kinds):
+            raise ValueError("each output kind at most once")
+        return kinds
 
     @field_validator("extra_args", mode="before")
     @classmethod
@@ -164,8 +185,8 @@ class SumoOptions(Strict):
             ok = name in SUMO_ALLOWED_OPTIONS or (
                 name.startswith(SUMO_ALLOWED_PREFIXES) and not name.endswith(("-output", "-log", ".output")))
             if not ok:
-                allowed = ", ".join((*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
-                raise ValueError(f"{clip(name, 30)} may write files; allowed: {allowed}")
+                allowed = " ".join(o[2:] for o in (*SUMO_ALLOWED_OPTIONS, *(p + "*" for p in SUMO_ALLOWED_PREFIXES)))
+                raise ValueError(f"{clip(name, 30)} writes files; allowed (after --): {allowed}")
             expect_value = "=" not in arg
         return args
 
@@ -186,6 +207,17 @@ class RoadSpec(Strict):
     demand: DemandSpec = Field(default_factory=DemandSpec)
     sumo: SumoOptions = Field(default_factory=SumoOptions)
 
+    @model_validator(mode="after")
+    def _some_demand(self) -> RoadSpec:
+        """A user's network without route files needs the scenario's own flows."""
+        files = getattr(self.network.params, "resolved", None)  # sumo_files: (net, routes, additional)
+        if files is None or self.demand.flows or not resolving_files():
+            return self  # (without the scenario's folder, e.g. in a report, the files are not read)
+        if not files()[1]:
+            raise ValueError("the network has no route files (network.params.routes): give them, or "
+                             "demand.flows on its named routes")
+        return self
+
 
 def road_spec(scenario: Any) -> RoadSpec | None:
     """The road of a validated scenario: the params of its (first) ``sumo`` backend entry, or None."""
@@ -193,3 +225,38 @@ def road_spec(scenario: Any) -> RoadSpec | None:
         if spec.type == "sumo":
             return RoadSpec.model_validate(spec.params)
     return None
+
+
+def require_landmarks(scenario: Any, model: type[BaseModel], who: str) -> None:
+    """Load-time check of a component that needs landmarks of kind ``model`` (an on-ramp's merge
+    point, a beltway's ramps): the road's network builder must report them, else one line naming
+    what is needed and which networks have it (``check_scenario`` of the component calls this)."""
+    from corridor.traffic.landmarks import Landmarks
+    from corridor.traffic.network import LANDMARKS, landmarks_model
+
+    road = road_spec(scenario)
+    if road is None:
+        return  # no road at all: the component's road need says so at build
+    if issubclass(landmarks_model(road.network.type), model):
+        return
+    fields = [f for f in model.model_fields if f not in Landmarks.model_fields]
+    named = ", ".join(fields[:4]) + (", ..." if len(fields) > 4 else "")
+    kinds = sorted(k for k, m in LANDMARKS.items() if issubclass(m, model))
+    raise ValueError(f"{who} needs the landmarks of a {' or '.join(kinds) or model.__name__} network ({named}); "
+                     f"road.network type {road.network.type!r} has none")
+
+
+def check_landmark_positions(scenario: Any, names: dict[str, str | None]) -> None:
+    """Load-time check of named landmark positions (``{param: landmark}``, e.g. ``count_landmark:
+    past_merge_x``): each must be a position (``*_x``) of the road network's landmarks."""
+    from corridor.traffic.network import landmarks_model
+
+    road = road_spec(scenario)
+    if road is None:
+        return
+    fields = landmarks_model(road.network.type).model_fields
+    xs = sorted(f for f in fields if f.endswith("_x"))
+    for param, name in names.items():
+        if name is not None and (name not in fields or not name.endswith("_x")):
+            raise ValueError(f"params.{param}: network {road.network.type!r} has no landmark {clip(name, 40)}; "
+                             f"positions: {', '.join(xs) or 'none'}")

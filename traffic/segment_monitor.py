@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.detectors import DIRECTIONS, NEEDS_DETECTORS, RampDetectors
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.segments import RingIndex, RingSegments
@@ -41,6 +41,20 @@ class SegmentWatch(Component):
         "fusion": Need(role="segment_estimate", name_at="params.fusion", optional=True),
         "camera": Need(role="camera", name_at="params.camera", optional=True),
     }
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('rmse_loops', 'veh/km/lane',
+               'RMSE of the loops-only segment density estimate against the truth.'),
+        Metric('rmse_fused', 'veh/km/lane',
+               'RMSE of the fused (loops + UAV) segment density estimate against the truth.'),
+        Metric('wall_per_sim_s', '1',
+               'Wall-clock seconds per simulated second.'),
+        Metric('cpu_per_sim_s', '1',
+               'CPU seconds per simulated second.'),
+        Metric('coverage', '1',
+               'Share of segment-periods a UAV camera covered.'),
+        Metric('downlink_delivery_ratio', '1',
+               'Share of the camera estimates sent that reached the fusion.'),
+    )
     period_source: ClassVar[str | None] = "params.period_s"
     det: RampDetectors
 

@@ -2,7 +2,10 @@
 subscriptions into the world snapshot, applies external-control commands.
 
 libsumo allows one simulation per process; the batch runner gives each run its own process.
-SUMO x/y [m] are used as the scenario's local ENU east/north (the generated networks are planar).
+SUMO x/y [m] are used as the scenario's local ENU east/north (the generated networks are planar; a
+user's own network keeps its own x/y).  A user's own route files (``sumo_files``) are loaded as
+they are, before the scenario's flows; SUMO's own output files (``road.sumo.outputs``) go to the
+batch folder through ``RunContext.output_path``.
 """
 
 from __future__ import annotations
@@ -12,7 +15,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import chain
 from operator import itemgetter
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, ClassVar
 
 import numpy as np
@@ -23,7 +26,7 @@ from corridor.snapshot import DetectorFrame, Kind, RoadEvents, RoadFrame, RoadTa
 from corridor.traffic import commands as cmd
 from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
 from corridor.traffic.network import BuiltNetwork, build_network
-from corridor.traffic.road_spec import RoadSpec
+from corridor.traffic.road_spec import SUMO_OUTPUT_OPTIONS, RoadSpec
 
 _CAR, _CONTROLLED = int(Kind.CAR), int(Role.CONTROLLED)  # plain ints for numpy (see _read_state)
 _RAMP, _MAINLINE = int(Role.RAMP), int(Role.MAINLINE)
@@ -128,8 +131,8 @@ class SumoBackend(Backend):
         self._ls = self.libsumo = libsumo
         self._rng = ctx.rng("sumo.demand")  # the stream's name predates the backend entry's name (road)
         self._flow_of = {fid: fl for fid, fl in self.road.demand.flows.items()}
-        routes_file = self._write_demand(ctx)
-        libsumo.start(self._args(routes_file, sumo_seed(ctx.run_seed), ctx.duration))
+        routes_files = [*self.net.route_files, *self._write_demand(ctx)]
+        libsumo.start(self._args(routes_files, sumo_seed(ctx.run_seed), ctx.duration) + self._output_args(ctx))
         self._started = True
         self._vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE,
                       libsumo.VAR_ACCELERATION, libsumo.VAR_LANE_ID, libsumo.VAR_LANEPOSITION)
@@ -165,7 +168,8 @@ class SumoBackend(Backend):
         for e in edges:
             ls.edge.subscribe(e, (ls.LAST_STEP_VEHICLE_ID_LIST,))
 
-    def _write_demand(self, ctx: RunContext) -> Path:
+    def _write_demand(self, ctx: RunContext) -> list[Path]:
+        """The scenario's own demand as a route file (none when a user's route files carry it all)."""
         d = self.road.demand
         vtypes = [VehicleTypeDef(n, vtype_attrs(vt)) for n, vt in d.vehicle_types.items()]
         flows = [FlowDef(fid, fl.route, fl.vtype, fl.rate_profile(ctx.duration, d.scale),
@@ -174,12 +178,29 @@ class SumoBackend(Backend):
         for fl in flows:
             if fl.route not in self.net.routes:
                 raise ValueError(f"road.demand.flows.{fl.id}.route: unknown route {fl.route!r}; "
-                                 f"the network has {', '.join(sorted(self.net.routes))}")
-        return write_routes(Path(ctx.workdir) / "routes.rou.xml", self.net.routes, vtypes, flows, ctx.duration)
+                                 f"the network has {', '.join(sorted(self.net.routes)) or 'no named route'}")
+        routes: dict[str, tuple[str, ...]] = dict(self.net.routes)
+        if self.net.user_files:  # the user's files declare the routes and types: only what the flows add
+            if not flows:
+                return []
+            used = {fl.vtype for fl in flows}
+            vtypes = [v for v in vtypes if v.id in used]
+            routes = {}
+        path = Path(ctx.workdir) / "routes.rou.xml"
+        return [write_routes(path, routes, vtypes, flows, ctx.duration, known_routes=self.net.routes)]
 
-    def _args(self, routes_file: Path, seed: int, duration: float) -> list[str]:
+    def _output_args(self, ctx: RunContext) -> list[str]:
+        """SUMO's own output files the scenario asks for (``road.sumo.outputs``), written inside the
+        batch folder as ``sumo/<run_id>/<kind>.xml`` (the run's scratch folder without one)."""
+        args: list[str] = []
+        for kind in self.road.sumo.outputs:
+            path = str(ctx.output_path(PurePosixPath("sumo", ctx.run_id, f"{kind}.xml"), per_run=False))
+            args += [*SUMO_OUTPUT_OPTIONS[kind], path]
+        return args
+
+    def _args(self, routes_files: list[Path], seed: int, duration: float) -> list[str]:
         o = self.road.sumo
-        args = [sumo_binary(), "-n", str(self.net.net_file), "-r", str(routes_file),
+        args = [sumo_binary(), "-n", str(self.net.net_file), "-r", ",".join(str(p) for p in routes_files),
                 "--step-length", f"{o.step_length}", "--seed", str(seed), "--end", f"{duration}",
                 "--no-step-log", "true", "--no-warnings", "true", "--duration-log.disable", "true",
                 "--collision.action", o.collision_action, "--collision.mingap-factor", "0",
@@ -244,11 +265,16 @@ class SumoBackend(Backend):
         vt = self.road.demand.vehicle_types[spec.vtype] if spec else None
         connected = bool(spec and self._rng.random() < spec.connected_share)
         desired = ls.vehicle.getSpeedFactor(vid)
+        max_speed = vt.max_speed if vt else 50.0
+        if spec is None and self.net.user_files:  # a vehicle of the user's files: its own
+            max_speed = ls.vehicle.getMaxSpeed(vid)  # type's top speed and route (free-flow time)
+            if route not in self.tables.route_code_of:
+                self.tables.add_route(route, tuple(self._route_lanes(tuple(ls.vehicle.getRoute(vid)))))
         return self.tables.add_vehicle(
             vid, length=vt.length if vt else ls.vehicle.getLength(vid),
             width=vt.width if vt else ls.vehicle.getWidth(vid),  # vehicles added by id, not by a flow
             route=self.tables.add_route(route), role=int(Role.RAMP if route == "ramp" else Role.MAINLINE),
-            connected=connected, speed_factor=desired, max_speed=vt.max_speed if vt else 50.0,
+            connected=connected, speed_factor=desired, max_speed=max_speed,
             depart_s=t, depart_delay_s=ls.vehicle.getDepartDelay(vid))
 
     def _new_lane(self, lane_id: str) -> int:

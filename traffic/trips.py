@@ -20,7 +20,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import RoadEvents, RoadFrame, RoadTables, Role
 
 TRIPS = "trips"  # the name the default trips monitor runs under
@@ -47,6 +47,18 @@ class Trips(Component):
     """Per-uid trip records (depart, arrive, free-flow time) kept from the road frame's events."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('vehicles_departed', 'veh',
+               'Vehicles that entered the network.'),
+        Metric('vehicles_arrived', 'veh',
+               'Vehicles that reached their destination.'),
+        Metric('vehicles_measured', 'veh',
+               'Vehicles that departed after the warm-up (the ones delays are taken over).'),
+        Metric('teleports', '1',
+               'Vehicles SUMO teleported (jammed too long; collisions are counted by the collisions monitor).'),
+        Metric('merge_failures', '1',
+               'Ramp vehicles that reached the end of the acceleration lane without merging.'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     provides: ClassVar[frozenset[str]] = frozenset({TRIPS})
     period_source: ClassVar[str | None] = "peer:road"  # [s] the road's step
@@ -103,6 +115,10 @@ class Trips(Component):
         """uids of the vehicles that departed after the warm-up and arrived."""
         n = self.n_departed
         return np.flatnonzero(self._arrived() & (self.tables.depart_s[:n] >= warmup_s)).astype(np.int64)
+
+    def arrivals_after(self, t_s: float) -> int:
+        """Vehicles that arrived at their destination at or after ``t_s`` [s]."""
+        return int(np.count_nonzero(self.arrive_s[:self.n_departed] >= t_s))
 
     def backlog(self) -> int:
         """Vehicles due to depart that could not be inserted yet, after the last step."""

@@ -24,7 +24,7 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.engine import Backend, RunContext
+from corridor.engine import Backend, Metric, RunContext
 from corridor.snapshot import Kind, Role, WorldSnapshot
 
 from .autopilot import Command, HoldCommand, Hover, WaypointCommand
@@ -243,6 +243,14 @@ class AirBackend(Backend):
     """JSBSim fleet as an engine backend (registered as ``jsbsim_fleet``)."""
 
     provides: ClassVar[frozenset[str]] = frozenset({"air"})
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('aircraft', '1',
+               'Aircraft and UAVs flown.'),
+        Metric('air_commands', '1',
+               'Commands applied to the aircraft.'),
+        Metric('rtf', '1',
+               'Real-time factor: simulated seconds per wall-clock second (a measure of the machine).'),
+    )
     period_source: ClassVar[str | None] = "dt"  # [s] the base tick (JSBSim sub-steps at rate_hz inside)
 
     class Params(_Frozen):

@@ -51,7 +51,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from corridor.channel import Channel, ChannelConfig
 from corridor.controllers.uav.models import TrackedAgent
-from corridor.engine import Component, Need, Phase, RunContext, relative_output_path
+from corridor.engine import Component, Metric, Need, Phase, RunContext, relative_output_path
 from corridor.snapshot import Kind
 
 from .mavlink_link import LatestReports, LinkRates, MavlinkLink
@@ -71,6 +71,32 @@ class Relevance(NamedTuple):
 class AirLink(Component):
     """MAVLink link + per-UAV track tables (registered in BACKENDS as ``mavlink_link``)."""
 
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('link_delivery_ratio', '1',
+               'Share of the position reports sent over the link that were delivered.'),
+        Metric('link_aoi_mean_s', 's',
+               'Mean age of information of the delivered reports.'),
+        Metric('link_aoi_max_s', 's',
+               'Largest age of information of a delivered report.'),
+        Metric('link_sent', '1',
+               'Reports sent.'),
+        Metric('link_delivered', '1',
+               'Reports delivered.'),
+        Metric('link_lost', '1',
+               "Reports lost by the channel's loss model."),
+        Metric('link_out_of_range', '1',
+               'Reports lost out of range.'),
+        Metric('link_dropped_after_end', '1',
+               'Reports in flight when the run ended.'),
+        Metric('link_dropped_overflow', '1',
+               'Reports dropped by a full queue.'),
+        Metric('link_fused_reports', '1',
+               "Reports fused into the ground station's picture."),
+        Metric('link_paced_sleep_s', 's',
+               'Wall-clock time slept to pace the run (real-time factor set).'),
+        Metric('mavlink_*', '1',
+               'MAVLink 2 byte-level counts: datagrams, bytes, messages, bad CRC, bad data, dropped bytes, corrupted datagrams.'),
+    )
     phase = Phase.COMMUNICATE
     needs: ClassVar[dict[str, Need]] = {"backend": Need(role="air", name_at="params.backend")}
     provides: ClassVar[frozenset[str]] = frozenset({"air_link"})

@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.landmarks import BeltwayLandmarks
 from corridor.traffic.road_spec import road_spec
 from corridor.traffic.segments import RingIndex, RingSegments
@@ -33,6 +33,14 @@ class UavCamera(Component):
     needs: ClassVar[dict[str, Need]] = {"air": Need(role="air", name_at="params.backend"),
                                         "link": Need(role="air_link", name_at="params.link")}
     provides: ClassVar[frozenset[str]] = frozenset({"camera"})
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('camera_frames', '1',
+               'Camera frames processed.'),
+        Metric('camera_estimates_sent', '1',
+               'Segment estimates sent on the downlink.'),
+        Metric('camera_bytes_sent', 'B',
+               'Bytes sent on the downlink.'),
+    )
     period_source: ClassVar[str | None] = "params.period_s"
 
     class Params(BaseModel):

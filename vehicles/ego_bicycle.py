@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Backend, Need, RunContext
+from corridor.engine import Backend, Metric, Need, RunContext
 from corridor.traffic.sumo_backend import SumoBackend
 from corridor.vehicles.bicycle import BicycleParams, clip_input, rk4_step
 
@@ -112,6 +112,12 @@ class EgoBicycle(Backend):
     needs: ClassVar[dict[str, Need]] = {
         "sumo": Need(role="road", hint="the ego bicycle needs a road (SUMO) backend: add `road:`")}
     provides: ClassVar[frozenset[str]] = frozenset({"ego"})
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('ego_departed_s', 's',
+               'Time the ego entered the road.'),
+        Metric('ego_final_x_m', 'm',
+               "The ego's east coordinate at the end."),
+    )
     period_source: ClassVar[str | None] = "peer:sumo"  # [s] SUMO's step (the ego is integrated inside it)
     sumo: SumoBackend
 

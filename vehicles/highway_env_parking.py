@@ -36,7 +36,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.engine import Backend, RunContext
+from corridor.engine import Backend, Metric, RunContext
 from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 
 EGO_ID = "ego"
@@ -116,6 +116,16 @@ class HighwayEnvParking(Backend):
 
     provides: ClassVar[frozenset[str]] = frozenset({"road", "parking_lot"})
     period_source: ClassVar[str | None] = "period_s"
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('he_success', '1',
+               "highway-env's own success criterion at the end of the run."),
+        Metric('he_success_any', '1',
+               "highway-env's success criterion met at any time."),
+        Metric('he_success_first_s', 's',
+               "First time highway-env's success criterion was met (NaN: never)."),
+        Metric('he_crashed', '1',
+               '1 if highway-env reported the ego crashed.', safety_event=True),
+    )
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

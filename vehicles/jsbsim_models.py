@@ -2,12 +2,17 @@
 
 JSBSim resolves an aircraft's ``<system file="...">`` in the aircraft's own directory (then its
 ``Systems`` folder, then the root's ``systems``); the F450 shipped in the jsbsim wheel lists no
-corridor system. :func:`aircraft_dir` therefore assembles, once per process and JSBSim root, a
-private aircraft directory in a temporary folder: a copy of the wheel's ``aircraft/F450`` whose
+corridor system. :func:`aircraft_dir` therefore assembles, once per machine and content, a
+private aircraft directory in corridor's cache: a copy of the wheel's ``aircraft/F450`` whose
 ``F450.xml`` gains one line, ``<system file="corridor_quad_cascade"/>``, next to corridor's system
 file. JSBSim loads every ``<system>`` before the ``<flight_control>`` into one FCS and runs the
 channels in that order, so the cascade's stick outputs feed the F450's own rate loops in the same
-sub-step. The folder is removed at interpreter exit; nothing is written into the wheel.
+sub-step. The folder is named by a hash of everything it is made from (the wheel's files, corridor's
+system files and this module), published atomically (built beside it, then renamed) and reused by
+every process: a batch's forked runners, which skip ``atexit``, leave no folder behind (one temp folder
+per worker did before).  ``$CORRIDOR_CACHE/jsbsim`` if set, else ``~/.cache/corridor/jsbsim``; a
+cache that cannot be written falls back to a temporary folder removed at exit.  Nothing is written
+into the wheel.
 
 The copy leaves out the F450's GPS and barometer sensor systems (``SensorGps.xml``,
 ``SensorBaro.xml``) and keeps of its IMU (``SensorImu.xml``) only the yaw-rate gyro: the F450's FCS
@@ -21,6 +26,8 @@ from __future__ import annotations
 
 import atexit
 import functools
+import hashlib
+import os
 import shutil
 import tempfile
 from importlib import resources
@@ -43,8 +50,57 @@ def aircraft_dir(root: str, omit: tuple[str, ...] = UNUSED_SYSTEMS, reduce_imu: 
     """Aircraft path holding the patched copies of ``_PATCHED`` for the JSBSim data dir ``root``,
     without the ``<system file=...>`` entries named in ``omit`` and (``reduce_imu``) with the IMU
     cut down to its yaw-rate gyro."""
-    out = Path(tempfile.mkdtemp(prefix="corridor-jsbsim-"))
-    atexit.register(shutil.rmtree, out, True)
+    key = _content_key(root, omit, reduce_imu)
+    entry = cache_dir() / f"aircraft-{key}"
+    if (entry / DONE).exists():
+        return str(entry)
+    try:
+        entry.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{entry.name}.", dir=entry.parent))
+    except OSError:  # no writable cache: a private folder for this process
+        out = Path(tempfile.mkdtemp(prefix="corridor-jsbsim-"))
+        atexit.register(shutil.rmtree, out, True)
+        _assemble(out, root, omit, reduce_imu)
+        return str(out)
+    try:
+        _assemble(tmp, root, omit, reduce_imu)
+        (tmp / DONE).write_text(key)
+        try:
+            os.rename(tmp, entry)
+        except OSError:
+            if not (entry / DONE).exists():  # not a lost race with another process: a real failure
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return str(entry)
+
+
+DONE = ".complete"  # written last: a folder without it is unfinished
+
+
+def cache_dir() -> Path:
+    """``$CORRIDOR_CACHE/jsbsim`` if set, else ``~/.cache/corridor/jsbsim``."""
+    env = os.environ.get("CORRIDOR_CACHE")
+    return (Path(env) if env else Path("~/.cache/corridor")).expanduser() / "jsbsim"
+
+
+def _content_key(root: str, omit: tuple[str, ...], reduce_imu: bool) -> str:
+    """sha256 over what the folder is made of: the wheel's aircraft and IMU files, corridor's system
+    files, this module's source and the options."""
+    h = hashlib.sha256(repr((sorted(omit), reduce_imu, sorted(_PATCHED.items()))).encode())
+    for model, system in sorted(_PATCHED.items()):
+        src = Path(root) / "aircraft" / model
+        for f in sorted(p for p in src.rglob("*") if p.is_file()):
+            h.update(str(f.relative_to(src)).encode() + b"\0" + f.read_bytes())
+        h.update(system_xml(system).encode())
+    imu = Path(root) / "systems" / "SensorImu.xml"
+    if imu.is_file():
+        h.update(imu.read_bytes())
+    h.update(Path(__file__).read_bytes())
+    return h.hexdigest()[:20]
+
+
+def _assemble(out: Path, root: str, omit: tuple[str, ...], reduce_imu: bool) -> None:
     for model, system in _PATCHED.items():
         dst = out / model
         shutil.copytree(Path(root) / "aircraft" / model, dst)
@@ -63,7 +119,6 @@ def aircraft_dir(root: str, omit: tuple[str, ...] = UNUSED_SYSTEMS, reduce_imu: 
             text = text.replace(imu, f'<system file="{REDUCED_IMU}"/>', 1)
         main.write_text(text.replace("</fdm_config>", f'    <system file="{system}"/>\n</fdm_config>', 1))
         (dst / f"{system}.xml").write_text(system_xml(system))
-    return str(out)
 
 
 def patched(model: str) -> bool:

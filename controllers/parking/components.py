@@ -34,7 +34,7 @@ from corridor.controllers.parking.manoeuvre import (
 )
 from corridor.controllers.parking.spot_detection import DetectorParams, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
-from corridor.engine import Controller, RunContext
+from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import WorldSnapshot
 from corridor.vehicles.highway_env_parking import ParkingInput, ParkingLot
 from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
@@ -43,6 +43,34 @@ from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
 class ParkingLotController(Controller):
     """Parks the ego of a ``highway_env_parking`` lot in its goal bay (plan, then follow)."""
 
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('final_mode', 'text',
+               "The manoeuvre automaton's mode at the end (parked, abort, ...)."),
+        Metric('replans', '1',
+               'Re-plans during the run.'),
+        Metric('aborts', '1',
+               'Transitions to the abort mode.'),
+        Metric('abort_reasons', 'text',
+               "Why the manoeuvre aborted, '; '-separated."),
+        Metric('plan_failures', '1',
+               'Planner calls that found no path.'),
+        Metric('plan_time_p50_s', 's',
+               'Median planning wall time per call.'),
+        Metric('plan_time_p95_s', 's',
+               '95th percentile planning wall time per call.'),
+        Metric('plan_time_max_s', 's',
+               'Longest planning wall time.'),
+        Metric('plan_search_s', 's',
+               'Search (hybrid A*) wall time of the last plan.'),
+        Metric('plan_optimise_s', 's',
+               'Optimisation (IPOPT) wall time of the last plan.'),
+        Metric('planned_direction_changes', '1',
+               'Forward/reverse switches of the last plan (-1: no plan).'),
+        Metric('planned_length_m', 'm',
+               'Length of the last plan.'),
+        Metric('mode_transitions', '1',
+               'Transitions of the manoeuvre automaton.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):

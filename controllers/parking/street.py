@@ -33,7 +33,7 @@ from corridor.controllers.parking.manoeuvre import (
 )
 from corridor.controllers.parking.spot_detection import DetectorParams, Slot, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
-from corridor.engine import Controller, Need, RunContext
+from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.traffic.landmarks import StreetParkingLandmarks
 from corridor.traffic.trips import road_frame
 from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
@@ -44,6 +44,28 @@ class ParkingStreetController(Controller):
     """Searches a street's bay row for a free slot and parks the ``ego_bicycle`` car in it."""
 
     needs: ClassVar[dict[str, Need]] = {"ego": Need(role="ego", name_at="p.ego")}
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('final_mode', 'text',
+               "The manoeuvre automaton's mode at the end (parked, abort, ...)."),
+        Metric('replans', '1',
+               'Re-plans during the run.'),
+        Metric('aborts', '1',
+               'Transitions to the abort mode.'),
+        Metric('abort_reasons', 'text',
+               "Why the manoeuvre aborted, '; '-separated."),
+        Metric('plan_failures', '1',
+               'Planner calls that found no path.'),
+        Metric('plan_time_p50_s', 's',
+               'Median planning wall time per call.'),
+        Metric('plan_time_p95_s', 's',
+               '95th percentile planning wall time per call.'),
+        Metric('planned_direction_changes', '1',
+               'Forward/reverse switches of the last plan (-1: no plan).'),
+        Metric('slot_found_s', 's',
+               'Time the controller chose a slot (NaN: never).'),
+        Metric('mode_transitions', '1',
+               'Transitions of the manoeuvre automaton.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
     ego: EgoBicycle
 

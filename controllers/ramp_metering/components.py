@@ -29,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, Need, RunContext
 from corridor.traffic.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
+from corridor.traffic.landmarks import BeltwayLandmarks
 from corridor.traffic.meters import (
     ChoiceSet,
     MeterOff,
@@ -39,7 +40,7 @@ from corridor.traffic.meters import (
     guidance_assignments,
     parse_od_route,
 )
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.road_spec import require_landmarks, road_spec
 from corridor.traffic.trips import road_frame
 
 
@@ -86,6 +87,11 @@ class RampControl(Controller):
     needs: ClassVar[dict[str, Need]] = {"det": NEEDS_DETECTORS}
     period_source: ClassVar[str | None] = "p.tick_s"
     det: RampDetectors
+
+    @classmethod
+    def check_scenario(cls, params: RampParams, scenario: Any) -> None:
+        """At load: the road's network must have metered on-ramps and their detectors."""
+        require_landmarks(scenario, BeltwayLandmarks, "ramp metering")
 
     def __init__(self, name: str, params: RampParams | None = None, scenario: Any = None) -> None:
         super().__init__(name)

@@ -277,7 +277,7 @@ def test_step_count_bounded(capsys):
 ])
 def test_sumo_extra_args_that_write_files_are_refused(capsys, args):
     code, err = run_cli(capsys, str(MERGING), "--set", f"road.sumo.extra_args={args}")
-    assert_one_line(code, err, "road.sumo.extra_args", "may write files", "allowed: --lateral-resolution")
+    assert_one_line(code, err, "road.sumo.extra_args", "writes files", "allowed (after --): lateral-resolution")
 
 
 def test_sumo_extra_args_allow_list_accepted():

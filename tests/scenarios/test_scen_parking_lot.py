@@ -76,6 +76,11 @@ def test_rerun_recording_with_lot_outlines_plan_and_sensor_overlays(tmp_path: Pa
     assert len(kinds["lines"]) == 6 and kinds["points"].shape[1] == 2  # six beams, their echoes
     assert any(e.data.get("polyline") for e in sim.ctx.events.of_kind("plan"))
     assert rrd.stat().st_size > 10_000
+    import json
+
+    lot_doc = json.loads((tmp_path / "parking" / "lot-run.json").read_text())  # the report's lot figure
+    assert len(lot_doc["outlines"]["bays"]) == 28 and len(lot_doc["plans"]) >= 1
+    assert len(lot_doc["driven"]) == 30 and lot_doc["goal"] is not None  # 3 s at the monitor's 0.1 s
 
 
 @pytest.mark.slow

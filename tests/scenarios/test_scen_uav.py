@@ -91,6 +91,7 @@ def test_mavlink_bytes_decode_with_pymavlink_and_rerun_shows_aircraft(tmp_path: 
              "--set", "duration=3", "--set", "backends.link.params.log_path=mavlink/link.bin", "--rerun", str(rrd))
     paths = {c.entity_path for c in RrdReader(rrd).stream()}
     assert {"/world/entities", "/world/trails", "/metrics/min_sep_h", "/metrics/min_sep_3d"} <= paths
+    assert {"/world/air_markers", "/world/ground"} <= paths  # fixed-size markers, a grid at the origin
     assert (df["status"] == "ok").all()
     parser = mavlink2.MAVLink(None)
     msgs = parser.parse_buffer(log.read_bytes()) or []

@@ -8,6 +8,7 @@ the consumers read comes through ``ctx.snapshot`` (rows, road frame, tables, eve
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -210,3 +211,16 @@ def test_road_consumers_run_without_libsumo() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().endswith("ok")
+
+
+def test_no_closing_pair_is_a_missing_ttc_not_99() -> None:
+    """The follower is slower than its leader: no closing pair, so min_ttc_s is NaN (not the old
+    sentinel 99, which entered means) and the signal is +inf (TTC infinite) at every tick."""
+    from corridor.traffic.monitors import SurrogateSafety
+
+    road = ScriptedRoad([Scripted("lead", MAIN, 130.0, 20.0), Scripted("follow", MAIN, 100.0, 10.0)])
+    mon = SurrogateSafety("safety", SurrogateSafety.Params(), scenario(1.0))
+    sim = run(road, [mon], 1.0)
+    assert math.isnan(sim.metrics["min_ttc_s"])
+    t, v = sim.ctx.signals.get("min_ttc")
+    assert len(v) and np.all(np.isposinf(v))
