@@ -34,6 +34,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass(frozen=True)
 class BatchResult:
+    """A finished batch: its rows, its folder and the scenario it ran."""
+
     rows: pd.DataFrame  # one row per run of the batch (the content of runs.parquet)
     out: Path  # the batch folder
     scenario: Scenario  # the validated base scenario (--set applied; variants and draws are per run)
@@ -50,6 +52,7 @@ class BatchResult:
 
     @property
     def failed(self) -> pd.DataFrame:
+        """The rows whose run did not end ``ok`` (``status`` error), with their ``error`` message."""
         return self.rows[self.rows["status"] != "ok"]
 
 
@@ -62,7 +65,8 @@ def run(scenario: str | Path = "merging", *, runs: int = 1, seed: int | None = N
 
     ``out`` defaults to ``results/<scenario name>``.  A folder that already holds a batch is refused
     unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given.  Every input is
-    checked (one-line ``CorridorError``) before the folder is created or touched."""
+    checked (one-line ``CorridorError``) before the folder is created or touched.
+    """
     from corridor import batch
     from corridor.cli import resolve_scenario
     from corridor.scenario import MAX_SEED, file_stamps, load_with_files, set_overrides
@@ -95,8 +99,11 @@ def _int(name: str, value: Any) -> int:
 
 def check_options(*, runs: int | None = None, seed: int | None = None, sets: Sequence[str] = (),
                   variants: Sequence[str] = (), executor: str = "local", workers: int = 2) -> None:
-    """The options of a batch, checked as the command line checks them (``run_scenario`` parses
-    them into these types): a wrong type or value is a one-line ``CorridorError``."""
+    """Check the options of a batch as the command line checks them.
+
+    ``run_scenario`` parses them into these types; a wrong type or value is a one-line
+    ``CorridorError``.
+    """
     from corridor.scenario import MAX_SEED
 
     if runs is not None and _int("runs", runs) < 1:

@@ -11,7 +11,8 @@ class ScenarioError(CorridorError):
     """A scenario file, override or command-line value is wrong.
 
     The message is kept to one line of at most ``MAX_MESSAGE`` characters whatever it quotes (the
-    raising code clips the user values it echoes; this is the last guard)."""
+    raising code clips the user values it echoes; this is the last guard).
+    """
 
     MAX_MESSAGE = 299
 

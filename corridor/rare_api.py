@@ -128,8 +128,11 @@ def estimate(scenario: str | Path, event: str, *, method: str = "ce", budget: in
 
 
 def _estimator(method: str, budget: int) -> Any:
-    """The estimator class of ``--method``; a search (``falsify``) or a budget below the method's
-    ``MIN_BUDGET`` is refused in one line naming the minimum."""
+    """The estimator class of ``--method``.
+
+    A search (``falsify``) or a budget below the method's ``MIN_BUDGET`` is refused in one line
+    naming the minimum.
+    """
     cls = method_class(method)
     if getattr(cls, "KIND", "estimator") != "estimator":
         raise CorridorError(f"--method {clip(method)}: a search, not an estimator of P(EVENT); use --falsify SPEC for it")
@@ -171,8 +174,11 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
 
 
 def _compare(res: dict[str, Any]) -> dict[str, Any]:
-    """Beside the estimate: the plain Monte Carlo interval of as many runs with as many failures as
-    the estimate implies, and the plain runs needed for the estimate's precision."""
+    """Add what plain Monte Carlo would give beside the estimate.
+
+    That is the plain interval of as many runs with as many failures as the estimate implies, and
+    the plain runs needed for the estimate's precision.
+    """
     from corridor.stats import clopper_pearson
 
     n, p = res.get("runs", 0), res.get("estimate", math.nan)
@@ -187,8 +193,11 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
             sets: Sequence[str] = (), variant: str | None = None, out: str | Path | None = None,
             resume: bool = False, overwrite: bool = False, executor: str = "local", workers: int = 2,
             address: str | None = None, progress: bool = False, report: bool = True) -> dict[str, Any]:
-    """Minimise spec ``spec``'s robustness over the randomized inputs; on a violation write
-    ``DIR/counterexample.yaml`` (the scenario with the violating inputs and seed fixed)."""
+    """Minimise spec ``spec``'s robustness over the randomized inputs (CMA-ES).
+
+    On a violation it writes ``DIR/counterexample.yaml`` (the scenario with the violating inputs and
+    seed fixed).
+    """
     from corridor.api import check_options
 
     check_options(executor=executor if executor != "inline" else "local", workers=workers)
@@ -229,8 +238,11 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
 
 def write_counterexample(dest: Path, path: Path, sets: list[str], variant: str, row: dict[str, Any],
                          inputs: list[str], spec: str) -> None:
-    """The scenario (``extends`` and ``--set`` resolved) with the run's seed and every draw fixed in its
-    variant's overrides: ``run_scenario counterexample.yaml`` runs exactly that run again."""
+    """Write the scenario with the run's seed and every draw fixed in its variant's overrides.
+
+    ``extends`` and ``--set`` are resolved, so ``run_scenario counterexample.yaml`` runs exactly that
+    run again.
+    """
     import yaml
 
     from corridor.estimate import _plain
