@@ -13,7 +13,6 @@ time parametrisation and the optimiser's warm start are sampled.
 from __future__ import annotations
 
 import heapq
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +35,7 @@ class SearchParams:
     steer_cost_m: float = 0.3  # per primitive at full lock
     steer_change_cost_m: float = 0.6  # per primitive, full-lock to straight
     heuristic_weight: float = 1.5  # weighted A* (> 1: faster, longer paths)
-    max_expansions: int = 1_000_000
+    max_expansions: int = 1_000_000  # the search's budget (deterministic, unlike a time limit)
     margin_m: float = 0.05  # footprint growth for the search (the optimiser keeps its own)
     rs_every: int = 4  # try an analytic expansion every n expansions (when near)
     rs_near_m: float = 25.0
@@ -116,14 +115,12 @@ class HybridAStar:
     def _h(self, poses: np.ndarray) -> np.ndarray:
         return np.maximum(self.grid(poses[:, :2]), self.rs_h(poses))
 
-    def run(self, expansions: int, deadline: float) -> list[Segment] | None:
+    def run(self, expansions: int) -> list[Segment] | None:
         """Up to ``expansions`` more expansions: the path if found, None if not yet; SearchFailed when
-        the space is exhausted, the expansion limit is reached or the deadline has passed."""
+        the space is exhausted or the expansion budget (``max_expansions``) is spent."""
         p, goal = self.p, np.asarray(self.goal, float)
         stop = self.expansions + expansions
         while self.heap:
-            if time.perf_counter() > deadline:
-                raise SearchFailed(f"the search ran out of time after {self.expansions} expansions")
             if self.expansions >= stop:
                 return None
             _, ni = heapq.heappop(self.heap)
@@ -165,12 +162,12 @@ class HybridAStar:
 
 
 def hybrid_astar(start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Obstacles,
-                 vehicle: VehicleGeometry, bounds: tuple[float, float, float, float], deadline: float,
+                 vehicle: VehicleGeometry, bounds: tuple[float, float, float, float],
                  p: SearchParams | None = None) -> list[Segment]:
     """Segments from ``start`` to ``goal`` (local frame), or raise SearchFailed with a reason."""
     search = HybridAStar(start, goal, obstacles, vehicle, bounds, p)
     while True:
-        path = search.run(10_000, deadline)
+        path = search.run(10_000)
         if path is not None:
             return path
 
