@@ -19,7 +19,14 @@ import numpy as np
 
 from corridor.controllers.parking import optimise, profile, warm_start
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, FootprintChecker, Obstacles, VehicleGeometry
-from corridor.controllers.parking.search import HybridAStar, SearchFailed, SearchParams, merge, reverse
+from corridor.controllers.parking.search import (
+    Exhausted,
+    HybridAStar,
+    SearchFailed,
+    SearchParams,
+    merge,
+    reverse,
+)
 from corridor.errors import CorridorError
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
@@ -31,7 +38,8 @@ SAME_POSE_M, SAME_POSE_RAD = 1e-9, 1e-9  # a goal this close to the start is the
 # search resolutions (the expansion budgets are in `PlanBudget`)
 COARSE = SearchParams(heuristic_weight=3.0)
 FINE = SearchParams(heuristic_weight=3.0, xy_res_m=0.2, n_heading=144, step_m=0.5, short_step_m=0.15, check_m=0.1)
-SLICE = 100  # expansions per turn
+SLICE = 100  # expansions per turn ...
+MICRO_TURNS = 4  # ... times this for a search with micro primitives (the end the other cannot reach)
 MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
 CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
 MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
@@ -258,11 +266,10 @@ def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: O
             if search is None:
                 continue
             try:
-                path = search.run(SLICE)
+                path = search.run(SLICE * (MICRO_TURNS if search.p.micro else 1))
             except SearchFailed as exc:
                 reasons.append(_reason(backwards, search.p, exc))
-                finer = replace(fine, check_m=min(fine.check_m, search.p.check_m))
-                searches[backwards] = start_search(backwards, finer) if search.p.xy_res_m > fine.xy_res_m else None
+                searches[backwards] = start_search(backwards, nxt) if (nxt := _next(search.p, exc, fine)) else None
                 continue
             if path is None:
                 continue
@@ -274,8 +281,19 @@ def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: O
     raise NoSolution(f"no path ({'; '.join(reasons)})")
 
 
+def _next(p: SearchParams, exc: SearchFailed, fine: SearchParams) -> SearchParams | None:
+    """The search that replaces a failed one from the same end: with micro primitives near the end if
+    it was exhausted (a tight start or goal it could not leave), else at `FINE` resolution."""
+    if isinstance(exc, Exhausted) and not p.micro:
+        return replace(p, micro=True)
+    if p.xy_res_m > fine.xy_res_m:
+        return replace(fine, check_m=min(fine.check_m, p.check_m), micro=p.micro)
+    return None
+
+
 def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
-    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells: {exc}"
+    micro = f", {p.micro_step_m:g} m steps near it" if p.micro else ""
+    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells{micro}: {exc}"
 
 
 def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry) -> bool:

@@ -21,6 +21,8 @@ from corridor.controllers.parking import reeds_shepp as rs
 from corridor.controllers.parking.geometry import FootprintChecker, Obstacles, VehicleGeometry
 from corridor.controllers.parking.heuristic import HolonomicGrid, RsTable
 
+MICRO_CELL_M, MICRO_HEADING_RAD = 0.05, np.pi / 180  # cells of the search near its first pose
+
 
 @dataclass(frozen=True)
 class SearchParams:
@@ -39,6 +41,9 @@ class SearchParams:
     margin_m: float = 0.05  # footprint growth for the search (the optimiser keeps its own)
     rs_every: int = 4  # try an analytic expansion every n expansions (when near)
     rs_near_m: float = 25.0
+    micro_step_m: float = 0.1  # arc length of the primitives tried where the short ones collide ...
+    micro_near_m: float = 2.0  # ... within this distance of the search's first pose (a tight start / goal)
+    micro: bool = False  # use them (and finer cells there): for an end the normal search cannot leave
 
 
 @dataclass(frozen=True)
@@ -60,6 +65,10 @@ class Segment:
 
 class SearchFailed(Exception):
     pass
+
+
+class Exhausted(SearchFailed):
+    """Every reachable cell expanded (before the budget was spent)."""
 
 
 def _primitives(vehicle: VehicleGeometry, p: SearchParams,
@@ -99,16 +108,23 @@ class HybridAStar:
         if not np.isfinite(self.grid(np.array([start[:2]]))[0]):
             raise SearchFailed("start and goal are not connected around the obstacles (holonomic grid)")
         self.rs_h = RsTable(goal, self.radius)
-        self.sets = (_primitives(vehicle, p, p.step_m), _primitives(vehicle, p, p.short_step_m))
+        self.sets = (_primitives(vehicle, p, p.step_m), _primitives(vehicle, p, p.short_step_m),
+                     _primitives(vehicle, p, p.micro_step_m))
+
         self.steer_of = np.arctan(self.sets[0][0] * vehicle.wheelbase_m) / vehicle.max_steer_rad
-        s0 = np.asarray(start, float)
+        self.root = s0 = np.asarray(start, float)
         self.nodes = [(s0, 0.0, -1, 0.0, 0.0, 0.0)]  # pose, g, parent, kappa, length, steer (normalised)
         self.heap = [(float(self._h(s0[None])[0]) * p.heuristic_weight, 0)]
         self.best_g = {self._key(s0): 0.0}
         self.expansions = 0
 
-    def _key(self, pose: np.ndarray) -> tuple[int, int, int]:
+    def _key(self, pose: np.ndarray) -> tuple[int, ...]:
         p = self.p
+        if p.micro and np.hypot(pose[0] - self.root[0], pose[1] - self.root[1]) <= p.micro_near_m:
+            # near a tight end: cells fine enough for the micro primitives to leave them
+            q = MICRO_CELL_M
+            return (int(np.floor(pose[0] / q)), int(np.floor(pose[1] / q)),
+                    int(np.floor((pose[2] % (2 * np.pi)) / MICRO_HEADING_RAD)), 1)
         return (int(np.floor(pose[0] / p.xy_res_m)), int(np.floor(pose[1] / p.xy_res_m)),
                 int(np.floor((pose[2] % (2 * np.pi)) / (2 * np.pi / p.n_heading))) % p.n_heading)
 
@@ -135,11 +151,12 @@ class HybridAStar:
                 if tail is not None:
                     return _backtrack(self.nodes, ni) + tail
             self._expand(ni, pose, g, length, steer)
-        raise SearchFailed(f"the search space is exhausted after {self.expansions} expansions: no path")
+        raise Exhausted(f"the search space is exhausted after {self.expansions} expansions: no path")
 
     def _expand(self, ni: int, pose: np.ndarray, g: float, length: float, steer: float) -> None:
         p, (x0, x1, y0, y1) = self.p, self.bounds
-        for kappas, lengths, local in self.sets:
+        near_root = p.micro and np.hypot(*(pose[:2] - self.root[:2])) <= p.micro_near_m
+        for kappas, lengths, local in self.sets[:3 if near_root else 2]:
             ends = _compose(pose, local)  # (P, m, 3)
             flat = ends.reshape(-1, 3)
             inb = (flat[:, 0] >= x0) & (flat[:, 0] <= x1) & (flat[:, 1] >= y0) & (flat[:, 1] <= y1)
