@@ -144,7 +144,7 @@ class HybridAStar:
     def run(self, expansions: int) -> list[Segment] | None:
         """Up to ``expansions`` more expansions: the path if found, None if not yet; SearchFailed when
         the space is exhausted or the expansion budget (``max_expansions``) is spent."""
-        p, goal = self.p, np.asarray(self.goal, float)
+        p = self.p
         stop = self.expansions + expansions
         while self.heap:
             if self.expansions >= stop:
