@@ -22,7 +22,15 @@ from corridor.controllers.parking import profile
 from corridor.controllers.parking.case import read_case
 from corridor.controllers.parking.check import check
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles
-from corridor.controllers.parking.planner import NoSolution, PlanBudget, _default_bounds, _search, plan
+from corridor.controllers.parking.planner import (
+    COARSE,
+    MARGIN_M,
+    NoSolution,
+    PlanBudget,
+    _default_bounds,
+    _search,
+    plan,
+)
 
 GIVEN = sorted((Path(__file__).resolve().parents[1] / "tests" / "data" / "tpcap").glob("Case*.csv"),
                key=lambda p: int(p.stem[4:]))
@@ -37,7 +45,7 @@ def baseline(path: Path) -> tuple[float, float]:
     g = (case.goal[0] - origin[0], case.goal[1] - origin[1], case.goal[2])
     t0 = time.perf_counter()
     segs = _search(s, g, Obstacles(polys), TPCAP_VEHICLE, _default_bounds(np.array(s), np.array(g), polys),
-                   PlanBudget())
+                   PlanBudget(), COARSE.margin_m, MARGIN_M)
     phases = profile.phases(segs, TPCAP_VEHICLE)
     return time.perf_counter() - t0, phases[-1].t0_s + phases[-1].duration_s
 

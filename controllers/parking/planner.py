@@ -42,7 +42,8 @@ SLICE = 100  # expansions per turn ...
 MICRO_TURNS = 4  # ... times this for a search with micro primitives (the end the other cannot reach)
 MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
 CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
-MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
+MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors (a hard constraint of the NLP)
+END_SHARE = 0.5  # margins are at most this share of the start's and the goal's clearance (tight ends)
 # warm starts tried in turn: (builder, node spacing in the warm start's time [s])
 TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.by_profile, 0.12))
 MIN_NODES, MAX_NODES = 40, 400
@@ -164,9 +165,12 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
         states = {"t": z, "x": z.copy(), "y": z.copy(), "theta": s[2:3].copy(), "v": z.copy(), "a": z.copy(),
                   "steer": z.copy()}
         return _to_world(states, origin, time.perf_counter() - t0, 0.0, stage="at goal")
-    segments = _search(tuple(s), tuple(g), obs, vehicle, lb, budget)
+    end_clear = min(_exact_clearance(s, obs, vehicle), _exact_clearance(g, obs, vehicle))
+    search_margin = min(COARSE.margin_m, END_SHARE * end_clear)
+    opt_margin = min(MARGIN_M, END_SHARE * end_clear)
+    segments = _search(tuple(s), tuple(g), obs, vehicle, lb, budget, search_margin, opt_margin)
     t_search = time.perf_counter() - t0
-    states, stage = _optimise(segments, obs, vehicle, dt_s, budget)
+    states, stage = _optimise(segments, obs, vehicle, dt_s, budget, opt_margin)
     t_opt = time.perf_counter() - t0 - t_search
     # a path searched from the goal reaches the start's heading modulo 2π: start from it exactly
     turns = np.round((float(start[2]) - states["theta"][0]) / (2 * np.pi))
@@ -193,7 +197,7 @@ def _check_area(lb: tuple[float, ...], default: bool) -> None:
 
 
 def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
-              budget: PlanBudget) -> tuple[dict[str, np.ndarray], str]:
+              budget: PlanBudget, margin_m: float) -> tuple[dict[str, np.ndarray], str]:
     """The optimised trajectory, else the stop-and-steer search path (which meets every limit by
     construction). Warm starts are tried in turn (`TRIES`); a solution is accepted when it is
     collision-free sampled densely, then refined while it improves: the corridors re-grown around it,
@@ -201,7 +205,7 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
     best = None
     for build, node_dt in TRIES:
         ws, T0 = build(segments, vehicle, node_dt, MIN_NODES, MAX_NODES)
-        best = _solve_checked(ws, T0, obs, vehicle, dt_s, budget.ipopt_iter)
+        best = _solve_checked(ws, T0, obs, vehicle, dt_s, budget.ipopt_iter, margin_m)
         if best is not None:
             break
     if best is None:
@@ -211,7 +215,8 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
         return states, "search"
     for _ in range(REFINE_MAX):
         sol, _ = best
-        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, budget.refine_iter)
+        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, budget.refine_iter,
+                                margin_m)
         if better is None or better[0].h_s > sol.h_s * (1 - REFINE_GAIN):
             if better is not None and better[0].h_s < sol.h_s:
                 best = better
@@ -221,9 +226,9 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
 
 
 def _solve_checked(ws: np.ndarray, T0: float, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
-                   max_iter: int) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
+                   max_iter: int, margin_m: float) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
     try:
-        sol = optimise.solve(ws, T0, obs, vehicle, optimise.OptimiseParams(margin_m=MARGIN_M, max_iter=max_iter))
+        sol = optimise.solve(ws, T0, obs, vehicle, optimise.OptimiseParams(margin_m=margin_m, max_iter=max_iter))
     except optimise.OptimiseFailed:
         return None
     states = optimise.sample(sol, vehicle, dt_s)
@@ -240,7 +245,8 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
-            vehicle: VehicleGeometry, lb: tuple[float, ...], budget: PlanBudget) -> list:
+            vehicle: VehicleGeometry, lb: tuple[float, ...], budget: PlanBudget, search_margin_m: float,
+            opt_margin_m: float) -> list:
     """Searches from both ends take turns (`SLICE` expansions each, the tighter end first: leaving a
     bay is easier than entering it; a path found from the goal is driven backwards) until one finds a
     path. A search that fails at `COARSE` resolution is replaced by one at `FINE` resolution from the
@@ -258,8 +264,8 @@ def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: O
             reasons.append(_reason(backwards, params, exc))
             return None
 
-    coarse = replace(COARSE, max_expansions=budget.coarse_expansions)
-    fine = replace(FINE, max_expansions=budget.fine_expansions)
+    coarse = replace(COARSE, max_expansions=budget.coarse_expansions, margin_m=search_margin_m)
+    fine = replace(FINE, max_expansions=budget.fine_expansions, margin_m=search_margin_m)
     searches = {b: start_search(b, coarse) for b in (goal_first, not goal_first)}
     while any(searches.values()):
         for backwards, search in list(searches.items()):
@@ -273,7 +279,7 @@ def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: O
                 continue
             if path is None:
                 continue
-            if not _path_clips(path, obs, vehicle):
+            if not _path_clips(path, obs, vehicle, opt_margin_m):
                 return merge(reverse(path) if backwards else path)
             reasons.append(_reason(backwards, search.p, "the path clipped an obstacle between checks"))
             dense = replace(search.p, check_m=search.p.check_m / 2)
@@ -296,11 +302,23 @@ def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
     return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells{micro}: {exc}"
 
 
-def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry) -> bool:
+def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry, margin_m: float) -> bool:
     """Does the footprint, grown by the optimisation's margin, meet an obstacle anywhere along the
     path (sampled every `DENSE_M`)?"""
     poses = np.vstack([seg.poses(DENSE_M) for seg in segments])
-    return bool(obs.collides(poses, vehicle, MARGIN_M).any())
+    return bool(obs.collides(poses, vehicle, margin_m).any())
+
+
+def _exact_clearance(pose: np.ndarray, obs: Obstacles, vehicle: VehicleGeometry, upto_m: float = 0.2) -> float:
+    """The largest footprint growth [m] (to 1e-4 m, at most ``upto_m``) free of obstacles at ``pose``
+    (bisection on the exact collision test): the margins never exceed `END_SHARE` of it."""
+    if not obs.collides(np.asarray(pose)[None], vehicle, upto_m)[0]:
+        return upto_m
+    lo, hi = 0.0, upto_m
+    while hi - lo > 1e-4:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if not obs.collides(np.asarray(pose)[None], vehicle, mid)[0] else (lo, mid)
+    return lo
 
 
 def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: VehicleGeometry) -> float:

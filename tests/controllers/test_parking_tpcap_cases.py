@@ -30,11 +30,17 @@ def test_a_tight_parallel_goal_is_planned_and_verified() -> None:
     assert wall < 2 * WALL_S  # a loose bound: the tight bound is the benchmark's (see docs/guide/parking.md)
 
 
-def test_a_tight_perpendicular_goal_is_planned_and_verified() -> None:
-    case = tc.tight_perpendicular(gap_m=0.17)
-    assert tc.clearance(case, case.goal) == pytest.approx(0.17, abs=1e-9)
+@pytest.mark.parametrize("gap_m", [0.17, 0.03])
+def test_a_tight_perpendicular_goal_is_planned_and_verified(gap_m: float) -> None:
+    """Parked cars beside the goal and the kerb behind it, each ``gap_m`` from its footprint. At
+    0.03 m the search's 0.05 m margin exceeded the clearance: the goal-side search was exhausted after
+    1 expansion and the case had no path. The margins now shrink to half the ends' clearance (still
+    >= 0 and a hard constraint of the optimisation), and the checker (no margin) passes the result."""
+    case = tc.tight_perpendicular(gap_m=gap_m)
+    assert tc.clearance(case, case.goal) == pytest.approx(gap_m, abs=1e-9)
     tr = plan(case.start, case.goal, case.obstacles)
     assert check(case, tr.as_array()) == []
+    assert tr.stage == "optimised"
 
 
 def test_a_cluttered_lot_is_planned_and_verified() -> None:
