@@ -89,7 +89,7 @@ class Trajectory:
     steer: np.ndarray
     search_time_s: float
     optimise_time_s: float
-    stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback)
+    stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback), "at goal" (one row)
 
     def direction_changes(self, min_run_m: float = MIN_RUN_M) -> int:
         """Changes between forward and reverse motion, counting only runs in one direction that
