@@ -41,8 +41,6 @@ class SearchParams:
     margin_m: float = 0.05  # footprint growth for the search (the optimiser keeps its own)
     rs_every: int = 4  # try an analytic expansion every n expansions (when near)
     rs_near_m: float = 25.0
-    rs_detour: float = 1.5  # ... and when the grid distance to the goal is at most this times the
-    rs_detour_m: float = 3.0  # straight one plus this [m]
     micro_step_m: float = 0.1  # arc length of the primitives tried where the short ones collide ...
     micro_near_m: float = 2.0  # ... within this distance of the search's first pose (a tight start / goal)
     micro: bool = False  # use them (and finer cells there): for an end the normal search cannot leave
@@ -130,14 +128,6 @@ class HybridAStar:
         return (int(np.floor(pose[0] / p.xy_res_m)), int(np.floor(pose[1] / p.xy_res_m)),
                 int(np.floor((pose[2] % (2 * np.pi)) / (2 * np.pi / p.n_heading))) % p.n_heading)
 
-    def _open_towards_goal(self, pose: np.ndarray) -> bool:
-        """Worth an analytic expansion: near the goal, and the way around the obstacles (holonomic
-        grid) not much longer than the straight line (else every short Reeds–Shepp path is blocked)."""
-        d = float(np.hypot(*(pose[:2] - np.asarray(self.goal[:2]))))
-        if d >= self.p.rs_near_m:
-            return False
-        return float(self.grid(pose[None, :2])[0]) <= self.p.rs_detour * d + self.p.rs_detour_m
-
     def _h(self, poses: np.ndarray) -> np.ndarray:
         return np.maximum(self.grid(poses[:, :2]), self.rs_h(poses))
 
@@ -156,7 +146,7 @@ class HybridAStar:
             self.expansions += 1
             if self.expansions > p.max_expansions:
                 raise SearchFailed(f"no path within {p.max_expansions} expansions")
-            if self.expansions % p.rs_every == 1 and self._open_towards_goal(pose):
+            if self.expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - np.asarray(self.goal[:2]))) < p.rs_near_m:
                 tail = _analytic(pose, self.goal, self.collides, self.radius, self.bounds)
                 if tail is not None:
                     return _backtrack(self.nodes, ni) + tail
