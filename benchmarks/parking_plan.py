@@ -44,7 +44,7 @@ def baseline(path: Path) -> tuple[float, float]:
     s = (0.0, 0.0, case.start[2])
     g = (case.goal[0] - origin[0], case.goal[1] - origin[1], case.goal[2])
     t0 = time.perf_counter()
-    segs = _search(s, g, Obstacles(polys), TPCAP_VEHICLE, _default_bounds(np.array(s), np.array(g), polys),
+    segs, _ = _search(s, g, Obstacles(polys), TPCAP_VEHICLE, _default_bounds(np.array(s), np.array(g), polys),
                    PlanBudget(), COARSE.margin_m, MARGIN_M)
     phases = profile.phases(segs, TPCAP_VEHICLE)
     return time.perf_counter() - t0, phases[-1].t0_s + phases[-1].duration_s

@@ -127,6 +127,8 @@ class HybridAStar:
         self.heap = [(float(self._h(s0[None])[0]) * p.heuristic_weight, 0)]
         self.best_g = {self._key(s0): 0.0}
         self.expansions = 0
+        self.dead: set[int] = set()  # nodes cut off with their subtrees (`prune`)
+        self.last = 0  # the node the last path found leaves the tree from
 
     def _key(self, pose: np.ndarray) -> tuple[int, ...]:
         p = self.p
@@ -144,6 +146,29 @@ class HybridAStar:
     def _h(self, poses: np.ndarray) -> np.ndarray:
         return np.maximum(np.maximum(self.grid(self._centre(poses)), self.rgrid(poses[:, :2])), self.rs_h(poses))
 
+    def prune(self, segment: int) -> bool:
+        """Cut off the tree below segment number ``segment`` of the last path found (a primitive that
+        proved unusable, e.g. clipping an obstacle between its collision checks), so that the search
+        can go on without it; False when that segment is not a primitive of the tree (the path's
+        analytic tail, which the search will not try again from that node)."""
+        chain = []
+        ni = self.last
+        while ni > 0:
+            chain.append(ni)
+            ni = self.nodes[ni][2]
+        chain.reverse()  # chain[k] is the end node of segment k
+        if segment >= len(chain):
+            return False
+        self.dead.add(chain[segment])
+        return True
+
+    def _below_dead(self, ni: int) -> bool:
+        while ni > 0:
+            if ni in self.dead:
+                return True
+            ni = self.nodes[ni][2]
+        return False
+
     def run(self, expansions: int) -> list[Segment] | None:
         """Up to ``expansions`` more expansions: the path if found, None if not yet; SearchFailed when
         the space is exhausted or the expansion budget (``max_expansions``) is spent."""
@@ -154,7 +179,7 @@ class HybridAStar:
                 return None
             _, ni = heapq.heappop(self.heap)
             pose, g, _, _, length, steer = self.nodes[ni]
-            if g > self.best_g.get(self._key(pose), np.inf) + 1e-9:
+            if g > self.best_g.get(self._key(pose), np.inf) + 1e-9 or (self.dead and self._below_dead(ni)):
                 continue
             self.expansions += 1
             if self.expansions > p.max_expansions:
@@ -162,6 +187,8 @@ class HybridAStar:
             if self.expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - np.asarray(self.goal[:2]))) < p.rs_near_m:
                 tail = _analytic(pose, self.goal, self.collides, self.radius, self.bounds)
                 if tail is not None:
+                    self.last = ni
+                    self._expand(ni, pose, g, length, steer)  # so that the search can go on from here
                     return _backtrack(self.nodes, ni) + tail
             self._expand(ni, pose, g, length, steer)
         raise Exhausted(f"the search space is exhausted after {self.expansions} expansions: no path")
