@@ -54,8 +54,9 @@ def _equal(a: pd.Series, b: pd.Series) -> bool:
     x, y = pd.to_numeric(a, errors="coerce"), pd.to_numeric(b, errors="coerce")
     if x.notna().equals(a.notna()) and y.notna().equals(b.notna()):
         xa, ya = x.to_numpy(dtype=float), y.to_numpy(dtype=float)
-        return bool(np.all((xa == ya) | (np.isnan(xa) & np.isnan(ya)) |
-                           (np.abs(xa - ya) <= 1e-9 * np.maximum(np.abs(xa), np.abs(ya)))))
+        with np.errstate(invalid="ignore"):  # inf - inf: equal infinities are caught by xa == ya
+            return bool(np.all((xa == ya) | (np.isnan(xa) & np.isnan(ya)) |
+                               (np.abs(xa - ya) <= 1e-9 * np.maximum(np.abs(xa), np.abs(ya)))))
     return a.astype(str).tolist() == b.astype(str).tolist()
 
 
