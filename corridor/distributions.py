@@ -14,31 +14,17 @@ by ``scipy.stats``.  The nominal sampler stays ``Distribution.draw`` (a run's nu
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from scipy import special, stats
+from scipy import special
 
-if TYPE_CHECKING:  # pragma: no cover
-    from corridor.scenario import Distribution
+from corridor.scenario import Distribution
 
 
 def frozen(d: Distribution) -> Any:
-    """The scipy.stats distribution of a continuous kind."""
-    if d.uniform is not None:
-        lo, hi = d.uniform
-        return stats.uniform(loc=lo, scale=hi - lo)
-    if d.normal is not None:
-        return stats.norm(loc=d.normal[0], scale=d.normal[1])
-    if d.truncnormal is not None:
-        mean, std, lo, hi = d.truncnormal
-        return stats.truncnorm((lo - mean) / std, (hi - mean) / std, loc=mean, scale=std)
-    if d.lognormal is not None:
-        return stats.lognorm(s=d.lognormal[1], scale=math.exp(d.lognormal[0]))
-    if d.beta is not None:
-        a, b, lo, hi = d.beta
-        return stats.beta(a, b, loc=lo, scale=hi - lo)
-    raise ValueError(f"{d.kind} is discrete: it has no scipy frozen continuous distribution")
+    """The scipy.stats distribution of a continuous kind (``Distribution.frozen``)."""
+    return d.frozen()
 
 
 def _ppf(dist: Any, z: float) -> float:

@@ -41,8 +41,7 @@ from corridor.scenario import set_overrides
 def _setup(scenario: str | Path, sets: Sequence[str], variant: str | None, seed: int | None, budget: int,
            out: str | Path | None, suffix: str) -> tuple[Any, dict[str, Any], Path, str, int, Path]:
     from corridor.api import _int, check_options
-    from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, load
+    from corridor.scenario import MAX_SEED, load, resolve_scenario
 
     if not 1 <= _int("budget", budget) <= MAX_BUDGET:
         raise CorridorError(f"--budget must be 1..{MAX_BUDGET} runs, got {budget}")

@@ -181,8 +181,8 @@ class Distribution(Strict):
     """One ``randomize`` entry, of exactly one kind (uniform, normal, integers, choice, truncnormal, ...).
 
     ``draw`` is the nominal sampler (the numbers of the first four kinds are those corridor always
-    drew); ``corridor.distributions`` gives every kind a density and a map from the standard normal,
-    for importance sampling and splitting.
+    drew); ``corridor.distributions`` (which imports this module, never the other way) gives every
+    kind a density and a map from the standard normal, for importance sampling and splitting.
     """
 
     uniform: tuple[float, float] | None = None
@@ -255,9 +255,30 @@ class Distribution(Strict):
             return int(rng.integers(self.integers[0], self.integers[1] + 1))
         if self.choice is not None:
             return self.choice[int(rng.integers(len(self.choice)))]
-        from corridor.distributions import frozen  # scipy-backed kinds: sampled by their own rvs
+        return float(self.frozen().rvs(random_state=rng))  # scipy-backed kinds: sampled by their own rvs
 
-        return float(frozen(self).rvs(random_state=rng))
+    def frozen(self) -> Any:
+        """The ``scipy.stats`` frozen distribution of a continuous kind (scipy imported on first use).
+
+        Raises:
+            ValueError: a discrete kind (``integers``, ``choice``).
+        """
+        from scipy import stats
+
+        if self.uniform is not None:
+            lo, hi = self.uniform
+            return stats.uniform(loc=lo, scale=hi - lo)
+        if self.normal is not None:
+            return stats.norm(loc=self.normal[0], scale=self.normal[1])
+        if self.truncnormal is not None:
+            mean, std, lo, hi = self.truncnormal
+            return stats.truncnorm((lo - mean) / std, (hi - mean) / std, loc=mean, scale=std)
+        if self.lognormal is not None:
+            return stats.lognorm(s=self.lognormal[1], scale=math.exp(self.lognormal[0]))
+        if self.beta is not None:
+            a, b, lo, hi = self.beta
+            return stats.beta(a, b, loc=lo, scale=hi - lo)
+        raise ValueError(f"{self.kind} is discrete: it has no scipy frozen continuous distribution")
 
 
 KINDS = ("uniform", "normal", "integers", "choice", "truncnormal", "lognormal", "beta")
@@ -927,3 +948,35 @@ def _load_validated(path: str | Path, data: dict[str, Any], sets: list[str] | No
             validate(apply_overrides(data, {**over, **after}), f"{path} [sweep.{_key(variant)}]")
     check_randomize(sc, data, str(path))
     return sc, data
+
+
+def resolve_scenario(name: str) -> Path:
+    """The scenario file a name stands for.
+
+    An existing path (or a name ending in ``.yaml``) is kept as it is; a bare name is a packaged
+    scenario (``merging`` -> ``scenarios/merging.yaml``).
+
+    Raises:
+        ScenarioError: neither a file nor a packaged scenario (the packaged names are listed).
+    """
+    path = Path(name)
+    try:
+        exists = path.exists()
+    except OSError:  # e.g. a name too long for the file system
+        exists = False
+    if exists or path.suffix in (".yaml", ".yml"):
+        return path
+    dirs = [Path(__file__).resolve().parent.parent / "scenarios"]
+    try:
+        import corridor.scenarios as pkg  # installed wheel: scenarios ship as package data
+
+        dirs += [Path(p) for p in pkg.__path__]
+    except ImportError:
+        pass
+    if len(name) <= 64 and name.replace("_", "").replace("-", "").isalnum():  # a bare name, not a path
+        for d in dirs:
+            if (d / f"{name}.yaml").is_file():
+                return d / f"{name}.yaml"
+    names = sorted({p.stem for d in dirs if d.is_dir() for p in d.glob("*.yaml")})
+    raise ScenarioError(f"{clip(name)}: no such file, and no packaged scenario of that name "
+                        f"(packaged: {', '.join(names)})")

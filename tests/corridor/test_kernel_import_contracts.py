@@ -95,3 +95,20 @@ def _import_rules():
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def test_the_kernel_has_no_import_cycle() -> None:
+    """No two kernel modules import each other, not even lazily inside a function (api, cli and
+    rare_api did through ``resolve_scenario``; scenario and distributions through ``Distribution``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cycles = lint_imports.kernel_cycles(lint_imports.mirror(Path(tmp)))
+    assert cycles == []
+
+
+def test_a_lazy_import_back_is_a_kernel_cycle() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = lint_imports.mirror(Path(tmp))
+        with open(tree / "corridor" / "errors.py", "a") as f:  # errors <- api, and now errors -> api
+            f.write("\n\ndef _late():\n    from corridor import api  # noqa: F401\n")
+        cycles = lint_imports.kernel_cycles(tree)
+    assert len(cycles) == 1 and "corridor.api" in cycles[0] and "corridor.errors" in cycles[0], cycles

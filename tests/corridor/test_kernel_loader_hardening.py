@@ -37,7 +37,7 @@ def test_long_scenario_name_is_clipped(capsys):
 
 
 def test_packaged_name_still_resolves():
-    from corridor.cli import resolve_scenario
+    from corridor.scenario import resolve_scenario
 
     assert resolve_scenario("merging") == MERGING
 
