@@ -51,7 +51,7 @@ def validate(data: dict[str, Any], source: str) -> Scenario:
     return sc
 
 
-def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] = frozenset()) -> None:
+def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] | frozenset[str] = frozenset()) -> None:
     from corridor.registry import BACKENDS, CONTROLLERS, MONITORS
 
     for table, registry in (("backends", BACKENDS), ("controllers", CONTROLLERS), ("monitors", MONITORS)):

@@ -125,7 +125,7 @@ class Distribution(Strict):
             return [math.exp(self.lognormal[0])]
         if self.beta is not None:
             return list(self.beta[2:])
-        return list(self.choice[:20])
+        return list((self.choice or [])[:20])  # choice: the one kind left
 
     def draw(self, rng: Any) -> Any:
         """One value drawn with the generator ``rng`` (a ``numpy.random.Generator``)."""
@@ -197,7 +197,7 @@ class Scenario(Strict):
     channels: dict[str, ChannelConfig] = Field(default_factory=dict)
     specs: list[SpecDecl] = Field(default_factory=list)
     metrics: list[str] = Field(default_factory=list)  # key metric columns for the summary table
-    sweep: dict[str, dict[str, Any]] = Field(default_factory=lambda: {"default": {}})
+    sweep: dict[str, dict[str, Any]] = Field(default_factory=lambda: {"default": dict[str, Any]()})
     randomize: dict[str, Distribution] = Field(default_factory=dict)
     outputs: Outputs = Field(default_factory=Outputs)
 

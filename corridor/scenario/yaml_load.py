@@ -46,7 +46,7 @@ class _Loader(yaml.SafeLoader):
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.AliasEvent):
-            event = self.peek_event()
+            event = self.peek_event()  # type: ignore[no-untyped-call]
             node = self.anchors.get(event.anchor)
             if node is not None:
                 if id(node) not in self._sizes:
@@ -54,7 +54,7 @@ class _Loader(yaml.SafeLoader):
                                       problem_mark=event.start_mark)
                 self._count(self._sizes[id(node)], event.start_mark)
             return super().compose_node(parent, index)
-        mark = self.peek_event().start_mark
+        mark = self.peek_event().start_mark  # type: ignore[no-untyped-call]
         self._depth += 1
         if self._depth > MAX_YAML_DEPTH:
             raise _LimitError(problem=f"nested deeper than {MAX_YAML_DEPTH} levels", problem_mark=mark)
