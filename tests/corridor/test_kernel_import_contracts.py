@@ -7,13 +7,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("lint_imports", ROOT / "tools" / "lint_imports.py")
+from tests.conftest import REPO
+
+spec = importlib.util.spec_from_file_location("lint_imports", REPO / "tools" / "lint_imports.py")
 lint_imports = importlib.util.module_from_spec(spec)
 sys.modules["lint_imports"] = lint_imports
 spec.loader.exec_module(lint_imports)
 
-CONFIG = ["--config", str(ROOT / "pyproject.toml")]
+CONFIG = ["--config", str(REPO / "pyproject.toml")]
 
 
 def test_the_contracts_hold():
@@ -91,7 +92,7 @@ def test_except_patterns_match_whole_segments() -> None:
 
 
 def _import_rules():
-    spec = importlib.util.spec_from_file_location("import_rules", ROOT / "tools" / "import_rules.py")
+    spec = importlib.util.spec_from_file_location("import_rules", REPO / "tools" / "import_rules.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
