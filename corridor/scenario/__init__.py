@@ -54,7 +54,14 @@ from corridor.scenario.schema import (
     SpecDecl,
     Strict,
 )
-from corridor.scenario.yaml_load import MAX_EXTENDS, deep_merge, read_text, read_yaml, resolve_extends
+from corridor.scenario.yaml_load import (
+    MAX_EXTENDS,
+    deep_merge,
+    load_yaml_text,
+    read_text,
+    read_yaml,
+    resolve_extends,
+)
 
 __all__ = [
     "KINDS", "MAX_DT_S", "MAX_DURATION_S", "MAX_EXTENDS", "MAX_FILE_BYTES", "MAX_SEED", "MAX_STEPS",
@@ -62,7 +69,7 @@ __all__ = [
     "ComponentSpec", "Distribution", "NestedParamsError", "Origin", "Outputs", "Scenario", "ScenarioFile",
     "SpecDecl", "Strict",
     "apply_overrides", "canonical_path", "check_randomize", "deep_merge", "expand_shorthands", "file_stamps",
-    "format_error", "key_text", "load", "load_raw", "load_with_files", "parse_value", "read_text", "read_yaml",
+    "format_error", "key_text", "load", "load_raw", "load_yaml_text", "load_with_files", "parse_value", "read_text", "read_yaml",
     "resolve_extends", "resolve_scenario", "resolving_files", "respell", "scenario_dir", "set_overrides",
     "set_path", "show_path", "validate",
 ]
