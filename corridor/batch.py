@@ -14,11 +14,11 @@ import pickle
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait as mp_wait
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -125,7 +125,7 @@ class _Worker:
     """A ``python -m corridor.worker`` process: one run (``serve=False``), or a fork server that runs
     spec after spec, each in a forked child (``serve=True``).  Rows arrive on ``fd``."""
 
-    proc: subprocess.Popen
+    proc: subprocess.Popen[bytes]
     spec: RunSpec | None  # the run in progress (None: a server waiting for work)
     fd: int
     serve: bool = False
@@ -224,7 +224,7 @@ def _take_frame(w: _Worker) -> dict[str, Any] | None:
 
 
 def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
-           said: list[bool] | None = None) -> Iterator[dict[str, Any]]:
+           said: list[bool] | None = None) -> Generator[dict[str, Any], None, None]:
     """At most ``workers`` runs at once, each in a process of its own (libsumo allows one simulation
     per process): forked from a pre-imported server per worker slot (``fork_server``), or a fresh
     ``python -m corridor.worker`` per run.  A worker that dies (segfault, kill -9) costs its own row
@@ -253,7 +253,7 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
             if not running:
                 return
             done: list[dict[str, Any]] = []
-            for fd in mp_wait(list(running)):
+            for fd in cast(list[int], mp_wait(list(running))):  # file descriptors in, the ready ones out
                 w = running[fd]
                 chunk = os.read(fd, 1 << 20)
                 if chunk:
@@ -316,7 +316,7 @@ class _RayRunner:
         return execute(spec)
 
 
-def _ray(specs: Iterable[RunSpec], address: str | None) -> Iterator[dict[str, Any]]:
+def _ray(specs: Iterable[RunSpec], address: str | None) -> Generator[dict[str, Any], None, None]:
     """One actor per CPU of the cluster, each running one spec at a time (libsumo: one simulation at
     a time per process), spec after spec, so a run pays no worker start-up and imports (Ray used to
     start a process per run: ``max_calls=1``).  As with the local runner, a failed run, a dead

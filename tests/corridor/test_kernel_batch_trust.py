@@ -18,10 +18,10 @@ import pandas as pd
 import pytest
 
 from corridor.cli import main
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-HEGYI = str(ROOT / "scenarios" / "hegyi_benchmark.yaml")
-MERGING = str(ROOT / "scenarios" / "merging.yaml")
+HEGYI = str(SCENARIOS / "hegyi_benchmark.yaml")
+MERGING = str(SCENARIOS / "merging.yaml")
 FAST = ["--set", "duration=300", "--variant", "none", "--quiet", "--no-report", "--workers", "1"]
 SLOWISH = ["--set", "duration=40", "--set", "warmup=5", "--variant", "sumo_default", "--no-report"]
 
@@ -146,7 +146,7 @@ def test_run_plan_is_lazy_and_ranks_run_ids():
 def _start(out: Path, runs: int, *extra: str) -> subprocess.Popen:
     args = [sys.executable, "-m", "corridor.cli", MERGING, *SLOWISH, "--out", str(out), "--runs", str(runs),
             "--workers", "2", *extra]
-    return subprocess.Popen(args, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+    return subprocess.Popen(args, cwd=REPO, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
 
 

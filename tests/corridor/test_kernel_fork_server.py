@@ -9,18 +9,18 @@ import re
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import pandas as pd
 
 import corridor.batch as batch
 from corridor.scenario import load
 from corridor.worker import FRAME
+from tests.conftest import SCENARIOS
 
 VOLATILE = re.compile(r"(^|[._])(wall|rtf|traceback)($|[._])|solve|_time_s$|cpu")  # the machine's timings
 
-ROOT = Path(__file__).resolve().parents[2]
-HEGYI = str(ROOT / "scenarios" / "hegyi_benchmark.yaml")
+
+HEGYI = str(SCENARIOS / "hegyi_benchmark.yaml")
 
 
 def _rows(monkeypatch, fork_server: bool, workers: int) -> tuple[pd.DataFrame, int]:
@@ -93,7 +93,7 @@ def test_a_server_that_retires_loses_no_run(tmp_path, monkeypatch):
     started = []
     spawn = batch._spawn
     monkeypatch.setattr(batch, "_spawn", lambda serve: started.append(serve) or spawn(serve))
-    res = run(str(ROOT / "scenarios" / "parking_lot.yaml"), runs=3, sets=["duration=2"], out=tmp_path / "b",
+    res = run(str(SCENARIOS / "parking_lot.yaml"), runs=3, sets=["duration=2"], out=tmp_path / "b",
               report=False, workers=1)
     assert list(res.rows["status"]) == ["ok"] * 3, res.rows.get("error")
     assert len(started) == 3  # each server retired after its run
@@ -108,8 +108,8 @@ def _mixed_plan() -> list:
             ("hegyi_benchmark.yaml", ["duration=300"], ["alinea"], 1),
             ("uav_encounter.yaml", ["duration=8"], None, 1),
             ("merging.yaml", ["duration=40", "warmup=0"], ["v2x_cps", "sumo_default"], 2)):
-        sc, raw = load(str(ROOT / "scenarios" / path), sets)
-        plan.extend(batch.expand(sc, raw, str(ROOT / "scenarios" / path), runs=runs, variants=variants))
+        sc, raw = load(str(SCENARIOS / path), sets)
+        plan.extend(batch.expand(sc, raw, str(SCENARIOS / path), runs=runs, variants=variants))
     return plan
 
 
