@@ -138,11 +138,11 @@ def test_ray_actors_run_spec_after_spec_and_a_failed_run_is_one_error_row(tmp_pa
 
 
 def test_local_workers_get_single_threaded_math_unless_the_user_chose(monkeypatch) -> None:
-    from corridor.batch import WORKER_THREAD_ENV, _local
+    from corridor.batch import WORKER_THREAD_ENV, run_local
 
     for var in WORKER_THREAD_ENV:
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("MKL_NUM_THREADS", "4")
-    assert list(_local([], workers=1)) == []
+    assert list(run_local([], workers=1)) == []
     assert os.environ["OMP_NUM_THREADS"] == "1" and os.environ["OPENBLAS_NUM_THREADS"] == "1"
     assert os.environ["MKL_NUM_THREADS"] == "4"
