@@ -9,7 +9,10 @@ same autopilot every 6-DOF UAV flies) through step commands and reads what it ac
 - ``max_accel_h_mps2``: the largest horizontal acceleration in the 0 -> max-speed step (0.1 s samples),
 - ``tau_h_s`` / ``tau_v_s``: time to 63 % of the final speed change (first-order time constants),
 - ``max_turn_rate_rps``: the largest course rate in a 90 degree velocity turn at full speed,
-- ``max_yaw_rate_rps``: the largest yaw rate for a 90 degree yaw command.
+- ``max_yaw_rate_rps``: the largest yaw rate for a 90 degree yaw command,
+- ``drag_per_m``: c in a_drag = c v^2, from the steady pitch at full speed (g tan|theta| / v^2),
+- ``integ_u_hover_mps2`` / ``integ_u_per_m``: the cascade's vertical integrator in steady flight,
+  a + b v^2 (hover and full speed), the state a hand-over to JSBSim starts it with.
 
 The point-mass model (:mod:`corridor.vehicles.point_mass_fleet`) takes these as its limits;
 ``tests/vehicles/test_veh_point_mass_fleet.py`` re-measures them and checks its defaults, and
@@ -38,6 +41,9 @@ class Envelope:
     tau_v_s: float  # [s]
     max_turn_rate_rps: float  # [rad/s]
     max_yaw_rate_rps: float  # [rad/s]
+    drag_per_m: float  # [1/m]
+    integ_u_hover_mps2: float  # [m/s^2]
+    integ_u_per_m: float  # [1/m]
 
 
 def _fly(fleet, cmd, seconds: float) -> np.ndarray:
@@ -65,9 +71,12 @@ def measure_envelope() -> Envelope:
 
     fleet = JSBSimFleet(ORIGIN)
     fleet.add("q", "F450", (0.0, 0.0, 80.0))
-    _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.0), 3.0)
-    acc = _fly(fleet, VelocityCommand((20.0, 0.0, 0.0), 0.0), 15.0)
+    _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.0), 30.0)
+    integ_hover = fleet.get_property("q", "corridor/integ-u-mps2")
+    acc = _fly(fleet, VelocityCommand((20.0, 0.0, 0.0), 0.0), 20.0)
     v_max = float(np.mean(np.hypot(acc[-20:, 1], acc[-20:, 2])))
+    drag = 9.80665 * float(np.tan(abs(fleet.state().pitch[0]))) / v_max**2
+    integ_per_m = (fleet.get_property("q", "corridor/integ-u-mps2") - integ_hover) / v_max**2
     a_max = float(np.max(np.hypot(*np.diff(acc[:, 1:3], axis=0).T)) / DT_S)
     tau_h = _tau(acc[:, 0], acc[:, 1], 0.0, v_max)
     turn = _fly(fleet, VelocityCommand((0.0, 20.0, 0.0), 0.0), 10.0)
@@ -80,9 +89,10 @@ def measure_envelope() -> Envelope:
     descent = _fly(fleet, VelocityCommand((0.0, 0.0, -10.0), 0.0), 8.0)
     yaw = _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.5 * np.pi), 6.0)
     yaw_rate = float(np.max(np.abs(np.diff(np.unwrap(yaw[:, 4])))) / DT_S)
-    return Envelope(v_max, v_climb, float(-np.mean(descent[-10:, 3])), a_max, tau_h, tau_v, turn_rate, yaw_rate)
+    return Envelope(v_max, v_climb, float(-np.mean(descent[-10:, 3])), a_max, tau_h, tau_v, turn_rate, yaw_rate,
+                    drag, integ_hover, integ_per_m)
 
 
 if __name__ == "__main__":
     for k, v in asdict(measure_envelope()).items():
-        print(f"{k:20s} {v:8.3f}")
+        print(f"{k:20s} {v:10.6f}")

@@ -4,7 +4,9 @@ Each row is an F450 reduced to a point with a first-order velocity response: the
 velocity demand (the same P-on-position / commanded-velocity law and saturations as
 ``autopilot.QuadCascade.velocity_demand``) is followed with time constants ``tau_h_s`` (horizontal)
 and ``tau_v_s`` (vertical), the horizontal acceleration saturated at ``max_accel_h_mps2``, speeds at
-the measured maxima. A heading (course) change is a change of the velocity vector, so the turn rate
+the measured maxima. Drag (``drag_per_m`` v^2) against the P velocity loop leaves the cascade's
+steady error: the point mass flies v = v_demand - (c / kp_vel_xy) |v| v, so 8 m/s commanded is 7.86
+m/s flown, as in JSBSim. A heading (course) change is a change of the velocity vector, so the turn rate
 is bounded by ``max_accel_h_mps2 / speed``. Yaw follows its target at ``max_yaw_rate_rps``. Roll and
 pitch are those of a quad producing the current horizontal acceleration (``atan(a / g)``, the
 cascade's tilt law), so a hand-over to JSBSim can start with a consistent attitude.
@@ -37,14 +39,18 @@ class PointMassLimits:
     """F450 limits under corridor's cascade, measured by ``f450_envelope.measure_envelope``
     (``python -m corridor.vehicles.f450_envelope``); ``kp_pos`` is the cascade's position gain."""
 
-    max_speed_h_mps: float = 7.86  # [m/s]
+    max_speed_h_mps: float = 8.0  # [m/s] the cascade's command limit (7.86 m/s flown: drag droop)
     max_climb_mps: float = 3.0  # [m/s]
     max_descent_mps: float = 2.03  # [m/s]
     max_accel_h_mps2: float = 3.5  # [m/s^2]
     tau_h_s: float = 1.8  # [s]
     tau_v_s: float = 0.2  # [s]
     max_yaw_rate_rps: float = 0.6  # [rad/s]
-    kp_pos: float = 0.6  # [1/s]
+    drag_per_m: float = 0.00673  # [1/m] a_drag = c v^2
+    integ_u_hover_mps2: float = 0.0636  # [m/s^2] the cascade's vertical integrator, a + b v^2 (hand-over)
+    integ_u_per_m: float = 0.000394  # [1/m]
+    kp_pos: float = 0.6  # [1/s] the cascade's gains (QuadGains)
+    kp_vel_xy: float = 3.0  # [1/s]
     kp_yaw: float = 1.5  # [1/s]
 
 
@@ -130,6 +136,26 @@ class PointMassFleet:
         self.speed_limit[rows] = np.inf
         self.yaw_tgt[rows] = self.yaw[rows]
 
+    def current_command(self, q: int) -> Command:
+        """Row ``q``'s active command, as an autopilot command another fleet can take over (waypoints:
+        the remaining ones)."""
+        yaw = float(self.yaw_tgt[q])
+        if self.mode[q] == PmMode.VELOCITY:
+            return VelocityCommand(tuple(map(float, self.v_tgt[q])), yaw)
+        if q in self._wp:
+            cmd, i = self._wp[q]
+            return WaypointCommand(cmd.waypoints_enu[i:], cmd.speed_mps, cmd.accept_radius_m)
+        return PositionCommand(tuple(map(float, self.p_tgt[q])), yaw)
+
+    def set_state(self, q: int, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float, roll_rad: float,
+                  pitch_rad: float) -> None:
+        """Take over a state (a 6-DOF aircraft handing back): the acceleration is the one the attitude
+        produces (inverse of :meth:`attitude`)."""
+        self.pos[q], self.vel[q], self.yaw[q] = p_enu, v_enu, yaw_rad
+        a_right, a_fwd = G_MPS2 * np.tan(roll_rad), -G_MPS2 * np.tan(pitch_rad)
+        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+        self.acc[q] = np.array([c * a_fwd + s * a_right, s * a_fwd - c * a_right, 0.0]) - self.drag_acc([q])[0]
+
     def waypoint_index(self, id: str) -> int:
         return self._wp.get(self._row[id], (None, 0))[1]
 
@@ -151,6 +177,7 @@ class PointMassFleet:
         lim = self.limits
         v0 = self.vel[rows]
         dv = self.velocity_demand(rows) - v0
+        dv[:, :2] -= (lim.drag_per_m / lim.kp_vel_xy) * np.hypot(v0[:, 0], v0[:, 1])[:, None] * v0[:, :2]
         dv[:, :2] *= 1.0 - np.exp(-dt_s / lim.tau_h_s)
         dv[:, 2] *= 1.0 - np.exp(-dt_s / lim.tau_v_s)
         dh = np.hypot(dv[:, 0], dv[:, 1])
@@ -174,12 +201,24 @@ class PointMassFleet:
                 self.p_tgt[q] = cmd.waypoints_enu[i + 1]
 
     def attitude(self, rows: np.ndarray | slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
-        """(roll, pitch) [rad] of a quad producing the last step's horizontal acceleration (JSBSim body
-        convention, the cascade's tilt law: roll = atan(a_right / g), pitch = -atan(a_fwd / g))."""
-        a, yaw = self.acc[rows], self.yaw[rows]
+        """(roll, pitch) [rad] of a quad producing the last step's horizontal acceleration plus the
+        drag it overcomes (JSBSim body convention, the cascade's tilt law: roll = atan(a_right / g),
+        pitch = -atan(a_fwd / g))."""
+        a, yaw = self.acc[rows] + self.drag_acc(rows), self.yaw[rows]
         c, s = np.cos(yaw), np.sin(yaw)
         a_fwd, a_right = c * a[:, 0] + s * a[:, 1], s * a[:, 0] - c * a[:, 1]
         return np.arctan2(a_right, G_MPS2), -np.arctan2(a_fwd, G_MPS2)
+
+    def drag_acc(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """[m/s^2] (k, 3) horizontal thrust that balances the drag: c |v_h| v_h."""
+        v = self.vel[rows].copy()
+        v[:, 2] = 0.0
+        return self.limits.drag_per_m * np.hypot(v[:, 0], v[:, 1])[:, None] * v
+
+    def integ_u(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """[m/s^2] the vertical integrator the cascade holds in this steady flight (hand-over)."""
+        lim = self.limits
+        return lim.integ_u_hover_mps2 + lim.integ_u_per_m * np.sum(self.vel[rows, :2] ** 2, axis=1)
 
     # ------------------------------------------------------------------------------------ reading
     def state(self) -> FleetState:

@@ -15,11 +15,19 @@ from corridor.vehicles.jsbsim_fleet import JSBSimFleet
 from corridor.vehicles.point_mass_fleet import PointMassFleet, PointMassLimits
 
 
+def steady_speed(lim: PointMassLimits) -> float:
+    """[m/s] v = v_max - (c / kp) v^2 solved for v: the speed the drag droop leaves."""
+    a = lim.drag_per_m / lim.kp_vel_xy
+    return (-1.0 + np.sqrt(1.0 + 4.0 * a * lim.max_speed_h_mps)) / (2.0 * a)
+
+
 def test_default_limits_are_the_measured_f450_envelope() -> None:
     env, lim = asdict(measure_envelope()), PointMassLimits()
-    for name in ("max_speed_h_mps", "max_climb_mps", "max_descent_mps", "max_accel_h_mps2", "tau_h_s", "tau_v_s",
-                 "max_yaw_rate_rps"):
+    for name in ("max_climb_mps", "max_descent_mps", "max_accel_h_mps2", "tau_h_s", "tau_v_s", "max_yaw_rate_rps"):
         assert getattr(lim, name) == pytest.approx(env[name], rel=0.08, abs=0.05), name
+    for name in ("drag_per_m", "integ_u_hover_mps2", "integ_u_per_m"):
+        assert getattr(lim, name) == pytest.approx(env[name], rel=0.15), name
+    assert steady_speed(lim) == pytest.approx(env["max_speed_h_mps"], abs=0.02)
 
 
 @pytest.mark.parametrize("dt_pm", [0.1, 0.5])
@@ -67,9 +75,10 @@ def test_speed_acceleration_and_turn_limits() -> None:
         a_h = np.hypot(*(pm.vel - v_prev)[:, :2].T) / 0.1
         assert np.all(a_h <= lim.max_accel_h_mps2 + 1e-9)
         v_prev = pm.vel.copy()
-    assert np.hypot(*pm.vel[0, :2]) == pytest.approx(lim.max_speed_h_mps, rel=1e-3)
+    assert np.hypot(*pm.vel[0, :2]) == pytest.approx(steady_speed(lim), rel=1e-3)
     assert pm.vel[0, 2] == pytest.approx(lim.max_climb_mps, rel=1e-6)
-    assert pm.vel[1] == pytest.approx([0.0, 7.0, 0.0], abs=1e-3)
+    v_b = (-1.0 + np.sqrt(1.0 + 4.0 * lim.drag_per_m / lim.kp_vel_xy * 7.0)) / (2.0 * lim.drag_per_m / lim.kp_vel_xy)
+    assert pm.vel[1] == pytest.approx([0.0, v_b, 0.0], abs=1e-3)
 
 
 def test_hover_holds_and_snapshot_block() -> None:
