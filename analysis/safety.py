@@ -76,6 +76,12 @@ def _near_pairs_involving(rows: np.ndarray, center_xy: np.ndarray, radius: np.nd
     """The circle pre-filter of ``obb_overlap_pairs`` for the pairs with a row of ``rows``: (i, j),
     i < j, in row-major order (the same distances and sums as the full (N, N) test, term by term)."""
     n = len(center_xy)
+    if n > _DENSE_MAX:
+        i, j = _near_pairs_tree(center_xy, radius, z, height)
+        listed = np.zeros(n, dtype=bool)
+        listed[rows] = True
+        keep = listed[i] | listed[j]
+        return i[keep], j[keep]
     d = np.linalg.norm(center_xy[rows][:, None, :] - center_xy[None, :, :], axis=-1)
     near = d <= radius[rows][:, None] + radius[None, :]
     if z is not None and height is not None:

@@ -7,7 +7,8 @@ delivery from one vertiport to another, and ``piloted`` c172x crossing the squar
 chords at ``piloted_alt_m`` (UAVs give way to them).
 
 Operations are under way when the run starts: each drone starts at a uniform point of its first
-leg (the first 90 %). A drone cruises at its course's layer (quadrantal rule: ``alt_m + k
+leg (the first 90 %), redrawn (up to 30 rounds) while it is closer than ``start_spacing_m`` to
+another. A drone cruises at its course's layer (quadrantal rule: ``alt_m + k
 layer_step_m`` for course quadrant k, so crossing traffic is vertically separated) and counts as
 arrived within ``arrive_radius_m`` of the pad's point at that layer; it then takes off for a new
 destination drawn from ``air/missions`` at once (the fleet's density stays stationary).
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
 
 from .air_backend import AircraftSpec
 
@@ -28,14 +30,15 @@ class CitySpec(BaseModel):
 
     n: int = Field(100, ge=2, le=50_000)  # [drones]
     size_m: float = Field(10_000.0, gt=100.0)  # [m] side of the square, centred on the origin
-    vertiports: int = Field(40, ge=2, le=10_000)
+    vertiports: int = Field(100, ge=2, le=10_000)
     vertiport_spacing_m: float = Field(300.0, ge=0.0)  # [m] minimum distance between two pads
+    start_spacing_m: float = Field(100.0, ge=0.0)  # [m] minimum 3-D distance between two drones at t = 0
     alt_m: float = Field(60.0, gt=10.0)  # [m] lowest cruise layer (ENU up)
-    layer_step_m: float = Field(15.0, ge=0.0)  # [m] between the four course layers
+    layer_step_m: float = Field(25.0, ge=0.0)  # [m] between the four course layers
     speed_mps: float = Field(7.0, gt=0.0)  # [m/s] cruise
     arrive_radius_m: float = Field(15.0, gt=0.0)  # [m] horizontal; vertical 10 m
     piloted: int = Field(2, ge=0, le=50)  # [aircraft] c172x crossing the city
-    piloted_alt_m: float = Field(150.0, gt=30.0)  # [m]
+    piloted_alt_m: float = Field(200.0, gt=30.0)  # [m]
     piloted_speed_mps: float = Field(50.0, gt=0.0)  # [m/s]
 
 
@@ -102,12 +105,18 @@ def city_fleet(spec: CitySpec, rng: np.random.Generator, mission_rng: np.random.
     """The drones (ids ``d00000`` ...) and the piloted aircraft (``c172_0`` ...) of one run."""
     pads = _vertiports(spec, rng)
     n, v = spec.n, len(pads)
-    a = rng.integers(0, v, n)
-    b = (a + rng.integers(1, v, n)) % v
-    frac = rng.uniform(0.0, 0.9, n)
-    xy = pads[a] + frac[:, None] * (pads[b] - pads[a])
-    course = np.arctan2(*(pads[b] - pads[a])[:, ::-1].T)
-    start = np.column_stack([xy, layer_alt(spec, course)])
+    a, b, frac = np.zeros(n, dtype=int), np.zeros(n, dtype=int), np.zeros(n)
+    redraw = np.arange(n)
+    for _ in range(30):
+        k = len(redraw)
+        a[redraw] = rng.integers(0, v, k)
+        b[redraw] = (a[redraw] + rng.integers(1, v, k)) % v
+        frac[redraw] = rng.uniform(0.0, 0.9, k)
+        xy, course, start = _starts(spec, pads, a, b, frac)
+        pairs = cKDTree(start).query_pairs(spec.start_spacing_m, output_type="ndarray")
+        redraw = np.unique(pairs[:, 1])
+        if len(redraw) == 0:
+            break
     missions = Missions(spec, pads, mission_rng)
     missions.dest = b
     missions.goal = np.column_stack([pads[b], start[:, 2]])
@@ -116,6 +125,14 @@ def city_fleet(spec: CitySpec, rng: np.random.Generator, mission_rng: np.random.
                         cruise_speed_mps=spec.speed_mps, goal_enu=tuple(missions.goal[k].tolist()))
            for k in range(n)]
     return out + _piloted(spec, rng), missions
+
+
+def _starts(spec: CitySpec, pads: np.ndarray, a: np.ndarray, b: np.ndarray, frac: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start xy [m], course [rad] and ENU start [m] of drones ``frac`` along pad a -> pad b."""
+    xy = pads[a] + frac[:, None] * (pads[b] - pads[a])
+    course = np.arctan2(*(pads[b] - pads[a])[:, ::-1].T)
+    return xy, course, np.column_stack([xy, layer_alt(spec, course)])
 
 
 def _piloted(spec: CitySpec, rng: np.random.Generator) -> list[AircraftSpec]:

@@ -1,11 +1,15 @@
 """Fidelity as a mode of each aircraft: when a point-mass quadcopter is promoted to JSBSim 6-DOF and
 when it is demoted again.
 
-An aircraft is *close* to another when their distance is below ``promote_radius_m``, or when, flying
-on at their current velocities, they reach their closest approach within ``promote_ttca_s`` and
-that closest approach is below ``promote_radius_m``. Both members of a close pair fly 6-DOF (a
+Distances are measured in a cylinder-like metric, as separation is: the vertical axis is stretched
+by ``promote_radius_m / promote_vertical_m``, so two aircraft are within the promotion boundary when
+sqrt(dh^2 + (dv * radius / vertical)^2) < ``promote_radius_m`` (an ellipsoid of half-height
+``promote_vertical_m``; quadcopters in cruise layers farther apart vertically stay point masses). An
+aircraft is *close* to another when they are within it, or when, flying on at their current
+velocities, their closest approach within ``promote_ttca_s`` is. Both members of a close pair fly 6-DOF (a
 piloted aircraft always does). A 6-DOF quadcopter is demoted once no other aircraft is within
-``demote_radius_m`` (> the promotion radius: hysteresis) nor predicted inside it within
+``demote_radius_m`` (> the promotion radius: hysteresis; the same vertical stretch) nor predicted
+inside it within
 ``promote_ttca_s``, and it has flown 6-DOF for at least ``min_dwell_s``. Pairs are found with a k-d
 tree (``scipy.spatial.cKDTree``), so the test costs O(N log N), not O(N^2).
 """
@@ -26,11 +30,12 @@ class FidelityParams(BaseModel):
 
     # point_mass: quadcopters stay point masses; jsbsim: every aircraft 6-DOF; multi: switch by proximity
     mode: Literal["point_mass", "jsbsim", "multi"] = "multi"
-    promote_radius_m: float = Field(150.0, gt=0.0)  # [m]
-    promote_ttca_s: float = Field(15.0, ge=0.0)  # [s] look-ahead of the closest-approach test
-    demote_radius_m: float = Field(250.0, gt=0.0)  # [m]
-    min_dwell_s: float = Field(5.0, ge=0.0)  # [s] shortest 6-DOF spell
-    uav_speed_bound_mps: float = Field(12.0, gt=0.0)  # [m/s] bounds the pair search radius of UAVs
+    promote_radius_m: float = Field(80.0, gt=0.0)  # [m] horizontal
+    promote_vertical_m: float = Field(20.0, gt=0.0)  # [m] vertical half-height of the boundary
+    promote_ttca_s: float = Field(5.0, ge=0.0)  # [s] look-ahead of the closest-approach test
+    demote_radius_m: float = Field(120.0, gt=0.0)  # [m]
+    min_dwell_s: float = Field(3.0, ge=0.0)  # [s] shortest 6-DOF spell
+    uav_speed_bound_mps: float = Field(20.0, gt=0.0)  # [m/s] bounds the pair search radius of UAVs
     piloted_speed_bound_mps: float = Field(80.0, gt=0.0)  # [m/s] same for piloted aircraft
 
     @model_validator(mode="after")
@@ -85,7 +90,8 @@ class FidelityPolicy:
         n = len(pos)
         if n < 2:
             return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
-        ij, miss = closest_approach_pairs(pos, vel, piloted, p.demote_radius_m, p.promote_ttca_s,
+        stretch = np.array([1.0, 1.0, p.promote_radius_m / p.promote_vertical_m])
+        ij, miss = closest_approach_pairs(pos * stretch, vel * stretch, piloted, p.demote_radius_m, p.promote_ttca_s,
                                           p.uav_speed_bound_mps, p.piloted_speed_bound_mps)
         hot, warm = close_rows(n, ij, miss, p.promote_radius_m), close_rows(n, ij, miss, p.demote_radius_m)
         promote = np.flatnonzero(hot & ~six_dof & ~piloted)

@@ -21,7 +21,7 @@ from .jsbsim_fleet import _QUAD_CMD, JSBSimFleet, quiet_fds
 
 _INTEG = ("corridor/integ-e-mps2", "corridor/integ-n-mps2", "corridor/integ-u-mps2")
 WARM_BATCH = 8  # [FDM] loaded and spun up together when the pool is empty
-WARM_S = 3.0  # [s] hover that spins the propellers up to their hover speed
+WARM_S = 1.0  # [s] hover that spins the propellers up to their hover speed
 
 
 class SwitchableJSBSimFleet(JSBSimFleet):
