@@ -11,7 +11,8 @@ back to the pool still spinning. A promotion costs an initial-condition run, not
 
 from __future__ import annotations
 
-import jsbsim
+from typing import Any
+
 import numpy as np
 
 from corridor.snapshot import Role
@@ -29,11 +30,11 @@ class SwitchableJSBSimFleet(JSBSimFleet):
 
     def __init__(self, *args: object, **kw: object) -> None:
         super().__init__(*args, **kw)
-        self._pool: list[jsbsim.FGFDMExec] = []
+        self._pool: list[Any] = []
         self.loads = 0  # [FDM] models loaded (the pool reuses removed ones)
         self._warming = False  # True in the helper fleet that spins FDMs up for the pool
 
-    def _new_fdm(self, model: str) -> jsbsim.FGFDMExec:
+    def _new_fdm(self, model: str) -> Any:
         if model != "F450" or self._warming:
             self.loads += 1
             return super()._new_fdm(model)
