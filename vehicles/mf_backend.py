@@ -233,6 +233,12 @@ class MultiFidelityAirBackend(AirBackend):
         """Boolean per snapshot row: flying JSBSim 6-DOF now (for recorders: drawn differently)."""
         return self.six.copy()
 
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """For the Rerun recorder: the aircraft flying 6-DOF now, marked on the ground below them
+        (the point masses have no mark); the switches are the ``promote`` / ``demote`` events."""
+        s = self.snapshot_part()
+        return {"six_dof": ("points", s.position[self.six & self.is_quad, :2])}
+
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         sim_s = self.t_s
         cpu = time.process_time() - self._cpu_t0 if self._cpu_t0 is not None else float("nan")
