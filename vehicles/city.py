@@ -22,7 +22,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.spatial import cKDTree
 
-from .air_backend import AircraftSpec
+from corridor.vehicles.air_backend import AircraftSpec
 
 
 class CitySpec(BaseModel):

@@ -16,9 +16,8 @@ from typing import Any
 import numpy as np
 
 from corridor.snapshot import Role
-
-from .geodesy import FT_PER_M, heading_from_enu_yaw
-from .jsbsim_fleet import _QUAD_CMD, JSBSimFleet, quiet_fds
+from corridor.vehicles.geodesy import FT_PER_M, heading_from_enu_yaw
+from corridor.vehicles.jsbsim_fleet import _QUAD_CMD, JSBSimFleet, quiet_fds
 
 _INTEG = ("corridor/integ-e-mps2", "corridor/integ-n-mps2", "corridor/integ-u-mps2")
 WARM_BATCH = 8  # [FDM] loaded and spun up together when the pool is empty

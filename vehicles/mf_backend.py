@@ -35,14 +35,13 @@ from pydantic import Field
 
 from corridor.engine import Metric, RunContext
 from corridor.snapshot import Kind, Role, WorldSnapshot
-
-from .air_backend import AirBackend, AircraftCommand
-from .autopilot import VelocityCommand
-from .city import CitySpec, Missions, city_fleet
-from .fidelity import FidelityParams, FidelityPolicy
-from .jsbsim_fleet import SIZE_M
-from .jsbsim_switch import SwitchableJSBSimFleet
-from .point_mass_fleet import PointMassFleet
+from corridor.vehicles.air_backend import AirBackend, AircraftCommand
+from corridor.vehicles.autopilot import VelocityCommand
+from corridor.vehicles.city import CitySpec, Missions, city_fleet
+from corridor.vehicles.fidelity import FidelityParams, FidelityPolicy
+from corridor.vehicles.jsbsim_fleet import SIZE_M
+from corridor.vehicles.jsbsim_switch import SwitchableJSBSimFleet
+from corridor.vehicles.point_mass_fleet import PointMassFleet
 
 
 @dataclass(frozen=True)

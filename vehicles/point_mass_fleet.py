@@ -28,10 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from corridor.snapshot import Kind, Role, WorldSnapshot
-
-from .autopilot import G_MPS2, Command, Hover, PositionCommand, VelocityCommand, WaypointCommand
-from .geodesy import wrap_pi
-from .jsbsim_fleet import SIZE_M, FleetState
+from corridor.vehicles.autopilot import (
+    G_MPS2,
+    Command,
+    Hover,
+    PositionCommand,
+    VelocityCommand,
+    WaypointCommand,
+)
+from corridor.vehicles.geodesy import wrap_pi
+from corridor.vehicles.jsbsim_fleet import SIZE_M, FleetState
 
 
 @dataclass(frozen=True)
