@@ -122,7 +122,7 @@ def _prev_rows(prev_ids: np.ndarray, cur_ids: np.ndarray) -> np.ndarray:
     return np.array([prev_row.get(k, -1) for k in cur_ids.tolist()], dtype=np.int64)
 
 
-SPARSE_ABOVE = 1000  # [rows] above this the candidate pairs come from a k-d tree, not an (A, N) matrix
+SPARSE_ABOVE = 250_000  # [cells] a larger (A, N) matrix: the candidate pairs come from a k-d tree
 
 
 def _sphere_pairs_tree(p0: np.ndarray, p1: np.ndarray, rad: np.ndarray, a: np.ndarray, rows: np.ndarray,
@@ -171,7 +171,7 @@ def swept_overlaps(prev: Poses, cur: Poses, rows_a: np.ndarray | None = None,
     if len(a) == 0 or len(rows) < 2:
         return empty
     rad = 0.5 * np.linalg.norm(cur.size, axis=1)  # bounding-sphere radius
-    if len(rows) > SPARSE_ABOVE:
+    if len(a) * len(rows) > SPARSE_ABOVE:
         i, j, s = _sphere_pairs_tree(p0, cur.position, rad, a, rows, step)
     else:  # candidate pairs (a row, any swept row): relative segments, closest approach, sphere test
         d0 = p0[a][:, None, :] - p0[rows][None, :, :]

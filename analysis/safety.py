@@ -28,7 +28,7 @@ def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray
     if n < 2:
         return np.zeros((0, 2), dtype=int)
     radius = 0.5 * np.hypot(length, width)
-    if involving is None and n > _DENSE_MAX:
+    if involving is None and n * n > _DENSE_MAX:
         i, j = _near_pairs_tree(center_xy, radius, z, height)
     elif involving is None:
         d = np.linalg.norm(center_xy[:, None, :] - center_xy[None, :, :], axis=-1)
@@ -50,7 +50,7 @@ def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray
     return np.column_stack([i[hit], j[hit]])
 
 
-_DENSE_MAX = 1000  # [rows] above this the circle pre-filter is a k-d tree query, not an (N, N) matrix
+_DENSE_MAX = 250_000  # [cells] a larger (k, N) distance matrix: the circle pre-filter is a k-d tree query
 
 
 def _near_pairs_tree(center_xy: np.ndarray, radius: np.ndarray, z: np.ndarray | None,
@@ -76,7 +76,7 @@ def _near_pairs_involving(rows: np.ndarray, center_xy: np.ndarray, radius: np.nd
     """The circle pre-filter of ``obb_overlap_pairs`` for the pairs with a row of ``rows``: (i, j),
     i < j, in row-major order (the same distances and sums as the full (N, N) test, term by term)."""
     n = len(center_xy)
-    if n > _DENSE_MAX:
+    if len(rows) * n > _DENSE_MAX:
         i, j = _near_pairs_tree(center_xy, radius, z, height)
         listed = np.zeros(n, dtype=bool)
         listed[rows] = True

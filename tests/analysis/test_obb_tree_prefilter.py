@@ -17,7 +17,7 @@ def test_tree_prefilter_equals_dense(monkeypatch: pytest.MonkeyPatch, with_z: bo
     length, width = rng.uniform(0.3, 6.0, n), rng.uniform(0.3, 2.5, n)
     z, h = (rng.uniform(0.0, 5.0, n), rng.uniform(0.2, 3.0, n)) if with_z else (None, None)
     tree = safety.obb_overlap_pairs(xy, yaw, length, width, z, h)
-    monkeypatch.setattr(safety, "_DENSE_MAX", 10 * n)
+    monkeypatch.setattr(safety, "_DENSE_MAX", 10 * n * n)
     dense = safety.obb_overlap_pairs(xy, yaw, length, width, z, h)
     assert len(dense) > 20
     np.testing.assert_array_equal(tree, dense)
@@ -39,8 +39,8 @@ def test_involving_and_swept_tree_paths_equal_dense(monkeypatch: pytest.MonkeyPa
     special = np.sort(rng.choice(n, 400, replace=False))
     inv = safety.obb_overlap_pairs(p1[:, :2], yaw1, size[:, 0], size[:, 1], p1[:, 2], size[:, 2], involving=special)
     swept = swept_overlaps(prev, cur, special)
-    monkeypatch.setattr(safety, "_DENSE_MAX", 10 * n)
-    monkeypatch.setattr(ccd, "SPARSE_ABOVE", 10 * n)
+    monkeypatch.setattr(safety, "_DENSE_MAX", 10 * n * n)
+    monkeypatch.setattr(ccd, "SPARSE_ABOVE", 10 * n * n)
     inv_dense = safety.obb_overlap_pairs(p1[:, :2], yaw1, size[:, 0], size[:, 1], p1[:, 2], size[:, 2],
                                          involving=special)
     swept_dense = swept_overlaps(prev, cur, special)
