@@ -7,7 +7,8 @@ same autopilot every 6-DOF UAV flies) through step commands and reads what it ac
   limit binds, not the airframe),
 - ``max_climb_mps`` / ``max_descent_mps``: steady vertical speed for +-10 m/s commands,
 - ``max_accel_h_mps2``: the largest horizontal acceleration in the 0 -> max-speed step (0.1 s samples),
-- ``tau_h_s`` / ``tau_v_s``: time to 63 % of the final speed change (first-order time constants),
+- ``tau_h_s`` / ``tau_v_s``: time to 63 % of the final speed change (first-order time constants;
+  horizontal: of a 1 m/s step, small enough that the tilt limit does not saturate it),
 - ``max_turn_rate_rps``: the largest course rate in a 90 degree velocity turn at full speed,
 - ``max_yaw_rate_rps``: the largest yaw rate for a 90 degree yaw command,
 - ``drag_per_m``: c in a_drag = c v^2, from the steady pitch at full speed (g tan|theta| / v^2),
@@ -73,12 +74,14 @@ def measure_envelope() -> Envelope:
     fleet.add("q", "F450", (0.0, 0.0, 80.0))
     _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.0), 30.0)
     integ_hover = fleet.get_property("q", "corridor/integ-u-mps2")
+    small = _fly(fleet, VelocityCommand((1.0, 0.0, 0.0), 0.0), 6.0)
+    tau_h = _tau(small[:, 0], small[:, 1], 0.0, float(np.mean(small[-10:, 1])))
+    _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.0), 6.0)
     acc = _fly(fleet, VelocityCommand((20.0, 0.0, 0.0), 0.0), 20.0)
     v_max = float(np.mean(np.hypot(acc[-20:, 1], acc[-20:, 2])))
     drag = 9.80665 * float(np.tan(abs(fleet.state().pitch[0]))) / v_max**2
     integ_per_m = (fleet.get_property("q", "corridor/integ-u-mps2") - integ_hover) / v_max**2
     a_max = float(np.max(np.hypot(*np.diff(acc[:, 1:3], axis=0).T)) / DT_S)
-    tau_h = _tau(acc[:, 0], acc[:, 1], 0.0, v_max)
     turn = _fly(fleet, VelocityCommand((0.0, 20.0, 0.0), 0.0), 10.0)
     course = np.unwrap(np.arctan2(turn[:, 2], turn[:, 1]))
     turn_rate = float(np.max(np.abs(np.diff(course))) / DT_S)

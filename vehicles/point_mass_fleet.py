@@ -49,7 +49,7 @@ class PointMassLimits:
     max_climb_mps: float = 3.0  # [m/s]
     max_descent_mps: float = 2.03  # [m/s]
     max_accel_h_mps2: float = 3.5  # [m/s^2]
-    tau_h_s: float = 1.8  # [s]
+    tau_h_s: float = 0.5  # [s] (unsaturated: a 1 m/s step)
     tau_v_s: float = 0.2  # [s]
     max_yaw_rate_rps: float = 0.6  # [rad/s]
     drag_per_m: float = 0.00673  # [1/m] a_drag = c v^2
