@@ -13,7 +13,8 @@ layer_step_m`` for course quadrant k, so crossing traffic is vertically separate
 arrived within ``arrive_radius_m`` of the pad's point at that layer; it then takes off for a new
 destination drawn from ``air/missions`` at once (the fleet's density stays stationary).
 :class:`Missions` holds every drone's current mission and the log of finished ones (struct of
-arrays); the mission delay is the flown time minus the nominal time (distance / cruise speed).
+arrays); the mission delay is the flown time minus the nominal time (distance to the arrival circle
+/ cruise speed).
 """
 
 from __future__ import annotations
@@ -83,7 +84,11 @@ class Missions:
         self.dest[rows] = dest
         self.goal[rows] = np.column_stack([self.pads[dest], layer_alt(self.spec, course)])
         self.t_start[rows] = t_s
-        self.nominal_s[rows] = np.hypot(d[:, 0], d[:, 1]) / self.spec.speed_mps
+        self.nominal_s[rows] = self.nominal(np.hypot(d[:, 0], d[:, 1]))
+
+    def nominal(self, dist_m: np.ndarray) -> np.ndarray:
+        """[s] nominal time of a delivery over ``dist_m`` [m]: to the arrival circle at cruise speed."""
+        return np.maximum(dist_m - self.spec.arrive_radius_m, 0.0) / self.spec.speed_mps
 
     def arrivals(self, t_s: float, pos: np.ndarray) -> np.ndarray:
         """Rows that arrived (logged with their delay, and given the next delivery)."""
@@ -120,7 +125,7 @@ def city_fleet(spec: CitySpec, rng: np.random.Generator, mission_rng: np.random.
     missions = Missions(spec, pads, mission_rng)
     missions.dest = b
     missions.goal = np.column_stack([pads[b], start[:, 2]])
-    missions.nominal_s = np.hypot(*(pads[b] - xy).T) / spec.speed_mps
+    missions.nominal_s = missions.nominal(np.hypot(*(pads[b] - xy).T))
     out = [AircraftSpec(id=f"d{k:05d}", start_enu=tuple(start[k].tolist()), yaw_deg=float(np.degrees(course[k])),
                         cruise_speed_mps=spec.speed_mps, goal_enu=tuple(missions.goal[k].tolist()))
            for k in range(n)]
