@@ -1,6 +1,7 @@
 # Two commands do all the set-up on a fresh machine:
 #   make run    creates .venv, installs corridor, runs the default batch (scenarios/merging.yaml)
 #   make test   creates .venv, installs corridor[dev], runs ruff, the import contracts and the test suite
+#               (tests/docs builds the documentation site strictly and runs the docs' runnable blocks)
 PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -9,7 +10,7 @@ DEV_STAMP := $(VENV)/.installed-dev
 RUNS ?= 4
 OUT ?= results/merging
 
-.PHONY: run test test-all lint bench clean chromium
+.PHONY: run test test-all lint bench docs clean chromium
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -54,5 +55,9 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/uav_swarm_rtf.py --quick
 	$(BIN)/python benchmarks/parking_plan.py --repeats 1
 
+# make docs: the documentation site (docs/, mkdocs.yml) into site/, warnings are errors
+docs: $(DEV_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 clean:
-	rm -rf $(VENV) results build *.egg-info .cache
+	rm -rf $(VENV) results build site *.egg-info .cache

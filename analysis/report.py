@@ -36,7 +36,7 @@ from scipy.stats import t as student_t
 from corridor.analysis.glossary import glossary_section, safety_event_columns, units_of
 from corridor.analysis.plots import box_or_points, figure, svg
 from corridor.analysis.stats import clopper_pearson, mean_ci
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.sumo.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
 from corridor.variants import component_class as _component_class
 from corridor.variants import registries as _registries

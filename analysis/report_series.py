@@ -20,7 +20,7 @@ and the altitude profile (``track_u_<id>``) when a run recorded them.  ``merge_l
 the time lost around the merge (``merge_loss_*`` columns) per variant.
 
 ``diagram_section`` draws the fitted fundamental diagram of a calibration file
-(``corridor.traffic.calibrate``) against its detector points.
+(``corridor.traffic.macro.calibrate``) against its detector points.
 """
 
 from __future__ import annotations
@@ -452,12 +452,12 @@ def merge_loss_section(df: pd.DataFrame) -> str:
 
 def ramp_storage_veh(scenario: Any) -> float | None:
     """On-ramp storage [veh] of a beltway scenario (as the network builder computes it), else None."""
-    from corridor.traffic.road_spec import road_spec
+    from corridor.traffic.sumo.road_spec import road_spec
 
     road = road_spec(scenario)
     if road is None or road.network.type != "beltway":
         return None
-    from corridor.traffic.net_beltway import VEHICLE_SPACING_M
+    from corridor.traffic.networks.beltway import VEHICLE_SPACING_M
 
     return float(int(road.network.params.ramp_length_m // VEHICLE_SPACING_M))
 
@@ -472,7 +472,7 @@ def calibration_path(scenario_path: Path | str | None) -> Path | None:
 
 def diagram_svgs(doc: dict[str, Any]) -> list[str]:
     """Speed-density and (when flows were stored) flow-density charts of a calibration document."""
-    from corridor.traffic.calibrate import FdFit
+    from corridor.traffic.macro.calibrate import FdFit
 
     pts = doc.get("points", {})
     rho, v = np.asarray(pts.get("rho", []), float), np.asarray(pts.get("v_kmh", []), float)

@@ -13,6 +13,7 @@ frame, e.g. the UAV cameras' footprints on the road, the ramp meters' rates).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -160,6 +161,8 @@ class RerunRecorder(Component):
             t, v = ctx.signals.get(name)
             k = self._signals_seen.get(name, 0)
             for ti, vi in zip(t[k:], v[k:]):
+                if not math.isfinite(vi):  # no value at this tick (min_ttc: no closing pair, +inf)
+                    continue
                 rec.set_time("sim_time", duration=float(ti))
                 rec.log(f"metrics/{name}", rr.Scalars(float(vi)))
             self._signals_seen[name] = len(t)

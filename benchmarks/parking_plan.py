@@ -6,7 +6,7 @@ NLP; later ones reuse it) and the median is printed. The baseline, measured in t
 search stage alone with its stop-and-steer time parametrisation: the printed ratios are the full
 planner's planning time over the search's, and the optimised manoeuvre time over the baseline's.
 
-    python benchmarks/parking_plan.py [--repeats 3] [--time-limit 30] [CASE.csv ...]
+    python benchmarks/parking_plan.py [--repeats 3] [CASE.csv ...]
 """
 
 from __future__ import annotations
@@ -22,13 +22,21 @@ from corridor.controllers.parking import profile
 from corridor.controllers.parking.case import read_case
 from corridor.controllers.parking.check import check
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles
-from corridor.controllers.parking.planner import NoSolution, _default_bounds, _search, plan
+from corridor.controllers.parking.planner import (
+    COARSE,
+    MARGIN_M,
+    NoSolution,
+    PlanBudget,
+    _default_bounds,
+    _search,
+    plan,
+)
 
 GIVEN = sorted((Path(__file__).resolve().parents[1] / "tests" / "data" / "tpcap").glob("Case*.csv"),
                key=lambda p: int(p.stem[4:]))
 
 
-def baseline(path: Path, time_limit_s: float) -> tuple[float, float]:
+def baseline(path: Path) -> tuple[float, float]:
     """Search-only planning time [s] and its stop-and-steer manoeuvre time [s]."""
     case = read_case(path)
     origin = np.array(case.start[:2])
@@ -37,20 +45,20 @@ def baseline(path: Path, time_limit_s: float) -> tuple[float, float]:
     g = (case.goal[0] - origin[0], case.goal[1] - origin[1], case.goal[2])
     t0 = time.perf_counter()
     segs = _search(s, g, Obstacles(polys), TPCAP_VEHICLE, _default_bounds(np.array(s), np.array(g), polys),
-                   t0, time_limit_s)
+                   PlanBudget(), COARSE.margin_m, MARGIN_M)
     phases = profile.phases(segs, TPCAP_VEHICLE)
     return time.perf_counter() - t0, phases[-1].t0_s + phases[-1].duration_s
 
 
-def run_case(path: Path, repeats: int, time_limit_s: float) -> dict[str, object]:
+def run_case(path: Path, repeats: int) -> dict[str, object]:
     case = read_case(path)
     runs = []
     for _ in range(repeats):
         try:
-            runs.append(plan(case.start, case.goal, case.obstacles, time_limit_s=time_limit_s))
+            runs.append(plan(case.start, case.goal, case.obstacles))
         except NoSolution as exc:
             return {"case": path.stem, "error": str(exc)}
-    base = [baseline(path, time_limit_s) for _ in range(repeats)]
+    base = [baseline(path) for _ in range(repeats)]
     tr = runs[-1]
     med = statistics.median
     return {"case": path.stem, "search_s": med(r.search_time_s for r in runs),
@@ -65,12 +73,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="*", type=Path, default=GIVEN)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--time-limit", type=float, default=30.0)
     args = ap.parse_args()
     print(f"{'case':8} {'plan p50':>9} {'search':>7} {'optim.':>7} {'1st plan':>9} {'x search':>9} "
           f"{'manoeuvre':>10} {'x stop&steer':>13} {'length':>7} {'dir.ch.':>7} {'result':>9} check")
     for path in args.cases:
-        r = run_case(path, args.repeats, args.time_limit)
+        r = run_case(path, args.repeats)
         if "error" in r:
             print(f"{r['case']:8} no trajectory: {r['error']}")
             continue

@@ -17,6 +17,7 @@ import sys
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait as mp_wait
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,8 +48,10 @@ class RunPlan(Sequence[RunSpec]):
     front).  Run ids are ``<variant>-s<seed>``; ``rank(run_id)`` gives a run's place in the batch."""
 
     def __init__(self, sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
-                 out_dir: str | None = None, variants: list[str] | None = None) -> None:
+                 out_dir: str | None = None, variants: list[str] | None = None,
+                 after: dict[str, Any] | None = None) -> None:
         self.sc, self.raw, self.source, self.runs, self.out_dir = sc, raw, source, runs, out_dir
+        self.after = after or {}  # the --set values, applied again after the variant (the command line wins)
         self.base_seed = sc.seed if seed is None else seed
         if self.base_seed < 0 or self.base_seed + runs - 1 > MAX_SEED:
             raise CorridorError(f"{source}: seeds {self.base_seed}..{self.base_seed + runs - 1} (--seed, --runs) "
@@ -61,6 +64,7 @@ class RunPlan(Sequence[RunSpec]):
             names = [v for v in names if v in variants]
         self.variants = names
         self._rerun: dict[str, str] = {}
+        self.base_dir = str(Path(source).resolve().parent)  # files the scenario names are relative to it
 
     def __len__(self) -> int:
         return self.runs * len(self.variants)
@@ -73,8 +77,8 @@ class RunPlan(Sequence[RunSpec]):
         draws = draws_for(self.sc, s)
         run_id = f"{v}-s{s}"
         return RunSpec(run_id=run_id, scenario=self.sc.name, source=self.source, variant=v, seed=s,
-                       base=self.raw, overrides={**self.sc.sweep[v], **draws}, draws=draws,
-                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id))
+                       base=self.raw, overrides={**self.sc.sweep[v], **draws, **self.after}, draws=draws,
+                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id), base_dir=self.base_dir)
 
     def __iter__(self) -> Iterator[RunSpec]:
         return (self[i] for i in range(len(self)))
@@ -98,10 +102,15 @@ class RunPlan(Sequence[RunSpec]):
             raise CorridorError(f"--rerun-run {clip(run_id)}: no such run; runs are {first}, ...")
         self._rerun[run_id] = rerun_path
 
+    def recorded(self) -> list[str]:
+        """The run ids to record for the Rerun viewer."""
+        return list(self._rerun)
+
 
 def expand(sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
-           out_dir: str | None = None, variants: list[str] | None = None) -> RunPlan:
-    return RunPlan(sc, raw, source, runs, seed, out_dir, variants)
+           out_dir: str | None = None, variants: list[str] | None = None,
+           after: dict[str, Any] | None = None) -> RunPlan:
+    return RunPlan(sc, raw, source, runs, seed, out_dir, variants, after)
 
 
 # Math-library thread pools in every worker process: one thread.  A run is single-threaded work

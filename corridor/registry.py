@@ -1,5 +1,6 @@
-"""Register components by name through Python entry points (as pytest, Gymnasium and BlueSky
-plug-ins do): a scenario says ``type: alinea`` and the registry finds the class.
+"""Register components by name through Python entry points, as pytest, Gymnasium and BlueSky plug-ins do.
+
+A scenario says ``type: alinea`` and the registry finds the class.
 
 Every component is an entry point of the group ``corridor.components`` named ``<kind>.<type>``
 (``backend.sumo``, ``controller.ramp_alinea``, ``monitor.collisions``, ``recorder.rerun``) whose value
@@ -23,10 +24,13 @@ GROUP = "corridor.components"
 
 @dataclass(frozen=True)
 class Entry:
+    """One declared component: its type name and where it lives (``"package.module:Attr"``)."""
+
     name: str
     entry_point: str  # "package.module:Attr"
 
     def load(self) -> Any:
+        """Import the module and return the attribute (the component class)."""
         module, _, attr = self.entry_point.partition(":")
         obj: Any = importlib.import_module(module)
         for part in attr.split("."):
@@ -36,8 +40,10 @@ class Entry:
 
 @cache
 def _declared() -> dict[str, dict[str, str]]:
-    """kind -> {type name -> "module:Attr"} of every ``corridor.components`` entry point installed.
-    Two distributions declaring one name differently is an error (no silent shadowing)."""
+    """Every installed ``corridor.components`` entry point, as kind -> {type name -> "module:Attr"}.
+
+    Two distributions declaring one name differently is an error (no silent shadowing).
+    """
     out: dict[str, dict[str, str]] = {}
     for ep in entry_points(group=GROUP):
         kind, dot, name = ep.name.partition(".")
@@ -51,8 +57,11 @@ def _declared() -> dict[str, dict[str, str]]:
 
 
 class Registry:
-    """A named table of lazily imported entry points: those declared under ``<kind>.`` in the
-    ``corridor.components`` group, plus any registered in code (tests)."""
+    """A named table of lazily imported entry points of one kind.
+
+    It holds those declared under ``<kind>.`` in the ``corridor.components`` group, plus any
+    registered in code (tests).
+    """
 
     def __init__(self, what: str) -> None:
         self.what = what  # the kind: backend, controller, monitor, recorder
@@ -63,12 +72,14 @@ class Registry:
         return {**declared, **self._entries}
 
     def register(self, name: str, entry_point: str) -> None:
+        """Add ``name`` -> ``entry_point`` (``"module:Class"``) in code; another target for a known name is a ValueError."""
         known = self._all().get(name)
         if known is not None and known.entry_point != entry_point:
             raise ValueError(f"{self.what} {name!r} is already registered")
         self._entries[name] = Entry(name, entry_point)
 
     def get(self, name: str) -> Any:
+        """Import and return the class registered as ``name``; an unknown name is a KeyError listing the known ones."""
         try:
             entry = self._all()[name]
         except KeyError:

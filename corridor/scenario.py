@@ -11,13 +11,25 @@ from __future__ import annotations
 import copy
 import difflib
 import math
+import os
 import re
 import stat
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 
 from corridor.channel import ChannelConfig
 from corridor.errors import ScenarioError, clip
@@ -37,6 +49,8 @@ SHORTHANDS: dict[str, str] = {"road": "sumo"}
 
 
 class Strict(BaseModel):
+    """Base of the scenario models: unknown fields, mutation and non-finite numbers are refused."""
+
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
@@ -50,9 +64,12 @@ key_text = _key  # for components' own params validators
 
 
 class NestedParamsError(ValueError):
-    """Raised by a component's params validator that checked a free-form mapping (``where``, e.g.
+    """A nested params mapping failed its own model.
+
+    Raised by a component's params validator that checked a free-form mapping (``where``, e.g.
     ``params`` of a network) against another model: the loader reports the inner field's path
-    (``road.network.params.lanes: must be >= 1``) and the hints of ``model``."""
+    (``road.network.params.lanes: must be >= 1``) and the hints of ``model``.
+    """
 
     def __init__(self, where: str, error: ValidationError, model: type[BaseModel]) -> None:
         super().__init__(str(error).splitlines()[0])
@@ -66,8 +83,88 @@ def _check_name(value: str, what: str) -> str:
     return value
 
 
+# ---------------------------------------------------------------- files a scenario names
+# The folder of the scenario file being validated (set by ``load`` and by a run, see ``scenario_dir``):
+# relative paths of ``ScenarioFile`` fields are taken from it.  Unset (a report re-reading a
+# scenario), a relative path is kept as written and not checked.
+_SCENARIO_DIR: ContextVar[Path | None] = ContextVar("corridor_scenario_dir", default=None)
+_NAMED_FILES: ContextVar[set[str] | None] = ContextVar("corridor_named_files", default=None)
+
+
+@contextmanager
+def scenario_dir(folder: str | Path | None) -> Iterator[set[str]]:
+    """Validate inside this block with relative ``ScenarioFile`` paths taken from ``folder``.
+
+    Yields:
+        The set of the files resolved in it (absolute paths).
+    """
+    named: set[str] = set()
+    token = _SCENARIO_DIR.set(Path(folder).resolve() if folder is not None else None)
+    files_token = _NAMED_FILES.set(named)
+    try:
+        yield named
+    finally:
+        _NAMED_FILES.reset(files_token)
+        _SCENARIO_DIR.reset(token)
+
+
+def file_stamps(files: set[str]) -> dict[str, list[int]]:
+    """Size [B] and modification time [ns] of each file a scenario names: path -> [size, mtime].
+
+    A batch folder records them: ``--resume`` after one changed is refused.
+    """
+    out: dict[str, list[int]] = {}
+    for f in sorted(files):
+        try:
+            st = os.stat(f)
+        except OSError:
+            continue
+        out[f] = [st.st_size, st.st_mtime_ns]
+    return out
+
+
+def resolving_files() -> bool:
+    """True inside ``scenario_dir``: files a scenario names are resolved and must exist.
+
+    A validator that reads them checks them only then.
+    """
+    return _SCENARIO_DIR.get() is not None
+
+
+def _scenario_file(text: str) -> str:
+    """The absolute path of a file named by a scenario, relative to the scenario file's folder.
+
+    It must be an existing file (refused at load, one line).
+    """
+    base = _SCENARIO_DIR.get()
+    path = Path(text).expanduser()
+    if not text or "\0" in text:
+        raise ValueError(f"{clip(text)} is not a file path")
+    if base is None:
+        return str(path)
+    full = path if path.is_absolute() else base / path
+    try:
+        found = full.is_file()
+    except OSError:  # a name too long for the file system, ...
+        found = False
+    if not found:
+        where = "" if path.is_absolute() else f" (relative to the scenario's folder {clip(str(base), 80)[1:-1]})"
+        what = "not a regular file" if os.path.lexists(full) else "no such file"
+        raise ValueError(f"{what}: {clip(text, 80)}{where}")
+    resolved = str(full.resolve())
+    named = _NAMED_FILES.get()
+    if named is not None:
+        named.add(resolved)
+    return resolved
+
+
+ScenarioFile = Annotated[str, AfterValidator(_scenario_file)]  # a component's params field naming a file
+
+
 # ---------------------------------------------------------------- components, specs, batches
 class ComponentSpec(Strict):
+    """One entry of ``backends``, ``controllers`` or ``monitors``: its type, period [s] and params."""
+
     type: str  # a registry name (BACKENDS, CONTROLLERS or MONITORS)
     period: float | None = Field(None, gt=0, le=MAX_DURATION_S, json_schema_extra={"unit": "s"})  # None: default
     params: dict[str, Any] = Field(default_factory=dict)
@@ -81,9 +178,12 @@ class SpecDecl(Strict):
 
 
 class Distribution(Strict):
-    """One ``randomize`` entry: exactly one kind.  ``draw`` is the nominal sampler (the numbers of the
-    first four kinds are those corridor always drew); ``corridor.distributions`` gives every kind a
-    density and a map from the standard normal, for importance sampling and splitting."""
+    """One ``randomize`` entry, of exactly one kind (uniform, normal, integers, choice, truncnormal, ...).
+
+    ``draw`` is the nominal sampler (the numbers of the first four kinds are those corridor always
+    drew); ``corridor.distributions`` gives every kind a density and a map from the standard normal,
+    for importance sampling and splitting.
+    """
 
     uniform: tuple[float, float] | None = None
     normal: tuple[float, float] | None = None  # (mean, std)
@@ -126,6 +226,7 @@ class Distribution(Strict):
 
     @property
     def kind(self) -> str:
+        """The entry's kind, e.g. ``"uniform"``."""
         return next(k for k in KINDS if getattr(self, k) is not None)
 
     def extremes(self) -> list[Any]:
@@ -145,6 +246,7 @@ class Distribution(Strict):
         return list(self.choice[:20])
 
     def draw(self, rng: Any) -> Any:
+        """One value drawn with the generator ``rng`` (a ``numpy.random.Generator``)."""
         if self.uniform is not None:
             return float(rng.uniform(*self.uniform))
         if self.normal is not None:
@@ -162,17 +264,23 @@ KINDS = ("uniform", "normal", "integers", "choice", "truncnormal", "lognormal", 
 
 
 class Origin(Strict):
+    """The geodetic origin of the scenario's local ENU frame."""
+
     lat: float = Field(48.137, ge=-90, le=90)  # [deg]
     lon: float = Field(11.575, ge=-180, le=180)  # [deg]
     alt: float = 0.0  # [m]
 
 
 class Outputs(Strict):
+    """What a run keeps besides its row: the time series, the Rerun frame period [s]."""
+
     signals: bool = True  # keep per-run time series (signals/<run_id>.npz)
     rerun_period: float = Field(0.2, ge=MIN_DT_S, le=MAX_DURATION_S, json_schema_extra={"unit": "s"})  # between frames
 
 
 class Scenario(Strict):
+    """A validated scenario: the frozen model of a scenario file (see docs/getting-started.md)."""
+
     name: str
     description: str = ""
     seed: int = Field(0, ge=0, le=MAX_SEED)
@@ -220,8 +328,11 @@ class _LimitError(yaml.MarkedYAMLError):
 
 
 class _Loader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` with a nesting limit, an alias-expansion limit (nodes counted as if every
-    alias were a copy), no recursive aliases and no duplicate keys."""
+    """``yaml.SafeLoader`` with limits.
+
+    A nesting limit, an alias-expansion limit (nodes counted as if every alias were a copy), no
+    recursive aliases and no duplicate keys.
+    """
 
     def __init__(self, stream: str) -> None:
         super().__init__(stream)
@@ -294,9 +405,12 @@ _HARMLESS = re.compile(r"[^A-Za-z0-9\s]{1,3}|<[a-z ]+>")  # ':' or '<block end>'
 
 
 def _yaml_problem(exc: Exception) -> str:
-    """Where and what, without the file's text: PyYAML quotes the offending characters (and ``str(exc)``
-    the offending line), which for a file that is not a scenario (``extends: /etc/shadow``) is its
-    content.  Keeps the line/column and the generic part of the reason."""
+    """Where and what of a YAML error, without the file's text.
+
+    PyYAML quotes the offending characters (and ``str(exc)`` the offending line), which for a file
+    that is not a scenario (``extends: /etc/shadow``) is its content.  Keeps the line/column and the
+    generic part of the reason.
+    """
     if isinstance(exc, yaml.reader.ReaderError):
         return f"position {exc.position}: {exc.reason}"
     if not isinstance(exc, yaml.MarkedYAMLError):
@@ -344,6 +458,12 @@ def read_text(path: Path) -> str:
 
 
 def read_yaml(path: Path) -> dict[str, Any]:
+    """The raw mapping of a scenario file, read with the safe loader's limits.
+
+    Raises:
+        ScenarioError: one line: invalid YAML, not a mapping, or not a scenario file (its keys are
+            not echoed).
+    """
     text = read_text(path)
     try:
         data, lines = _yaml_load_lines(text)
@@ -361,6 +481,7 @@ def read_yaml(path: Path) -> dict[str, Any]:
 
 
 def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """A copy of ``base`` with ``over`` merged in, mapping by mapping (``over`` wins)."""
     out = copy.deepcopy(base)
     for k, v in over.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
@@ -374,6 +495,7 @@ MAX_EXTENDS = 16  # files in one extends chain
 
 
 def resolve_extends(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The raw data of a scenario file with its ``extends:`` chain merged (a cycle is an error)."""
     try:
         real = path.resolve()
     except (OSError, RuntimeError, ValueError):  # NUL byte, symlink loop (3.11 raises RuntimeError)
@@ -410,7 +532,8 @@ def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
 
     Below ``randomize`` and ``sweep.<variant>`` the keys are dotted paths themselves: the rest of the
     path is matched against them (``sweep.v2x_cps.controllers.merge.params.policy`` sets ``policy`` in
-    the variant's ``controllers.merge`` entry) or becomes a new key (``sweep.v2x_cps.duration``)."""
+    the variant's ``controllers.merge`` entry) or becomes a new key (``sweep.v2x_cps.duration``).
+    """
     keys = respell(data, dotted.split("."))
     if len(keys) > MAX_YAML_DEPTH:
         raise ScenarioError(f"{clip(dotted)}: more than {MAX_YAML_DEPTH} levels")
@@ -450,9 +573,12 @@ def set_path(data: dict[str, Any], dotted: str, value: Any) -> None:
 
 
 def respell(data: Any, keys: list[str]) -> list[str]:
-    """A path through a shorthand reaches the same field whichever spelling ``data`` uses:
+    """Spell a dotted path the way ``data`` spells its shorthands.
+
+    A path through a shorthand reaches the same field whichever spelling ``data`` uses:
     ``road.demand.scale`` is ``backends.road.params.demand.scale`` when the data has no ``road:``
-    key but a ``backends.road`` entry, and the other way round."""
+    key but a ``backends.road`` entry, and the other way round.
+    """
     if not isinstance(data, dict):
         return keys
     if keys[:1] and keys[0] in SHORTHANDS and keys[0] not in data:
@@ -472,9 +598,14 @@ def canonical_path(dotted: str) -> str:
 
 
 def expand_shorthands(data: dict[str, Any], source: str) -> tuple[dict[str, Any], set[str]]:
-    """``road: X`` -> ``backends.road = {type: sumo, params: X}``, placed first among the backends
-    (the order components are built and stepped in).  Returns the data and the names of the
-    backend entries that came from a shorthand (their errors are reported in the shorthand)."""
+    """Rewrite ``road: X`` as ``backends.road = {type: sumo, params: X}``, first among the backends.
+
+    The backends' order is the order components are built and stepped in.
+
+    Returns:
+        The data and the names of the backend entries that came from a shorthand (their errors are
+        reported in the shorthand).
+    """
     if not any(k in data for k in SHORTHANDS):
         return data, set()
     data = dict(data)
@@ -497,6 +628,7 @@ def expand_shorthands(data: dict[str, Any], source: str) -> tuple[dict[str, Any]
 
 
 def apply_overrides(data: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """A copy of ``data`` with every ``dotted.path: value`` of ``overrides`` set (``--set``, variants, draws)."""
     out = copy.deepcopy(data)
     for dotted, value in overrides.items():
         set_path(out, dotted, value)
@@ -543,8 +675,11 @@ def _unit(model: type[BaseModel], loc: tuple[Any, ...]) -> str:
 
 def format_error(source: str, exc: ValidationError, model: type[BaseModel], prefix: str = "",
                  shorthands: set[str] | frozenset[str] = frozenset()) -> str:
-    """The first validation error as ``FILE: field.path: message (did you mean 'x'?)``.  Paths into
-    backend entries named in ``shorthands`` are shown as the shorthand spelled them (``road.x``)."""
+    """The first validation error as ``FILE: field.path: message (did you mean 'x'?)``.
+
+    Paths into backend entries named in ``shorthands`` are shown as the shorthand spelled them
+    (``road.x``).
+    """
     err = exc.errors()[0]
     loc = tuple(err["loc"])
     nested = (err.get("ctx") or {}).get("error")
@@ -632,19 +767,39 @@ def _validate_component_params(sc: Scenario, source: str, shorthands: set[str] =
                 known = known if len(known) <= 120 else known[:known.rfind(", ", 0, 118)] + ", …"
                 hint = f" (did you mean {close[0]!r}?)" if close else f"; known: {known}"
                 raise ScenarioError(f"{source}: {where}.type: unknown {registry.what} {clip(spec.type)}{hint}")
-            params_model = getattr(registry.get(spec.type), "Params", None)
+            cls = registry.get(spec.type)
+            params_model = getattr(cls, "Params", None)
+            params: Any = spec.params
             if params_model is not None:
                 try:
-                    params_model.model_validate(spec.params)
+                    params = params_model.model_validate(spec.params)
                 except ValidationError as exc:
                     raise ScenarioError(format_error(source, exc, params_model, f"{where}.params",
                                                      shorthands if table == "backends" else frozenset())) from None
+            _check_component(cls, params, sc, f"{source}: {where}")
+
+
+def _check_component(cls: Any, params: Any, sc: Scenario, where: str) -> None:
+    """Run a component's own load-time check of the scenario around it, if it has one.
+
+    ``check_scenario(params, sc)`` is optional: a controller that needs landmarks the road's network
+    does not have says so here.
+    """
+    check = getattr(cls, "check_scenario", None)
+    if check is None:
+        return
+    try:
+        check(params, sc)
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: {str(exc).strip()}") from None
 
 
 def check_randomize(sc: Scenario, data: dict[str, Any], source: str) -> None:
-    """Each ``randomize`` path at the edges of its distribution must give a valid scenario in at least
-    one sweep variant that is valid by itself (a path or value no variant accepts is an error at load,
-    not an error row in every run)."""
+    """Check that each ``randomize`` path gives a valid scenario at the edges of its distribution.
+
+    It must do so in at least one sweep variant that is valid by itself: a path or value no variant
+    accepts is an error at load, not an error row in every run.
+    """
     source = _show(source)
     bases = [over for over in sc.sweep.values() if _is_valid(apply_overrides(data, over))]
     for path, dist in sorted(sc.randomize.items()):
@@ -683,8 +838,10 @@ def load_raw(path: str | Path, sets: list[str] | None = None) -> dict[str, Any]:
 
 
 def _unrandomize(data: dict[str, Any], key: str) -> None:
-    """A value the user ``--set`` wins over the scenario's ``randomize`` draw of that field (or of a
-    field beneath it): otherwise every run of the batch would silently replace it with a draw."""
+    """Take a field the user ``--set`` (and the fields beneath it) out of ``randomize``.
+
+    Otherwise every run of the batch would silently replace the set value with a draw.
+    """
     rnd = data.get("randomize")
     if key.startswith("randomize.") or not isinstance(rnd, dict):
         return
@@ -697,9 +854,12 @@ _COMPONENT_TABLES = ("backends", "controllers", "monitors")
 
 
 def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
-    """When a ``--set`` below a component fails on the base scenario but works inside a sweep variant
+    """Say how to set a field that exists only inside a sweep variant.
+
+    When a ``--set`` below a component fails on the base scenario but works inside a sweep variant
     (merging.yaml: ``controllers.merge`` is ``v2x_merging`` only in the v2x variants, so its params
-    cannot be set on the base), say how to set it there."""
+    cannot be set on the base), the hint names the variant path to set instead.
+    """
     for item in sets:
         key = item.partition("=")[0].strip()
         parts = key.split(".")
@@ -721,9 +881,39 @@ def _variant_hint(path: str | Path, sets: list[str], message: str) -> str:
     return ""
 
 
+def set_overrides(sets: Sequence[str]) -> dict[str, Any]:
+    """The ``--set`` values as overrides applied after a run's sweep variant.
+
+    The command line wins over a variant that sets the same field (``sweep.`` and ``randomize.``
+    paths are not re-applied: they edit the variants and draws themselves).
+    """
+    out: dict[str, Any] = {}
+    for item in sets:
+        key, _, value = item.partition("=")
+        key = key.strip()
+        if key.split(".")[0] not in ("sweep", "randomize"):
+            out[key] = parse_value(value)
+    return out
+
+
 def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any]]:
-    """Load, resolve, override and validate; returns the typed scenario and its raw data."""
+    """Load, resolve, override and validate; returns the typed scenario and its raw data.
+
+    Files the scenario names (``ScenarioFile`` fields) are relative to the scenario file's folder.
+    """
+    sc, data, _ = load_with_files(path, sets)
+    return sc, data
+
+
+def load_with_files(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dict[str, Any], set[str]]:
+    """``load``, and the files the scenario names (``ScenarioFile`` fields of the base scenario)."""
     data = load_raw(path, sets)
+    with scenario_dir(Path(path).parent) as named:
+        sc, data = _load_validated(path, data, sets)
+    return sc, data, named
+
+
+def _load_validated(path: str | Path, data: dict[str, Any], sets: list[str] | None) -> tuple[Scenario, dict[str, Any]]:
     try:
         sc = validate(data, str(path))
     except ScenarioError as exc:
@@ -731,9 +921,9 @@ def load(path: str | Path, sets: list[str] | None = None) -> tuple[Scenario, dic
         if not hint:
             raise
         raise ScenarioError(re.sub("; allowed: .*", "", str(exc)) + hint) from None
-    for item in sets or []:  # a variant the user --set is checked now, not in every run of the batch
-        parts = item.partition("=")[0].strip().split(".")
-        if len(parts) > 2 and parts[0] == "sweep" and parts[1] in sc.sweep:
-            validate(apply_overrides(data, sc.sweep[parts[1]]), f"{path} [sweep.{_key(parts[1])}]")
+    after = set_overrides(sets or [])
+    for variant, over in sc.sweep.items():  # every variant is checked now, not in every run of the batch
+        if over:
+            validate(apply_overrides(data, {**over, **after}), f"{path} [sweep.{_key(variant)}]")
     check_randomize(sc, data, str(path))
     return sc, data

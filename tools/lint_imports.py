@@ -43,7 +43,9 @@ def lint(tree: Path, argv: list[str]) -> subprocess.CompletedProcess[str]:
     exe = shutil.which("lint-imports", path=str(Path(sys.executable).parent)) or shutil.which("lint-imports")
     if exe is None:
         raise FileNotFoundError("lint-imports not found: pip install -e '.[dev]'")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(tree), os.environ.get("PYTHONPATH")]))}
+    # the mirror, and tools/ for corridor's own contract type (import_rules.py)
+    path = [str(tree), str(ROOT / "tools"), os.environ.get("PYTHONPATH")]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, path))}
     # cwd = the mirror: lint-imports puts the working directory first on sys.path
     return subprocess.run([exe, "--no-cache", *argv], env=env, cwd=tree, capture_output=True, text=True)
 

@@ -51,10 +51,12 @@ from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, 
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import RoadTables, Role
-from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.trips import road_frame
+from corridor.traffic.networks.landmarks import OnrampLandmarks
+from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
+from corridor.traffic.sumo.road_spec import require_landmarks
+from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
-from corridor.vehicles.track_pool import TrackPool
+from corridor.vehicles.tracks.pool import TrackPool
 
 RSU = "rsu"
 HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, cooperative, speed gain,
@@ -127,6 +129,11 @@ class V2XMerging(Controller):
         #   with Krauss drivers it makes no measurable difference (8 seeds: cps 12.80 / 12.82 s)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
+
+    @classmethod
+    def check_scenario(cls, params: Params, scenario: Any) -> None:
+        """At load: the road's network must have an on-ramp (merge point, acceleration lane)."""
+        require_landmarks(scenario, OnrampLandmarks, "V2X merging")
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)

@@ -9,7 +9,7 @@ puts an ``EgoInput`` on the bus for the ego backend.
 
 It records no signal: the ones the STL specs of ``scenarios/overtaking.yaml`` judge (``gap_lead``,
 ``lane_offset``, ``clearance``, ...) and ``min_gap_lead_m`` / ``min_gap_oncoming_m`` are measured by the
-``overtaking_safety`` monitor (``corridor.traffic.overtaking_monitor``), so a baseline controller in its
+``overtaking_safety`` monitor (``corridor.analysis.monitoring.overtaking``), so a baseline controller in its
 place is judged on the same signals.  ``finish`` returns the controller's own metrics (outcome, modes,
 re-plans, solve times).
 """
@@ -31,9 +31,9 @@ from corridor.controllers.overtaking.controller import (
 from corridor.controllers.overtaking.mpc import body_centre
 from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.traffic.landmarks import RuralLandmarks
-from corridor.traffic.trips import road_frame
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
+from corridor.traffic.networks.landmarks import RuralLandmarks
+from corridor.traffic.sumo.trips import road_frame
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
 
 
 class OvertakingSumo(Controller):

@@ -31,10 +31,12 @@ class HolonomicGrid:
         gx, gy = np.meshgrid(x0 + res_m * np.arange(nx), y0 + res_m * np.arange(ny), indexing="ij")
         pts = np.column_stack([gx.ravel(), gy.ravel()])
         self.shape = (nx, ny)
-        occ = np.zeros(nx * ny, dtype=bool)
-        for poly in polygons:
-            occ |= MplPath(poly).contains_points(pts)
-        occ = occ.reshape(nx, ny)
+        occ = np.zeros((nx, ny), dtype=bool)
+        for poly in polygons:  # cells inside: tested only within the polygon's bounding box
+            lo, hi = self.cell(poly.min(axis=0)[None])[0], self.cell(poly.max(axis=0)[None])[0] + 1
+            gi, gj = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+            gi, gj = gi.ravel().clip(0, nx - 1), gj.ravel().clip(0, ny - 1)
+            occ[gi, gj] |= MplPath(poly).contains_points(pts[gi * ny + gj])
         for poly in polygons:  # edges too, so thin obstacles are not missed between cell centres
             a, b = poly, np.roll(poly, -1, axis=0)
             n = max(2, int(np.ceil(np.hypot(*(b - a).T).max() / (0.5 * res_m))) + 1)

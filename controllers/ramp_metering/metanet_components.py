@@ -1,4 +1,4 @@
-"""Ramp controllers on the pure-METANET backend (``corridor.traffic.metanet_backend``).
+"""Ramp controllers on the pure-METANET backend (``corridor.traffic.macro.metanet_backend``).
 
 Controllers (period = control step, 60 s): ``metanet_none`` (meter open), ``metanet_alinea`` (ALINEA on
 the model density, as ``ramp_mpc.alinea_policy``) and ``metanet_mpc`` (``RampMeteringMPC`` with a
@@ -16,7 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC, alinea_policy
 from corridor.engine import Controller, Metric, Need, RunContext
-from corridor.traffic.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
+from corridor.traffic.macro.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
 
 
 class MetanetControlParams(BaseModel):

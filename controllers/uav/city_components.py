@@ -10,7 +10,7 @@ The engine glue of :mod:`corridor.controllers.uav.potential_field_fleet`. At eve
 finds each drone's relevant others with a k-d tree (UAVs within the field's reach,
 ``uav_safety_radius + uav_cutoff + 2 tau v_bound + relevance_margin_m``; piloted aircraft within
 ``influence_m``; and only within the link's range), computes every command in one pass and puts one
-:class:`~corridor.vehicles.mf_backend.FleetVelocityCommand` on the bus. ``city_none`` flies straight
+:class:`~corridor.vehicles.air.mf_backend.FleetVelocityCommand` on the bus. ``city_none`` flies straight
 to the goal at cruise speed (the baseline). Every cruise <-> avoid transition is a ``mode`` event;
 the vertical geofence of the per-UAV controllers applies.
 """
@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.controllers.uav.potential_field_fleet import fleet_commands, goal_flow
 from corridor.engine import Controller, Metric, Need, RunContext
-from corridor.vehicles.mf_backend import FleetVelocityCommand, MultiFidelityAirBackend
+from corridor.vehicles.air.mf_backend import FleetVelocityCommand, MultiFidelityAirBackend
 
 
 class CityAvoidanceParams(BaseModel):

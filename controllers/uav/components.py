@@ -38,9 +38,9 @@ from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.engine import Controller, Metric, Need, RunContext
-from corridor.vehicles.air_backend import AirBackend, AircraftCommand, air_rows
-from corridor.vehicles.air_link import AirLink, Relevance
-from corridor.vehicles.autopilot import VelocityCommand
+from corridor.vehicles.air.autopilot import VelocityCommand
+from corridor.vehicles.air.backend import AirBackend, AircraftCommand, air_rows
+from corridor.vehicles.mavlink.air_link import AirLink, Relevance
 
 
 class UavAvoidanceParams(BaseModel):
@@ -276,7 +276,7 @@ class ControlTubeController(_UavController):
 
     def build_methods(self) -> None:
         from corridor.controllers.uav.control_tube import ControlTubeAvoidance
-        from corridor.vehicles.jsbsim_fleet import quiet_fds
+        from corridor.vehicles.air.jsbsim_fleet import quiet_fds
 
         base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube.model_dump(exclude_unset=True)})
         self._quiet = quiet_fds

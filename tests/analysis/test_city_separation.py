@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corridor.analysis.city_separation import CitySeparation
-from corridor.analysis.separation import SeparationMonitor
+from corridor.analysis.monitoring.city_separation import CitySeparation
+from corridor.analysis.monitoring.separation import SeparationMonitor
 from corridor.engine import RunContext
 from corridor.snapshot import Kind, Role, WorldSnapshot
 

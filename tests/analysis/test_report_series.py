@@ -22,7 +22,7 @@ from corridor.analysis.report_series import (
 )
 from corridor.engine import Signals
 from corridor.scenario import load
-from corridor.traffic.calibrate import FdFit
+from corridor.traffic.macro.calibrate import FdFit
 
 REPO = Path(__file__).resolve().parents[2]
 RAMPS = ["ccw0", "ccw1", "ccw10", "cw0"]

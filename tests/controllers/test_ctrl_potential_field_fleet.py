@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent
+from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.potential_field import PotentialFieldAvoidance, PotentialFieldParams
 from corridor.controllers.uav.potential_field_fleet import fleet_commands
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])

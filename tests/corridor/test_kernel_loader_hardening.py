@@ -49,7 +49,7 @@ import pytest  # noqa: E402
 
 from corridor.errors import ScenarioError  # noqa: E402
 from corridor.scenario import load  # noqa: E402
-from corridor.traffic.road_spec import road_spec  # noqa: E402
+from corridor.traffic.sumo.road_spec import road_spec  # noqa: E402
 
 
 def write(tmp_path: Path, text: str | bytes, name: str = "s.yaml") -> Path:
@@ -277,7 +277,7 @@ def test_step_count_bounded(capsys):
 ])
 def test_sumo_extra_args_that_write_files_are_refused(capsys, args):
     code, err = run_cli(capsys, str(MERGING), "--set", f"road.sumo.extra_args={args}")
-    assert_one_line(code, err, "road.sumo.extra_args", "may write files", "allowed: --lateral-resolution")
+    assert_one_line(code, err, "road.sumo.extra_args", "writes files", "allowed (after --): lateral-resolution")
 
 
 def test_sumo_extra_args_allow_list_accepted():

@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from corridor.cli import main
 from corridor.scenario import load
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.sumo.road_spec import road_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 MERGING = ROOT / "scenarios" / "merging.yaml"

@@ -14,8 +14,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from corridor.analysis.stl import parse_formula
 from corridor.scenario import load
+from corridor.stl import parse_formula
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENARIO = ROOT / "scenarios" / "overtaking.yaml"

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from corridor.traffic.meters import (
+from corridor.traffic.sumo.meters import (
     MeterTiming,
     choice_set,
     divert_probability,

@@ -9,7 +9,7 @@ import pytest
 
 from corridor.run import build
 from corridor.scenario import load
-from corridor.traffic.sumo_backend import SumoBackend
+from corridor.traffic.sumo.backend import SumoBackend
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
 

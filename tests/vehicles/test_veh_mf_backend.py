@@ -12,8 +12,8 @@ from pydantic import ValidationError
 
 from corridor.engine import Component, Phase, RunContext, Simulation
 from corridor.scenario import validate
-from corridor.vehicles.fidelity import FidelityParams
-from corridor.vehicles.mf_backend import MultiFidelityAirBackend
+from corridor.vehicles.air.fidelity import FidelityParams
+from corridor.vehicles.air.mf_backend import MultiFidelityAirBackend
 
 
 class Trace(Component):

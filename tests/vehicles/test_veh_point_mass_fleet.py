@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from corridor.snapshot import Kind
-from corridor.vehicles.autopilot import Hover, VelocityCommand, WaypointCommand
-from corridor.vehicles.f450_envelope import measure_envelope
-from corridor.vehicles.jsbsim_fleet import JSBSimFleet
-from corridor.vehicles.point_mass_fleet import PointMassFleet, PointMassLimits
+from corridor.vehicles.air.autopilot import Hover, VelocityCommand, WaypointCommand
+from corridor.vehicles.air.f450_envelope import measure_envelope
+from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
+from corridor.vehicles.air.point_mass_fleet import PointMassFleet, PointMassLimits
 
 
 def steady_speed(lim: PointMassLimits) -> float:
