@@ -40,7 +40,6 @@ COARSE = SearchParams(heuristic_weight=3.0)
 FINE = SearchParams(heuristic_weight=3.0, xy_res_m=0.2, n_heading=144, step_m=0.5, short_step_m=0.15, check_m=0.1)
 SLICE = 100  # expansions per turn ...
 MICRO_TURNS = 4  # ... times this for a search with micro primitives (the end the other cannot reach)
-MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
 CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
 MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors (a hard constraint of the NLP)
 END_SHARE = 0.5  # margins are at most this share of the start's and the goal's clearance (tight ends)
@@ -90,6 +89,7 @@ class Trajectory:
     search_time_s: float
     optimise_time_s: float
     stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback), "at goal" (one row)
+    expansions: int = 0  # of all the searches that made the path (the deterministic measure of their work)
 
     def direction_changes(self, min_run_m: float = MIN_RUN_M) -> int:
         """Changes between forward and reverse motion, counting only runs in one direction that
@@ -168,14 +168,14 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
     end_clear = min(_exact_clearance(s, obs, vehicle), _exact_clearance(g, obs, vehicle))
     search_margin = min(COARSE.margin_m, END_SHARE * end_clear)
     opt_margin = min(MARGIN_M, END_SHARE * end_clear)
-    segments = _search(tuple(s), tuple(g), obs, vehicle, lb, budget, search_margin, opt_margin)
+    segments, expansions = _search(tuple(s), tuple(g), obs, vehicle, lb, budget, search_margin, opt_margin)
     t_search = time.perf_counter() - t0
     states, stage = _optimise(segments, obs, vehicle, dt_s, budget, opt_margin)
     t_opt = time.perf_counter() - t0 - t_search
     # a path searched from the goal reaches the start's heading modulo 2π: start from it exactly
     turns = np.round((float(start[2]) - states["theta"][0]) / (2 * np.pi))
     states["theta"] = states["theta"] + 2 * np.pi * turns
-    return _to_world(states, origin, t_search, t_opt, stage=stage)
+    return _to_world(states, origin, t_search, t_opt, stage=stage, expansions=expansions)
 
 
 def _wrap(a: float) -> float:
@@ -246,20 +246,23 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
             vehicle: VehicleGeometry, lb: tuple[float, ...], budget: PlanBudget, search_margin_m: float,
-            opt_margin_m: float) -> list:
+            opt_margin_m: float) -> tuple[list, int]:
     """Searches from both ends take turns (`SLICE` expansions each, the tighter end first: leaving a
     bay is easier than entering it; a path found from the goal is driven backwards) until one finds a
-    path. A search that fails at `COARSE` resolution is replaced by one at `FINE` resolution from the
-    same end; one whose path clips an obstacle between its collision checks, by one with checks twice
-    as dense. Each search stops at its expansion budget."""
+    path. A path that clips an obstacle between the search's collision checks is dropped and its
+    search goes on without the primitive that clipped (`HybridAStar.prune`). A search that fails at
+    `COARSE` resolution is replaced by one at `FINE` resolution from the same end. Each search stops
+    at its expansion budget. Returns the path and the expansions of all searches."""
     reasons: list[str] = []
+    made: list[HybridAStar] = []  # every search started (their expansions are the work done)
     goal_first = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
     checkers: dict[float, FootprintChecker] = {}
 
     def start_search(backwards: bool, params: SearchParams) -> HybridAStar | None:
         checker = checkers.setdefault(params.margin_m, FootprintChecker(obs, vehicle, params.margin_m, lb))
         try:
-            return HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker)
+            made.append(HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker))
+            return made[-1]
         except SearchFailed as exc:
             reasons.append(_reason(backwards, params, exc))
             return None
@@ -279,11 +282,10 @@ def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: O
                 continue
             if path is None:
                 continue
-            if not _path_clips(path, obs, vehicle, opt_margin_m):
-                return merge(reverse(path) if backwards else path)
-            reasons.append(_reason(backwards, search.p, "the path clipped an obstacle between checks"))
-            dense = replace(search.p, check_m=search.p.check_m / 2)
-            searches[backwards] = start_search(backwards, dense) if dense.check_m >= MIN_CHECK_M else None
+            clip = _first_clip(path, obs, vehicle, opt_margin_m)
+            if clip is None:
+                return merge(reverse(path) if backwards else path), sum(m.expansions for m in made)
+            search.prune(clip)  # and go on without that primitive (or that analytic tail)
     raise NoSolution(f"no path ({'; '.join(reasons)})")
 
 
@@ -302,11 +304,13 @@ def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
     return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells{micro}: {exc}"
 
 
-def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry, margin_m: float) -> bool:
-    """Does the footprint, grown by the optimisation's margin, meet an obstacle anywhere along the
-    path (sampled every `DENSE_M`)?"""
-    poses = np.vstack([seg.poses(DENSE_M) for seg in segments])
-    return bool(obs.collides(poses, vehicle, margin_m).any())
+def _first_clip(segments: list, obs: Obstacles, vehicle: VehicleGeometry, margin_m: float) -> int | None:
+    """The first segment along which the footprint, grown by the optimisation's margin, meets an
+    obstacle (sampled every `DENSE_M`), or None."""
+    for k, seg in enumerate(segments):
+        if obs.collides(seg.poses(DENSE_M), vehicle, margin_m).any():
+            return k
+    return None
 
 
 def _exact_clearance(pose: np.ndarray, obs: Obstacles, vehicle: VehicleGeometry, upto_m: float = 0.2) -> float:
@@ -328,7 +332,7 @@ def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: Vehicl
 
 
 def _to_world(states: dict[str, np.ndarray], origin: np.ndarray, t_search: float, t_opt: float,
-              stage: str) -> Trajectory:
+              stage: str, expansions: int = 0) -> Trajectory:
     return Trajectory(t=states["t"], x=states["x"] + origin[0], y=states["y"] + origin[1],
                       theta=states["theta"], v=states["v"], a=states["a"], steer=states["steer"],
-                      search_time_s=t_search, optimise_time_s=t_opt, stage=stage)
+                      search_time_s=t_search, optimise_time_s=t_opt, stage=stage, expansions=expansions)

@@ -3,7 +3,8 @@
 Nodes are continuous poses binned into (x, y, θ) cells; a node's children are constant-curvature arcs
 (steering angles × forward/reverse), all collision-checked in one vectorised call. The cost counts
 length, a direction-change penalty and steering effort; the heuristic is the maximum of the
-Reeds–Shepp length without obstacles and the holonomic grid distance around the obstacles. Every few
+Reeds–Shepp length without obstacles and the holonomic grid distances around the obstacles of the
+footprint's centre and of the rear-axle centre (gaps narrower than the car closed). Every few
 expansions the shortest collision-free Reeds–Shepp path to the goal ends the search.
 
 The result is a list of `Segment`s (constant curvature, signed length): exact arcs, from which the
@@ -21,6 +22,7 @@ from corridor.controllers.parking import reeds_shepp as rs
 from corridor.controllers.parking.geometry import FootprintChecker, Obstacles, VehicleGeometry
 from corridor.controllers.parking.heuristic import HolonomicGrid, RsTable
 
+GRID_M = 0.3  # cells of the holonomic heuristic's grid
 MICRO_CELL_M, MICRO_HEADING_RAD = 0.05, np.pi / 180  # cells of the search near its first pose
 
 
@@ -103,9 +105,17 @@ class HybridAStar:
             if obstacles.collides_boxes(np.array([pose]), vehicle.box(0.0))[0]:
                 raise SearchFailed(f"the {name} pose collides with an obstacle")
         self.radius = vehicle.min_turn_radius_m
-        self.grid = HolonomicGrid(obstacles.polygons, goal[:2], bounds, res_m=0.3, clearance_m=0.5,
-                                  free_xy=start[:2])
-        if not np.isfinite(self.grid(np.array([start[:2]]))[0]):
+        # holonomic distances around the obstacles of two points of the footprint (grown by the
+        # margin): its centre, which keeps half the width from every obstacle, and the rear-axle
+        # centre, which keeps the smaller of the rear overhang and the half-width. Gaps narrower than
+        # the car are closed to both, so the search is not drawn into them.
+        bx0, bx1, by0, by1 = vehicle.box(p.margin_m)
+        self.ahead_m = (bx0 + bx1) / 2
+        self.grid = HolonomicGrid(obstacles.polygons, tuple(self._centre(np.array([goal]))[0]), bounds, res_m=GRID_M,
+                                  clearance_m=(by1 - by0) / 2, free_xy=tuple(self._centre(np.array([start]))[0]))
+        self.rgrid = HolonomicGrid(obstacles.polygons, goal[:2], bounds, res_m=GRID_M,
+                                  clearance_m=min(-bx0, by1), free_xy=start[:2])
+        if not np.isfinite(self.grid(self._centre(np.array([start])))[0]):
             raise SearchFailed("start and goal are not connected around the obstacles (holonomic grid)")
         self.rs_h = RsTable(goal, self.radius)
         self.sets = (_primitives(vehicle, p, p.step_m), _primitives(vehicle, p, p.short_step_m),
@@ -117,6 +127,8 @@ class HybridAStar:
         self.heap = [(float(self._h(s0[None])[0]) * p.heuristic_weight, 0)]
         self.best_g = {self._key(s0): 0.0}
         self.expansions = 0
+        self.dead: set[int] = set()  # nodes cut off with their subtrees (`prune`)
+        self.last = 0  # the node the last path found leaves the tree from
 
     def _key(self, pose: np.ndarray) -> tuple[int, ...]:
         p = self.p
@@ -128,8 +140,34 @@ class HybridAStar:
         return (int(np.floor(pose[0] / p.xy_res_m)), int(np.floor(pose[1] / p.xy_res_m)),
                 int(np.floor((pose[2] % (2 * np.pi)) / (2 * np.pi / p.n_heading))) % p.n_heading)
 
+    def _centre(self, poses: np.ndarray) -> np.ndarray:
+        return poses[:, :2] + self.ahead_m * np.column_stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])])
+
     def _h(self, poses: np.ndarray) -> np.ndarray:
-        return np.maximum(self.grid(poses[:, :2]), self.rs_h(poses))
+        return np.maximum(np.maximum(self.grid(self._centre(poses)), self.rgrid(poses[:, :2])), self.rs_h(poses))
+
+    def prune(self, segment: int) -> bool:
+        """Cut off the tree below segment number ``segment`` of the last path found (a primitive that
+        proved unusable, e.g. clipping an obstacle between its collision checks), so that the search
+        can go on without it; False when that segment is not a primitive of the tree (the path's
+        analytic tail, which the search will not try again from that node)."""
+        chain = []
+        ni = self.last
+        while ni > 0:
+            chain.append(ni)
+            ni = self.nodes[ni][2]
+        chain.reverse()  # chain[k] is the end node of segment k
+        if segment >= len(chain):
+            return False
+        self.dead.add(chain[segment])
+        return True
+
+    def _below_dead(self, ni: int) -> bool:
+        while ni > 0:
+            if ni in self.dead:
+                return True
+            ni = self.nodes[ni][2]
+        return False
 
     def run(self, expansions: int) -> list[Segment] | None:
         """Up to ``expansions`` more expansions: the path if found, None if not yet; SearchFailed when
@@ -141,7 +179,7 @@ class HybridAStar:
                 return None
             _, ni = heapq.heappop(self.heap)
             pose, g, _, _, length, steer = self.nodes[ni]
-            if g > self.best_g.get(self._key(pose), np.inf) + 1e-9:
+            if g > self.best_g.get(self._key(pose), np.inf) + 1e-9 or (self.dead and self._below_dead(ni)):
                 continue
             self.expansions += 1
             if self.expansions > p.max_expansions:
@@ -149,6 +187,8 @@ class HybridAStar:
             if self.expansions % p.rs_every == 1 and np.hypot(*(pose[:2] - np.asarray(self.goal[:2]))) < p.rs_near_m:
                 tail = _analytic(pose, self.goal, self.collides, self.radius, self.bounds)
                 if tail is not None:
+                    self.last = ni
+                    self._expand(ni, pose, g, length, steer)  # so that the search can go on from here
                     return _backtrack(self.nodes, ni) + tail
             self._expand(ni, pose, g, length, steer)
         raise Exhausted(f"the search space is exhausted after {self.expansions} expansions: no path")

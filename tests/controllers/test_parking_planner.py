@@ -15,8 +15,9 @@ from corridor.controllers.parking.check import check
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, Obstacles
 from corridor.controllers.parking.planner import InputError, NoSolution, PlanBudget, Trajectory, plan
 from corridor.controllers.parking.search import hybrid_astar, merge
+from tests.conftest import TEST_DATA
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "tpcap"
+DATA = TEST_DATA / "tpcap"
 
 
 def solve(case: Case, **kw: float) -> Trajectory:

@@ -12,9 +12,10 @@ import pytest
 from corridor.controllers.parking import check as checker
 from corridor.controllers.parking import tpcap
 from corridor.controllers.parking.case import Case, CaseError, format_case, parse_case, read_case
+from tests.conftest import TEST_DATA
 from tests.controllers import tpcap_cases as tc
 
-DATA = Path(__file__).resolve().parents[1] / "data" / "tpcap"
+DATA = TEST_DATA / "tpcap"
 
 
 def test_entry_point_writes_a_checked_trajectory_and_a_plot(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -241,7 +241,8 @@ def require_landmarks(scenario: Any, model: type[BaseModel], who: str) -> None:
         return
     fields = [f for f in model.model_fields if f not in Landmarks.model_fields]
     named = ", ".join(fields[:4]) + (", ..." if len(fields) > 4 else "")
-    kinds = [k for k in builder_names() if issubclass(landmarks_model(k), model)]  # imports every builder: an error path
+    # the builders that report them: every declared builder's module imported (only on this error path)
+    kinds = sorted(k for k in builder_names() if issubclass(landmarks_model(k), model))
     raise ValueError(f"{who} needs the landmarks of a {' or '.join(kinds) or model.__name__} network ({named}); "
                      f"road.network type {road.network.type!r} has none")
 
