@@ -13,9 +13,9 @@ import pandas as pd
 
 from corridor.run import simulate
 from corridor.scenario import load
+from tests.conftest import REPO, scenario_file
 
-ROOT = Path(__file__).resolve().parents[2]
-CITY = ROOT / "scenarios" / "uav_city.yaml"
+CITY = scenario_file("uav_city")
 SMALL = ["backends.air.params.city.n=80", "backends.air.params.city.size_m=1200", "backends.air.params.city.vertiports=6",
          "backends.air.params.city.vertiport_spacing_m=200", "backends.air.params.city.start_spacing_m=60"]
 MACHINE = {"wall_s", "rtf", "cpu_per_sim_s"}  # measurements of the machine, not of the scenario
@@ -26,7 +26,7 @@ def test_small_city_both_variants(tmp_path: Path) -> None:
     sets = [a for s in [*SMALL, "duration=40"] for a in ("--set", s)]
     exe = [sys.executable, "-m", "corridor.cli", str(CITY), "--out", str(out), "--workers", "2", "--quiet",
            "--no-report", *sets]
-    res = subprocess.run(exe, capture_output=True, text=True, cwd=ROOT, timeout=1800)
+    res = subprocess.run(exe, capture_output=True, text=True, cwd=REPO, timeout=1800)
     assert res.returncode == 0, res.stderr[-2000:]
     df = pd.read_parquet(out / "runs.parquet").set_index("variant")
     assert (df["status"] == "ok").all(), df["error"].tolist()
