@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from corridor.snapshot import Role
-from corridor.vehicles.air.jsbsim_fleet import _QUAD_CMD, JSBSimFleet, quiet_fds
+from corridor.vehicles.air.jsbsim_fleet import _QUAD_CMD, _STATE_PROPS, JSBSimFleet, quiet_fds
 from corridor.vehicles.geodesy import FT_PER_M, heading_from_enu_yaw
 
 _INTEG = ("corridor/integ-e-mps2", "corridor/integ-n-mps2", "corridor/integ-u-mps2")
@@ -58,7 +58,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         and the cascade's vertical integrator at ``integ_u_mps2``; its cascade holds the position
         until it is given a command."""
         self.add(id, "F450", p_enu, yaw_rad, 0.0, role)
-        row = self.ids.index(id)
+        row = self._row_of[id]
         fdm = self._fdms[row]
         ve, vn, vu = (float(x) * FT_PER_M for x in v_enu)
         fdm["ic/vn-fps"], fdm["ic/ve-fps"], fdm["ic/vd-fps"] = vn, ve, -vu
@@ -75,21 +75,25 @@ class SwitchableJSBSimFleet(JSBSimFleet):
 
     def remove(self, id: str) -> None:
         """Take quadcopter ``id`` out of the fleet (its FDM goes to the pool)."""
-        row = self.ids.index(id)
+        row = self._row(id)
         if self.models[row] != "F450":
             raise ValueError(f"only quadcopters leave the 6-DOF fleet, {id!r} is a {self.models[row]}")
-        q = self._quad_rows.index(row)
+        q = self._quad_of[row]
+        self._raw = np.delete(self._raw, row, axis=0)
         self._pool.append(self._fdms[row])
         for seq in (self.ids, self.models, self.roles, self._fdms, self._nodes, self._runs):
             del seq[row]
-        self._getters = [n.get_double_value for nodes in self._nodes for n in nodes]
-        self._raw = np.delete(self._raw, row, axis=0)
+        p = len(_STATE_PROPS)
+        del self._getters[row * p:(row + 1) * p]  # row-major: the row's getters are one slice
+        del self._row_of[id]
+        for i in self.ids[row:]:
+            self._row_of[i] -= 1
         del self._quad_rows[q]
-        self._quad_rows = [r - (r > row) for r in self._quad_rows]
+        self._quad_rows[q:] = [r - 1 for r in self._quad_rows[q:]]  # sorted: the rows after q follow row
+        self._quad_of = {r: k for k, r in enumerate(self._quad_rows)}
         self._fw_rows = [r - (r > row) for r in self._fw_rows]
         k = len(_QUAD_CMD)
         del self._cmd_setters[q * k:(q + 1) * k]
-        self._quad_wp = {(i - (i > q)): v for i, v in self._quad_wp.items() if i != q}
-        tgt = self.quad_targets
-        for name in ("mode", "p_enu", "v_enu", "yaw_rad", "speed_limit_mps"):
-            setattr(tgt, name, np.delete(getattr(tgt, name), q, axis=0))
+        if self._quad_wp:
+            self._quad_wp = {(i - (i > q)): v for i, v in self._quad_wp.items() if i != q}
+        self.quad_targets.delete(q)

@@ -135,8 +135,11 @@ class MultiFidelityAirBackend(AirBackend):
         rows = np.asarray(c.rows)
         quad = self.is_quad[rows]
         self.pm.command_velocities(self.q_of[rows[quad]], c.v_enu[quad])
-        for k in np.flatnonzero(self.six[rows]):
+        six = self.six[rows]
+        for k in np.flatnonzero(six & ~quad):  # piloted aircraft: their own guidance
             self.js.command(str(self.ids[rows[k]]), VelocityCommand(tuple(map(float, c.v_enu[k]))))
+        six_quad = np.flatnonzero(six & quad)
+        self.js.command_velocities([str(i) for i in self.ids[rows[six_quad]]], c.v_enu[six_quad])
         self.commands_applied += len(rows)
 
     # ---- fidelity switches ----------------------------------------------------------------------
@@ -151,10 +154,11 @@ class MultiFidelityAirBackend(AirBackend):
             self.promotions += 1
             ctx.events.emit(self.t_s, self.name, "promote", f"{aid}: point_mass -> jsbsim", uav=aid, fidelity="jsbsim")
 
-    def _demote(self, r: int, ctx: RunContext) -> None:
+    def _demote(self, r: int, ctx: RunContext, st: Any, k_of: dict[str, int]) -> None:
+        """Row ``r`` back to its point mass; ``st`` is the 6-DOF fleet's state before this check's
+        demotions and ``k_of`` its row per id (a removal does not change the others' states)."""
         q, aid = int(self.q_of[r]), str(self.ids[r])
-        st = self.js.state()
-        k = self.js.ids.index(aid)
+        k = k_of[aid]
         self.pm.set_state(q, st.position[k], st.velocity[k], float(st.yaw[k]), float(st.roll[k]), float(st.pitch[k]))
         self.js.remove(aid)
         self.six[r], self.since[r] = False, self.t_s
@@ -166,8 +170,11 @@ class MultiFidelityAirBackend(AirBackend):
         if self.missions is not None:  # deliveries end and start at the exact states of T
             self.missions.arrivals(self.t_s, pos[self.quad_rows])
         promote, demote = self.policy.decide(pos, vel, ~self.is_quad, self.six, self.since, self.t_s)
-        for r in demote.tolist():
-            self._demote(r, ctx)
+        if len(demote):
+            st = self.js.state()
+            k_of = {str(i): k for k, i in enumerate(st.ids)}
+            for r in demote.tolist():
+                self._demote(r, ctx, st, k_of)
         for r in promote.tolist():
             self._promote(r, ctx)
 
