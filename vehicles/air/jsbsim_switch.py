@@ -7,6 +7,13 @@ while they spool up (0.7 m/s within 0.1 s, measured); ``run_ic`` keeps their spe
 take their FDM from a pool of *warm* FDMs: loaded in batches of ``WARM_BATCH``, hovered for
 ``WARM_S`` off the scene, then re-initialised (``run_ic``) at the hand-over state; a removed FDM goes
 back to the pool still spinning. A promotion costs an initial-condition run, not a model load.
+
+A pooled FDM keeps what ``run_ic`` does not reset (the propellers' speed) from its last flight, so
+which FDM an aircraft gets shows in its trajectory. The pool is therefore split into
+``POOL_GROUPS`` pools: each quadcopter takes its FDM from its own group's pool (the multi-fidelity
+backend's group: point-mass row mod ``POOL_GROUPS``). A group's FDMs then see the same promotions and
+demotions whichever process flies the group, and a fleet split into shards of whole groups
+(``jsbsim_shards``) gives the rows of the one-process fleet.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from corridor.vehicles.geodesy import FT_PER_M, heading_from_enu_yaw
 _INTEG = ("corridor/integ-e-mps2", "corridor/integ-n-mps2", "corridor/integ-u-mps2")
 WARM_BATCH = 8  # [FDM] loaded and spun up together when the pool is empty
 WARM_S = 1.0  # [s] hover that spins the propellers up to their hover speed
+POOL_GROUPS = 8  # FDM pools (the most shards a fleet can be split into)
 
 
 class SwitchableJSBSimFleet(JSBSimFleet):
@@ -29,7 +37,9 @@ class SwitchableJSBSimFleet(JSBSimFleet):
 
     def __init__(self, *args: object, **kw: object) -> None:
         super().__init__(*args, **kw)
-        self._pool: list[Any] = []
+        self._pools: dict[int, list[Any]] = {}  # group -> warm FDMs
+        self._group_of: dict[str, int] = {}  # quadcopter id -> its pool group
+        self._spawn_group = 0  # the group the next pooled FDM comes from
         self.loads = 0  # [FDM] models loaded (the pool reuses removed ones)
         self._warming = False  # True in the helper fleet that spins FDMs up for the pool
 
@@ -37,11 +47,12 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         if model != "F450" or self._warming:
             self.loads += 1
             return super()._new_fdm(model)
-        if not self._pool:
-            self._warm_up()
-        return self._pool.pop()
+        pool = self._pools.setdefault(self._spawn_group, [])
+        if not pool:
+            self._warm_up(pool)
+        return pool.pop()
 
-    def _warm_up(self) -> None:
+    def _warm_up(self, pool: list[Any]) -> None:
         """WARM_BATCH hovering F450s far from the scene, flown WARM_S, their FDMs into the pool."""
         warm = SwitchableJSBSimFleet((self.origin.lat_deg, self.origin.lon_deg, self.origin.h_m), self.rate_hz,
                                      self.root, self.quad_gains)
@@ -50,14 +61,17 @@ class SwitchableJSBSimFleet(JSBSimFleet):
             warm.add(f"warm{k}", "F450", (0.0, 50.0 * k, 100.0))
         warm.step(WARM_S)
         self.loads += warm.loads
-        self._pool.extend(reversed(warm._fdms))
+        pool.extend(reversed(warm._fdms))
 
     def spawn_in_flight(self, id: str, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float,
-                        roll_rad: float, pitch_rad: float, role: Role = Role.OTHER, integ_u_mps2: float = 0.0) -> None:
+                        roll_rad: float, pitch_rad: float, role: Role = Role.OTHER, integ_u_mps2: float = 0.0,
+                        group: int = 0) -> None:
         """An F450 at ``p_enu`` [m] flying ``v_enu`` [m/s] with attitude (roll, pitch, ENU yaw) [rad]
-        and the cascade's vertical integrator at ``integ_u_mps2``; its cascade holds the position
-        until it is given a command."""
+        and the cascade's vertical integrator at ``integ_u_mps2``, its FDM from pool ``group``; its
+        cascade holds the position until it is given a command."""
+        self._spawn_group = group
         self.add(id, "F450", p_enu, yaw_rad, 0.0, role)
+        self._group_of[id] = group
         row = self._row_of[id]
         fdm = self._fdms[row]
         ve, vn, vu = (float(x) * FT_PER_M for x in v_enu)
@@ -80,7 +94,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
             raise ValueError(f"only quadcopters leave the 6-DOF fleet, {id!r} is a {self.models[row]}")
         q = self._quad_of[row]
         self._raw = np.delete(self._raw, row, axis=0)
-        self._pool.append(self._fdms[row])
+        self._pools.setdefault(self._group_of.pop(id, 0), []).append(self._fdms[row])
         for seq in (self.ids, self.models, self.roles, self._fdms, self._nodes, self._runs):
             del seq[row]
         p = len(_STATE_PROPS)
@@ -97,3 +111,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         if self._quad_wp:
             self._quad_wp = {(i - (i > q)): v for i, v in self._quad_wp.items() if i != q}
         self.quad_targets.delete(q)
+
+    def all_finite(self) -> bool:
+        """Every state value of every aircraft is finite."""
+        return bool(np.all(np.isfinite(self._raw)))

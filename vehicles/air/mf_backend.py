@@ -40,7 +40,8 @@ from corridor.vehicles.air.backend import AirBackend, AircraftCommand
 from corridor.vehicles.air.city import CitySpec, Missions, city_fleet
 from corridor.vehicles.air.fidelity import FidelityParams, FidelityPolicy
 from corridor.vehicles.air.jsbsim_fleet import SIZE_M
-from corridor.vehicles.air.jsbsim_switch import SwitchableJSBSimFleet
+from corridor.vehicles.air.jsbsim_shards import ShardedJSBSimFleet
+from corridor.vehicles.air.jsbsim_switch import POOL_GROUPS, SwitchableJSBSimFleet
 from corridor.vehicles.air.point_mass_fleet import PointMassFleet
 
 
@@ -68,6 +69,7 @@ class MultiFidelityAirBackend(AirBackend):
         fidelity: FidelityParams = Field(default_factory=FidelityParams)
         point_mass_period_s: float = Field(0.5, gt=0.0)  # [s]
         city: CitySpec | None = None
+        shards: int = Field(1, ge=1, le=POOL_GROUPS)  # processes the 6-DOF aircraft are split into
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -96,7 +98,11 @@ class MultiFidelityAirBackend(AirBackend):
         self.kind = np.where(self.is_quad, Kind.UAV, Kind.AIRCRAFT).astype(np.int8)
         self.size = np.array([SIZE_M[a.model] for a in self.aircraft], dtype=float).reshape(-1, 3)
         self.pm = PointMassFleet()
-        self.js = SwitchableJSBSimFleet(self.origin, rate_hz=p.rate_hz)
+        self.js: SwitchableJSBSimFleet | ShardedJSBSimFleet
+        if p.shards > 1:
+            self.js = ShardedJSBSimFleet(self.origin, p.shards, rate_hz=p.rate_hz)
+        else:
+            self.js = SwitchableJSBSimFleet(self.origin, rate_hz=p.rate_hz)
         self.fleet = self.js
         for a in self.aircraft:
             if a.model == "F450":
@@ -147,7 +153,8 @@ class MultiFidelityAirBackend(AirBackend):
         q, aid = int(self.q_of[r]), str(self.ids[r])
         roll, pitch = self.pm.attitude(np.array([q]))
         self.js.spawn_in_flight(aid, self.pm.pos[q], self.pm.vel[q], float(self.pm.yaw[q]), float(roll[0]),
-                                float(pitch[0]), Role(self.roles[r]), float(self.pm.integ_u(np.array([q]))[0]))
+                                float(pitch[0]), Role(self.roles[r]), float(self.pm.integ_u(np.array([q]))[0]),
+                                group=q % POOL_GROUPS)
         self.js.command(aid, self.pm.current_command(q))
         self.six[r], self.since[r] = True, self.t_s
         if log:
@@ -181,7 +188,7 @@ class MultiFidelityAirBackend(AirBackend):
     # ---- stepping -------------------------------------------------------------------------------
     def tick(self, ctx: RunContext) -> None:
         if self._cpu_t0 is None:
-            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time()
+            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time() - self._shard_cpu_s()
         if self.tick_count % self.pm_every == 0:
             self._switch(ctx)
             self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
@@ -194,8 +201,17 @@ class MultiFidelityAirBackend(AirBackend):
         self.t_s = self.tick_count * self.period
         self.six_dof_quad_s += float(np.count_nonzero(self.six[self.quad_rows])) * self.period
 
+    def _shard_cpu_s(self) -> float:
+        """[s] CPU time of the shard processes (0 when the fleet runs in this process)."""
+        return self.js.shard_cpu_s() if isinstance(self.js, ShardedJSBSimFleet) else 0.0
+
+    def close(self) -> None:
+        if isinstance(getattr(self, "js", None), ShardedJSBSimFleet):
+            self.js.close()
+        super().close()
+
     def _check_finite(self) -> None:
-        if len(self.js.ids) and not np.all(np.isfinite(self.js._raw)):
+        if len(self.js.ids) and not self.js.all_finite():
             super()._check_finite()
 
     def _exact_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -247,7 +263,7 @@ class MultiFidelityAirBackend(AirBackend):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         sim_s = self.t_s
-        cpu = time.process_time() - self._cpu_t0 if self._cpu_t0 is not None else float("nan")
+        cpu = time.process_time() + self._shard_cpu_s() - self._cpu_t0 if self._cpu_t0 is not None else float("nan")
         wall = time.perf_counter() - self._wall_t0 if self._wall_t0 is not None else float("nan")
         quad_s = len(self.quad_rows) * sim_s
         out = {"aircraft": len(self.aircraft), "air_commands": self.commands_applied,
