@@ -17,11 +17,21 @@ t-interval and a Wilcoxon signed-rank p-value; the fidelity does not bias a metr
 interval holds 0. Also printed: the CPU ratio.
 
     python benchmarks/uav_city.py --bias --seeds 10 --duration 60
+
+Shards (``--shards 1 2``): the same run with the 6-DOF aircraft in 1, 2, ... shard processes
+(``backends.air.params.shards``), ``--repeat`` times each, interleaved; printed per run: wall time
+of the run loop (from the backend's first tick; the machine is shared: the load average is printed
+beside it), the speed-up against the one-shard run of the same round, the CPU of all processes per
+simulated second, and whether the rows equal the one-shard run's.
+
+    python benchmarks/uav_city.py --shards 1 2 --n 2000 --duration 30 --repeat 2
 """
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import resource
 import sys
 from concurrent.futures import ProcessPoolExecutor
@@ -54,21 +64,45 @@ def timed_run(sets: list[str], seed: int, duration_s: float) -> dict[str, Any]:
     return {**m, "cpu_total_per_sim_s": cpu / duration_s}
 
 
-def cost_curve(ns: list[int], duration_s: float, seed: int) -> None:
+def cost_curve(ns: list[int], duration_s: float, seed: int, extra: list[str]) -> None:
     print(f"{'N':>6} {'CPU/sim s (loop)':>17} {'CPU/sim s (total)':>18} {'x real time':>12} {'6-DOF share':>12} "
           f"{'promotions':>11} {'LoS/fh':>8}")
     for n in ns:
-        sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}", "controllers.avoid.type=city_potential_field"]
+        sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}", "controllers.avoid.type=city_potential_field",
+                *extra]
         m = timed_run(sets, seed, duration_s)
         print(f"{n:>6} {m['cpu_per_sim_s']:>17.3f} {m['cpu_total_per_sim_s']:>18.3f} {1.0 / m['cpu_per_sim_s']:>12.2f} "
               f"{m['six_dof_share']:>12.3f} {m['promotions']:>11} {m['los_per_fh']:>8.2f}", flush=True)
 
 
-def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int) -> None:
+def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str]) -> None:
+    machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s"}
+    print(f"N={n}, {duration_s:.0f} s, potential field; wall of the run loop (rtf: simulated s per wall s)")
+    print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'6-DOF share':>12} "
+          f"{'rows = 1 shard':>15} {'load avg (1 min)':>17}")
+    for r in range(repeat):
+        ref: dict[str, Any] | None = None
+        for k in shards:
+            sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}",
+                    "controllers.avoid.type=city_potential_field", f"backends.air.params.shards={k}", *extra]
+            m = timed_run(sets, seed, duration_s)
+            wall = duration_s / m["rtf"]
+            ref = ref or {**m, "wall": wall}
+            same = all(_same(m[c], ref[c]) for c in m if c not in machine)
+            print(f"{r:>5} {k:>6} {wall:>13.1f} {ref['wall'] / wall:>9.2f} {m['cpu_per_sim_s']:>10.3f} "
+                  f"{m['six_dof_share']:>12.3f} {str(same):>15} {os.getloadavg()[0]:>17.2f}", flush=True)
+
+
+def _same(a: Any, b: Any) -> bool:
+    nan = isinstance(a, float) and isinstance(b, float) and math.isnan(a) and math.isnan(b)
+    return nan or bool(a == b)
+
+
+def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, extra: list[str]) -> None:
     from scipy import stats
 
     base = [f"backends.air.params.city.n={n}", f"backends.air.params.city.size_m={size_m}", f"duration={duration_s}",
-            "backends.air.params.city.vertiports=20", "controllers.avoid.type=city_potential_field"]
+            "backends.air.params.city.vertiports=20", "controllers.avoid.type=city_potential_field", *extra]
     jobs = [(base + [f"backends.air.params.fidelity.mode={mode}"], s) for s in range(seeds) for mode in ("multi", "jsbsim")]
     with ProcessPoolExecutor(workers) as ex:
         rows = list(ex.map(one_run, *zip(*jobs, strict=True)))
@@ -99,11 +133,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=float, default=3000.0, help="[m] city side of the bias check")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--shards", type=int, nargs="+", help="shard counts to compare (wall time) at the first --n")
+    ap.add_argument("--repeat", type=int, default=1, help="rounds of the shard comparison")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scenario override for every run (repeatable), e.g. a fidelity boundary")
     a = ap.parse_args(argv)
-    if a.bias:
-        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers)
+    if a.shards:
+        shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set)
+    elif a.bias:
+        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set)
     else:
-        cost_curve(a.n, a.duration, a.seed)
+        cost_curve(a.n, a.duration, a.seed, a.set)
     return 0
 
 
