@@ -100,8 +100,7 @@ class ShardedJSBSimFleet:
             child.close()
             self._conns.append(parent)
             self._procs.append(proc)
-        self._sync(0.0)
-        self.cpu0_s = self.shard_cpu_s()  # [s] the shards' CPU after start-up (imports)
+        self._sync(0.0)  # every shard up (its imports done) before the run's first tick
 
     # ---- calls forwarded to one shard -----------------------------------------------------------------
     def add(self, id: str, model: str, *args: Any) -> None:
