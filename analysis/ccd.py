@@ -122,6 +122,32 @@ def _prev_rows(prev_ids: np.ndarray, cur_ids: np.ndarray) -> np.ndarray:
     return np.array([prev_row.get(k, -1) for k in cur_ids.tolist()], dtype=np.int64)
 
 
+SPARSE_ABOVE = 250_000  # [cells] a larger (A, N) matrix: the candidate pairs come from a k-d tree
+
+
+def _sphere_pairs_tree(p0: np.ndarray, p1: np.ndarray, rad: np.ndarray, a: np.ndarray, rows: np.ndarray,
+                       step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The sphere test of ``swept_overlaps`` for many rows: a pair can come within its radius sum
+    during the interval only if it is within that sum plus both steps at the interval's end, so a
+    k-d tree over the end positions proposes the pairs and the same closest-approach test decides
+    them. Returns (i in ``a``, j in ``rows``, s) like the dense path (each unordered pair from both
+    ends when both rows are in ``a``; the caller keeps one)."""
+    from scipy.spatial import cKDTree
+
+    reach = 2.0 * float(rad[rows].max()) + 2.0 * float(step[rows].max())
+    ij = cKDTree(p1[rows]).query_pairs(reach * (1.0 + 1e-9) + 1e-9, output_type="ndarray").reshape(-1, 2)
+    u, v = rows[ij[:, 0]], rows[ij[:, 1]]
+    in_a = np.zeros(len(p1), dtype=bool)
+    in_a[a] = True
+    i = np.concatenate([u[in_a[u]], v[in_a[v]]])
+    j = np.concatenate([v[in_a[u]], u[in_a[v]]])
+    s, dmin = closest_approach(p0[i] - p0[j], p1[i] - p1[j])
+    near = dmin <= rad[i] + rad[j]
+    i, j, s = i[near], j[near], s[near]
+    order = np.lexsort((j, i))
+    return i[order], j[order], s[order]
+
+
 def swept_overlaps(prev: Poses, cur: Poses, rows_a: np.ndarray | None = None,
                    max_step_m: float = MAX_STEP_M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Pairs whose boxes overlap at their closest approach between ``prev`` and ``cur``.
@@ -145,16 +171,18 @@ def swept_overlaps(prev: Poses, cur: Poses, rows_a: np.ndarray | None = None,
     if len(a) == 0 or len(rows) < 2:
         return empty
     rad = 0.5 * np.linalg.norm(cur.size, axis=1)  # bounding-sphere radius
-    # candidate pairs (a row, any swept row): relative segments, closest approach, sphere test
-    d0 = p0[a][:, None, :] - p0[rows][None, :, :]
-    d1 = cur.position[a][:, None, :] - cur.position[rows][None, :, :]
-    s, dmin = closest_approach(d0, d1)
-    near = dmin <= rad[a][:, None] + rad[rows][None, :]
-    near &= a[:, None] != rows[None, :]
-    ia, jb = np.nonzero(near)
-    if len(ia) == 0:
+    if len(a) * len(rows) > SPARSE_ABOVE:
+        i, j, s = _sphere_pairs_tree(p0, cur.position, rad, a, rows, step)
+    else:  # candidate pairs (a row, any swept row): relative segments, closest approach, sphere test
+        d0 = p0[a][:, None, :] - p0[rows][None, :, :]
+        d1 = cur.position[a][:, None, :] - cur.position[rows][None, :, :]
+        s, dmin = closest_approach(d0, d1)
+        near = dmin <= rad[a][:, None] + rad[rows][None, :]
+        near &= a[:, None] != rows[None, :]
+        ia, jb = np.nonzero(near)
+        i, j, s = a[ia], rows[jb], s[ia, jb]
+    if len(i) == 0:
         return empty
-    i, j, s = a[ia], rows[jb], s[ia, jb]
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     _, first = np.unique(lo * len(cur.ids) + hi, return_index=True)  # a pair found from both ends once
     i, j, s = lo[first], hi[first], s[first]

@@ -28,7 +28,9 @@ def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray
     if n < 2:
         return np.zeros((0, 2), dtype=int)
     radius = 0.5 * np.hypot(length, width)
-    if involving is None:
+    if involving is None and n * n > _DENSE_MAX:
+        i, j = _near_pairs_tree(center_xy, radius, z, height)
+    elif involving is None:
         d = np.linalg.norm(center_xy[:, None, :] - center_xy[None, :, :], axis=-1)
         near = np.triu(d <= radius[:, None] + radius[None, :], k=1)
         if z is not None and height is not None:
@@ -48,11 +50,38 @@ def obb_overlap_pairs(center_xy: np.ndarray, yaw: np.ndarray, length: np.ndarray
     return np.column_stack([i[hit], j[hit]])
 
 
+_DENSE_MAX = 250_000  # [cells] a larger (k, N) distance matrix: the circle pre-filter is a k-d tree query
+
+
+def _near_pairs_tree(center_xy: np.ndarray, radius: np.ndarray, z: np.ndarray | None,
+                     height: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The (N, N) circle pre-filter of ``obb_overlap_pairs`` for many rows: a k-d tree proposes the
+    pairs closer than the largest radius sum, then the same test as the dense path, term by term, in
+    the same row-major (i, j) order (a city of 10,000 aircraft: 10^8 distances per tick otherwise)."""
+    from scipy.spatial import cKDTree
+
+    reach = 2.0 * float(radius.max())
+    ij = cKDTree(center_xy).query_pairs(reach * (1.0 + 1e-9) + 1e-9, output_type="ndarray").reshape(-1, 2)
+    i, j = np.minimum(ij[:, 0], ij[:, 1]), np.maximum(ij[:, 0], ij[:, 1])
+    near = np.linalg.norm(center_xy[i] - center_xy[j], axis=-1) <= radius[i] + radius[j]
+    if z is not None and height is not None:
+        near &= np.abs(z[i] - z[j]) <= 0.5 * (height[i] + height[j])
+    i, j = i[near], j[near]
+    order = np.lexsort((j, i))
+    return i[order].astype(np.int64), j[order].astype(np.int64)
+
+
 def _near_pairs_involving(rows: np.ndarray, center_xy: np.ndarray, radius: np.ndarray, z: np.ndarray | None,
                           height: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """The circle pre-filter of ``obb_overlap_pairs`` for the pairs with a row of ``rows``: (i, j),
     i < j, in row-major order (the same distances and sums as the full (N, N) test, term by term)."""
     n = len(center_xy)
+    if len(rows) * n > _DENSE_MAX:
+        i, j = _near_pairs_tree(center_xy, radius, z, height)
+        listed = np.zeros(n, dtype=bool)
+        listed[rows] = True
+        keep = listed[i] | listed[j]
+        return i[keep], j[keep]
     d = np.linalg.norm(center_xy[rows][:, None, :] - center_xy[None, :, :], axis=-1)
     near = d <= radius[rows][:, None] + radius[None, :]
     if z is not None and height is not None:

@@ -19,7 +19,7 @@ Commands are small frozen dataclasses; all vectors are in the scenario's ENU fra
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
@@ -105,23 +105,59 @@ class QuadGains:
     integ_limit_mps2: float = 2.0  # [m/s^2] anti-windup bound of the integrators
 
 
-@dataclass
 class QuadTargets:
-    """Per-row set-points of the cascade (struct of arrays, edited in place by the fleet)."""
+    """Per-row set-points of the cascade (struct of arrays, edited in place by the fleet).
 
-    mode: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int8))
-    p_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [m]
-    v_enu: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # [m/s]
-    yaw_rad: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [rad] ENU
-    speed_limit_mps: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [m/s] per row
+    ``mode``, ``p_enu`` [m], ``v_enu`` [m/s], ``yaw_rad`` [rad] (ENU) and ``speed_limit_mps`` [m/s]
+    are views of the first ``len(self)`` rows of buffers that grow by doubling, so adding a row costs
+    O(1) amortised (a fleet that spawns thousands of aircraft, one at a time, re-copied every array
+    per spawn before); :meth:`delete` shifts the rows after it in place. Assigning a field replaces
+    its buffer (the fleet keeps the fields the same length)."""
+
+    _FIELDS = ("mode", "p_enu", "v_enu", "yaw_rad", "speed_limit_mps")
+
+    def __init__(self) -> None:
+        self._n = 0
+        self._buf = {"mode": np.zeros(0, dtype=np.int8), "p_enu": np.zeros((0, 3)), "v_enu": np.zeros((0, 3)),
+                     "yaw_rad": np.zeros(0), "speed_limit_mps": np.zeros(0)}
+
+    def __len__(self) -> int:
+        return self._n
+
+    def _get(self, name: str) -> np.ndarray:
+        return self._buf[name][: self._n]
+
+    def _set(self, name: str, value: np.ndarray) -> None:
+        self._buf[name] = np.asarray(value, dtype=self._buf[name].dtype)
+        self._n = len(self._buf[name])
+
+    mode = property(lambda self: self._get("mode"), lambda self, v: self._set("mode", v))
+    p_enu = property(lambda self: self._get("p_enu"), lambda self, v: self._set("p_enu", v))
+    v_enu = property(lambda self: self._get("v_enu"), lambda self, v: self._set("v_enu", v))
+    yaw_rad = property(lambda self: self._get("yaw_rad"), lambda self, v: self._set("yaw_rad", v))
+    speed_limit_mps = property(lambda self: self._get("speed_limit_mps"), lambda self, v: self._set("speed_limit_mps", v))
 
     def append(self, p_enu: np.ndarray, yaw_rad: float, speed_limit_mps: float) -> None:
         """Add a row that holds ``p_enu`` and ``yaw_rad``."""
-        self.mode = np.append(self.mode, np.int8(QuadMode.POSITION))
-        self.p_enu = np.vstack([self.p_enu, np.asarray(p_enu, float)[None, :]])
-        self.v_enu = np.vstack([self.v_enu, np.zeros((1, 3))])
-        self.yaw_rad = np.append(self.yaw_rad, yaw_rad)
-        self.speed_limit_mps = np.append(self.speed_limit_mps, speed_limit_mps)
+        n = self._n
+        if n == len(self._buf["mode"]):
+            for name, buf in self._buf.items():
+                grown = np.zeros((max(8, 2 * n), *buf.shape[1:]), dtype=buf.dtype)
+                grown[:n] = buf[:n]
+                self._buf[name] = grown
+        b = self._buf
+        b["mode"][n], b["p_enu"][n], b["v_enu"][n] = np.int8(QuadMode.POSITION), np.asarray(p_enu, float), 0.0
+        b["yaw_rad"][n], b["speed_limit_mps"][n] = yaw_rad, speed_limit_mps
+        self._n = n + 1
+
+    def delete(self, q: int) -> None:
+        """Remove row ``q`` (the rows after it move up by one)."""
+        n = self._n
+        if not 0 <= q < n:
+            raise IndexError(f"quad target row {q} out of range ({n} rows)")
+        for buf in self._buf.values():
+            buf[q : n - 1] = buf[q + 1 : n]
+        self._n = n - 1
 
 
 @dataclass(frozen=True)

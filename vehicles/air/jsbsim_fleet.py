@@ -186,7 +186,10 @@ class JSBSimFleet:
         # hot path (120 Hz x every aircraft): flat lists of bound methods, no per-call attribute lookups
         self._runs: list[Callable[[], bool]] = []  # FGFDMExec.run of every aircraft
         self._getters: list[Callable[[], float]] = []  # state nodes' get_double_value, row-major
-        self._raw = np.zeros((0, len(_STATE_PROPS)))
+        self._raw_rows = np.zeros((0, len(_STATE_PROPS)))  # read through _raw
+        self._raw_new: list[np.ndarray] = []  # rows of aircraft added since: stacked once, on first read
+        self._row_of: dict[str, int] = {}  # aircraft id -> fleet row (ids.index is O(N) per command)
+        self._quad_of: dict[int, int] = {}  # fleet row -> quad-cascade row
         self._quad_rows: list[int] = []  # fleet row of each quad-cascade row
         self._cmd_setters: list[Callable[[float], None]] = []  # quads' cascade inputs, row-major (_QUAD_CMD)
         self._quad_wp: dict[int, tuple[WaypointCommand, int]] = {}  # quad row -> (command, index)
@@ -198,6 +201,26 @@ class JSBSimFleet:
         self._fw_every = max(1, round(self.rate_hz / 10.0))  # fixed-wing guidance at ~10 Hz
         self._substep = 0
         self._log_sink = JSBSimLogSink()
+
+    @property
+    def _raw(self) -> np.ndarray:
+        """(N, len(_STATE_PROPS)) raw JSBSim state of every row; the rows of aircraft added since the
+        last read are stacked on here, once (a stack per add made many adds O(N^2))."""
+        if self._raw_new:
+            self._raw_rows = np.vstack([self._raw_rows, *self._raw_new])
+            self._raw_new = []
+        return self._raw_rows
+
+    @_raw.setter
+    def _raw(self, value: np.ndarray) -> None:
+        self._raw_rows, self._raw_new = value, []
+
+    def _row(self, id: str) -> int:
+        """Fleet row of aircraft ``id`` (ValueError if it is not in the fleet)."""
+        try:
+            return self._row_of[id]
+        except KeyError:
+            raise ValueError(f"{id!r} is not in the fleet") from None
 
     # ------------------------------------------------------------------------------------ spawning
     def _new_fdm(self, model: str) -> jsbsim.FGFDMExec:
@@ -236,7 +259,7 @@ class JSBSimFleet:
         ``speed_mps`` (default 50 m/s), engine running, holding its heading and altitude."""
         if model not in MODELS:
             raise ValueError(f"unknown model {model!r}; expected one of {MODELS}")
-        if id in self.ids:
+        if id in self._row_of:
             raise ValueError(f"duplicate aircraft id {id!r}")
         enu = np.asarray(enu_m, dtype=float)
         fdm = self._new_fdm(model)
@@ -251,6 +274,7 @@ class JSBSimFleet:
             else:
                 self._start_c172(fdm, enu, heading_rad, speed_mps)
         row = len(self.ids)
+        self._row_of[id] = row
         self.ids.append(id)
         self.models.append(model)
         self.roles.append(int(role))
@@ -259,7 +283,7 @@ class JSBSimFleet:
         self._nodes.append([pm.get_node(p) for p in _STATE_PROPS])
         self._runs.append(fdm.run)
         self._getters.extend(n.get_double_value for n in self._nodes[-1])
-        self._raw = np.vstack([self._raw, self._read_row(row)[None, :]])
+        self._raw_new.append(self._read_row(row)[None, :])
         if model == "F450":
             self._add_quad(row, pm, enu, heading_rad)
         else:
@@ -277,6 +301,7 @@ class JSBSimFleet:
         fdm["ap/altitude_hold"] = 1
 
     def _add_quad(self, row: int, pm: jsbsim.FGPropertyManager, enu: np.ndarray, yaw_rad: float) -> None:
+        self._quad_of[row] = len(self._quad_rows)
         self._quad_rows.append(row)
         for name, prop in _QUAD_GAINS.items():
             pm.get_node(prop).set_double_value(float(getattr(self.quad_gains, name)))
@@ -293,11 +318,11 @@ class JSBSimFleet:
     # ------------------------------------------------------------------------------------ commands
     def command(self, id: str, cmd: Command) -> None:
         """Give aircraft ``id`` a new command (see ``autopilot.py``); it applies from the next sub-step."""
-        row = self.ids.index(id)
+        row = self._row(id)
         if self.models[row] == "c172x":
             self._fw_guidance[self._fw_rows.index(row)].set_command(cmd)
             return
-        q = self._quad_rows.index(row)
+        q = self._quad_of[row]
         self._quad_wp.pop(q, None)
         tgt = self.quad_targets
         tgt.speed_limit_mps[q] = np.inf
@@ -316,12 +341,30 @@ class JSBSimFleet:
         else:
             raise TypeError(f"quadcopter cannot follow {type(cmd).__name__}")
 
+    def command_velocities(self, ids: list[str], v_enu: np.ndarray) -> None:
+        """``command(id, VelocityCommand(v))`` for quadcopters ``ids`` and rows ``v_enu`` [m/s] (k, 3),
+        at once: the same targets (heading held at the current yaw) without a Python call per aircraft."""
+        if not ids:
+            return
+        rows = np.array([self._row(i) for i in ids], dtype=int)
+        if any(self.models[r] != "F450" for r in rows.tolist()):
+            raise ValueError("command_velocities: quadcopters only")
+        q = np.array([self._quad_of[r] for r in rows.tolist()], dtype=int)
+        if self._quad_wp:
+            for k in q.tolist():
+                self._quad_wp.pop(k, None)
+        tgt = self.quad_targets
+        tgt.speed_limit_mps[q] = np.inf
+        tgt.yaw_rad[q] = enu_yaw_from_heading(self._raw[rows, 8])
+        tgt.mode[q] = QuadMode.VELOCITY
+        tgt.v_enu[q] = np.asarray(v_enu, dtype=float)
+
     def waypoint_index(self, id: str) -> int:
         """Index of the active waypoint of ``id`` (0 if it is not following waypoints)."""
-        row = self.ids.index(id)
+        row = self._row(id)
         if self.models[row] == "c172x":
             return self._fw_guidance[self._fw_rows.index(row)].wp_index
-        return self._quad_wp.get(self._quad_rows.index(row), (None, 0))[1]
+        return self._quad_wp.get(self._quad_of[row], (None, 0))[1]
 
     # ------------------------------------------------------------------------------------ stepping
     def step(self, dt_s: float) -> None:
@@ -448,4 +491,4 @@ class JSBSimFleet:
 
     def get_property(self, id: str, name: str) -> float:
         """Read any JSBSim property of aircraft ``id`` (diagnostics, tests)."""
-        return float(self._fdms[self.ids.index(id)][name])
+        return float(self._fdms[self._row(id)][name])

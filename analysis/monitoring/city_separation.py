@@ -1,0 +1,168 @@
+"""Separation monitor for a city's fleet (registered as ``city_separation``): the measures of
+``uav_separation`` (loss of separation, NMAC, minimum separations, the same thresholds and the same
+continuous check between ticks), found with k-d trees instead of all N^2 pairs, plus rates per
+flight hour, per-aircraft nearest-approach distributions and the delivery missions' delay.
+
+Each tick (the scenario's ``dt``) the aircraft are taken to move on straight lines from the previous
+tick's positions (as ``uav_separation`` does, ``analysis.ccd``). Candidate pairs are those within
+``hypot(los_h, los_v) + 2 * (largest move in the interval)`` at the tick (UAV-UAV), or within the
+piloted LoS cylinder's reach of a piloted aircraft: any pair that enters a cylinder during the
+interval is among them. A pair *enters* LoS / NMAC when its swept relative motion passes through
+the cylinder (or is inside at the tick); each entry counts once and is an event. The minima use the
+segment's closest approach for the candidate pairs and the tick's nearest neighbours (k-d tree) for
+the rest. Per aircraft, its smallest 3-D distance to any other over the run gives the distribution
+``sep_nn_*`` (median, 5 % quantile): the statistic the fidelity comparison tests.
+
+Rates: ``los_per_fh`` / ``nmac_per_fh`` = events / quadcopter flight hours. Mission delay: the
+deliveries the air backend's missions logged (flown minus nominal time).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scipy.spatial import cKDTree
+
+from corridor.analysis.ccd import MAX_STEP_M, closest_approach, interval_below
+from corridor.engine import Component, Metric, Need, Phase, RunContext
+from corridor.snapshot import Kind
+
+
+class CitySeparation(Component):
+    phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('nmac', '1', 'Near mid-air collisions: aircraft pairs entering the NMAC cylinder.', safety_event=True),
+        Metric('los', '1', 'Losses of separation: aircraft pairs entering the LoS cylinder.', safety_event=True),
+        Metric('nmac_per_fh', '1/h', 'NMAC per quadcopter flight hour.'),
+        Metric('los_per_fh', '1/h', 'Losses of separation per quadcopter flight hour.'),
+        Metric('sep_min_h_m', 'm', 'Smallest horizontal distance between any two aircraft (continuous).'),
+        Metric('sep_min_3d_m', 'm', 'Smallest 3-D distance between any two aircraft (continuous).'),
+        Metric('sep_nn_median_m', 'm', 'Median over aircraft of each one\'s smallest 3-D distance to another.'),
+        Metric('sep_nn_p05_m', 'm', '5 % quantile over aircraft of each one\'s smallest 3-D distance to another.'),
+        Metric('missions_done', '1', 'Deliveries completed.'),
+        Metric('mission_delay_mean_s', 's', 'Mean delay of the completed deliveries (flown minus nominal time).'),
+        Metric('mission_delay_p95_s', 's', '95 % quantile of the delivery delays.'),
+    )
+    needs: ClassVar[dict[str, Need]] = {"air": Need(role="air", name_at="params.backend", optional=True)}
+    air: Any = None
+    period_source: ClassVar[str | None] = "dt"
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+        nmac_h_m: float = Field(30.48, gt=0.0)  # [m] 100 ft (as uav_separation)
+        nmac_v_m: float = Field(4.572, gt=0.0)  # [m] 15 ft
+        los_h_m: float = Field(60.96, gt=0.0)  # [m] 200 ft
+        los_v_m: float = Field(15.24, gt=0.0)  # [m] 50 ft
+        los_piloted_h_m: float = Field(609.6, gt=0.0)  # [m] 2000 ft
+        los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
+        backend: str | None = "air"
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.params = params
+        self.prev: np.ndarray | None = None
+        self.min_h = self.min_3d = np.inf
+        self.los = self.nmac = 0
+        self.in_los: np.ndarray = np.zeros(0, dtype=np.int64)  # pair keys i * N + j inside now
+        self.in_nmac: np.ndarray = np.zeros(0, dtype=np.int64)
+        self.nn: np.ndarray | None = None
+        self.quad_s = 0.0  # [s] quadcopter flight time
+
+    def tick(self, ctx: RunContext) -> None:
+        s = ctx.snapshot
+        air = np.flatnonzero((s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT))
+        if len(air) < 2:
+            return
+        pos, piloted = s.position[air], s.kind[air] == Kind.AIRCRAFT
+        self.ids = s.ids[air]
+        if self.prev is None or len(self.prev) != len(pos):
+            self.prev, self.nn = pos.copy(), np.full(len(pos), np.inf)
+        self.quad_s += float(np.count_nonzero(~piloted)) * ctx.dt
+        i, j, d0, d1 = self._candidates(self.prev, pos, piloted)
+        self._nearest(pos)
+        if len(i):
+            self._check(ctx, i, j, d0, d1, piloted, len(pos))
+        self.prev = pos.copy()
+
+    def _candidates(self, prev: np.ndarray, pos: np.ndarray, piloted: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        p = self.params
+        move = np.linalg.norm(pos - prev, axis=1)
+        teleport = move > MAX_STEP_M
+        step = float(move[~teleport].max(initial=0.0))
+        tree = cKDTree(pos)
+        ij = [tree.query_pairs(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step, output_type="ndarray")]
+        for k in np.flatnonzero(piloted):
+            js = np.asarray(tree.query_ball_point(pos[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
+                            dtype=np.int64)
+            js = js[js != k]
+            ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
+        pairs = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64), axis=0)
+        i, j = pairs[:, 0], pairs[:, 1]
+        d1 = pos[i] - pos[j]
+        ok = ~(teleport[i] | teleport[j])
+        d0 = np.where(ok[:, None], prev[i] - prev[j], d1)
+        return i, j, d0, d1
+
+    def _nearest(self, pos: np.ndarray) -> None:
+        """Per-aircraft and global minima at the tick (nearest neighbours, horizontal and 3-D)."""
+        d3, k3 = cKDTree(pos).query(pos, k=2)
+        self.nn = np.minimum(self.nn, d3[:, 1])
+        self.min_3d = min(self.min_3d, float(d3[:, 1].min()))
+        dh, _ = cKDTree(pos[:, :2]).query(pos[:, :2], k=2)
+        self.min_h = min(self.min_h, float(dh[:, 1].min()))
+
+    def _check(self, ctx: RunContext, i: np.ndarray, j: np.ndarray, d0: np.ndarray, d1: np.ndarray,
+               piloted: np.ndarray, n: int) -> None:
+        p = self.params
+        _, dh_min = closest_approach(d0[:, :2], d1[:, :2])
+        _, d3_min = closest_approach(d0, d1)
+        self.min_h = min(self.min_h, float(dh_min.min()))
+        self.min_3d = min(self.min_3d, float(d3_min.min()))
+        np.minimum.at(self.nn, i, d3_min)
+        np.minimum.at(self.nn, j, d3_min)
+        mixed = piloted[i] | piloted[j]
+        key = i * n + j
+        los = _passes(d0, d1, np.where(mixed, p.los_piloted_h_m, p.los_h_m), np.where(mixed, p.los_piloted_v_m, p.los_v_m))
+        nmac = _passes(d0, d1, p.nmac_h_m, p.nmac_v_m)
+        self.in_los, new_los = _entries(key, los, self.in_los)
+        self.in_nmac, new_nmac = _entries(key, nmac, self.in_nmac)
+        self.los += len(new_los)
+        self.nmac += len(new_nmac)
+        for kind, new in (("los", new_los), ("nmac", new_nmac)):
+            for k in new.tolist():
+                a, b = str(self.ids[k // n]), str(self.ids[k % n])
+                ctx.events.emit(ctx.t, self.name, kind, f"{a} - {b}: {kind}", pair=(a, b))
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        fh = self.quad_s / 3600.0
+        nn = self.nn if self.nn is not None else np.zeros(0)
+        out = {"nmac": self.nmac, "los": self.los,
+               "nmac_per_fh": self.nmac / fh if fh > 0 else float("nan"),
+               "los_per_fh": self.los / fh if fh > 0 else float("nan"),
+               "sep_min_h_m": self.min_h, "sep_min_3d_m": self.min_3d,
+               "sep_nn_median_m": float(np.median(nn)) if len(nn) else float("nan"),
+               "sep_nn_p05_m": float(np.quantile(nn, 0.05)) if len(nn) else float("nan")}
+        missions = getattr(self.air, "missions", None)
+        if missions is not None:
+            d = missions.delays()
+            out.update({"missions_done": len(d), "mission_delay_mean_s": float(d.mean()) if len(d) else float("nan"),
+                        "mission_delay_p95_s": float(np.quantile(d, 0.95)) if len(d) else float("nan")})
+        return out
+
+
+def _passes(d0: np.ndarray, d1: np.ndarray, r_h: np.ndarray | float, r_v: np.ndarray | float) -> np.ndarray:
+    """Pairs whose straight relative motion from d0 to d1 passes through the cylinder (r_h, r_v)."""
+    lo_a, hi_a = interval_below(d0[:, :2], d1[:, :2], r_h)
+    lo_b, hi_b = interval_below(d0[:, 2:], d1[:, 2:], r_v)
+    inside_now = (np.hypot(d1[:, 0], d1[:, 1]) < r_h) & (np.abs(d1[:, 2]) < r_v)
+    return (np.maximum(lo_a, lo_b) < np.minimum(hi_a, hi_b)) | inside_now
+
+
+def _entries(key: np.ndarray, inside: np.ndarray, before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(pairs inside now, pairs that entered in this interval) as sorted pair keys."""
+    now = np.unique(key[inside])
+    return now, now[~np.isin(now, before, assume_unique=True)]
