@@ -1,76 +1,223 @@
-"""Hybrid-automaton modes (after CHARON): named modes, guarded transitions with resets.
+"""Hybrid-automaton modes (after CHARON): hierarchical modes, guarded transitions, named boundaries.
 
 A controller that switches behaviour owns a ``HybridAutomaton``; each ``update`` evaluates the guards
-of the current mode in declaration order and takes the first that holds.  Every transition is an
-event in the run's event log, so reports and the Rerun timeline show *why* behaviour changed.
+of the current mode (and of the modes that hold it, outermost first) in declaration order and takes
+the first that holds.  Every transition is an event in the run's event log, so reports and the Rerun
+timeline show *why* behaviour changed.
+
+Guards are either plain predicates ``guard(x) -> bool`` or **boundaries**: a named function
+``g(x; theta)`` whose sign decides the switch (it holds when ``g >= 0``, or ``g > 0`` when strict),
+with its parameters ``theta`` (a mapping of named floats) taken from the scenario YAML, so that
+``--set``, ``randomize``, sweeps and learning reach them.  When a boundary changes sign between two
+updates its crossing time is located by linear interpolation of ``g`` and logged with the event
+(``t_cross``), as the collision check does for contacts.
+
+Hierarchy: a ``Mode`` may hold sub-modes (entered at its ``initial`` child) with ``entry`` / ``exit``
+actions; the active mode is always a leaf, and transitions may leave from or lead to any mode (a
+composite target is entered at its initial leaf).  A mode's ``invariant`` must hold while it is
+active: a violation is an ``invariant`` event (the model promised a jump before it).
 
     ha = HybridAutomaton("ego", ["follow", "pass"], initial="follow", transitions=[
         Transition("follow", "pass", guard=lambda x: x["gap_ok"], label="gap found"),
         Transition("pass", "follow", guard=lambda x: x["done"], label="passed"),
     ])
-    mode = ha.update(t, x, events)
+    mode, x = ha.update(t, x, events)
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from corridor.events import EventLog
 
 Guard = Callable[[Any], bool]
 Reset = Callable[[Any], Any]
+Action = Callable[[float], None]
+BoundaryFn = Callable[[Any, Mapping[str, float]], float]
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """A named, parameterised guard ``g(x; theta)``: it holds when ``g >= 0`` (``g > 0`` if ``strict``)."""
+
+    name: str
+    fn: BoundaryFn
+    theta: Mapping[str, float] = field(default_factory=dict)
+    strict: bool = False
+
+    def value(self, x: Any) -> float:
+        """g(x; theta) (dimensionless or in the unit its docstring names; only its sign and zero matter)."""
+        return float(self.fn(x, self.theta))
+
+    def holds(self, g: float) -> bool:
+        """Whether the guard holds at the value ``g``."""
+        return g > 0.0 if self.strict else g >= 0.0
+
+
+@dataclass(frozen=True)
+class Mode:
+    """A mode; with ``children`` a composite entered at ``initial`` (default: the first child)."""
+
+    name: str
+    children: tuple[Mode, ...] = ()
+    initial: str | None = None
+    entry: Action | None = None  # called with t [s] when the mode is entered
+    exit: Action | None = None  # called with t [s] when the mode is left
+    invariant: Guard | Boundary | None = None  # must hold while the mode is active
 
 
 @dataclass(frozen=True)
 class Transition:
-    """A guarded jump ``src`` -> ``dst``, taken when ``guard(state)`` holds; ``reset`` maps the state."""
+    """A jump ``src`` -> ``dst``, taken when ``guard`` holds (and ``when``, if given); ``reset`` maps the state."""
 
     src: str
     dst: str
-    guard: Guard
+    guard: Guard | Boundary
     label: str = ""
     reset: Reset | None = None  # maps the controller's continuous state on the jump
+    when: Guard | None = None  # a discrete condition ANDed with a boundary guard (never located)
+
+
+def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
+    """Linear interpolation of the zero of g between (t0, g0 < 0) and (t1, g1 >= 0) [s]."""
+    if not (math.isfinite(g0) and math.isfinite(g1)) or g1 == g0:
+        return t1
+    return t0 + (t1 - t0) * (-g0) / (g1 - g0)
+
+
+def _flatten(modes: Iterable[str | Mode], parent: str | None, out: dict[str, tuple[Mode, str | None]]) -> None:
+    for m in modes:
+        mode = Mode(m) if isinstance(m, str) else m
+        if mode.name in out:
+            raise ValueError(f"mode {mode.name!r} declared twice")
+        out[mode.name] = (mode, parent)
+        _flatten(mode.children, mode.name, out)
 
 
 class HybridAutomaton:
-    """A finite set of modes with guarded transitions; records each jump as an event."""
+    """Hierarchical modes with guarded transitions; records each jump (and located crossing) as an event."""
 
-    def __init__(self, name: str, modes: Iterable[str], initial: str,
-                 transitions: Sequence[Transition]) -> None:
+    def __init__(self, name: str, modes: Iterable[str | Mode], initial: str,
+                 transitions: Sequence[Transition], tag: str = "", **event_data: Any) -> None:
         self.name = name
-        self.modes = tuple(modes)
-        if initial not in self.modes:
+        self.tag = tag  # prefix of the event messages (e.g. the governed vehicle's id)
+        self.event_data = event_data  # added to every event's data (e.g. uav="uav_0")
+        self._tree: dict[str, tuple[Mode, str | None]] = {}
+        _flatten(modes, None, self._tree)
+        self.modes = tuple(self._tree)
+        if initial not in self._tree:
             raise ValueError(f"{name}: initial mode {initial!r} not in {self.modes}")
         for tr in transitions:
             for m in (tr.src, tr.dst):
-                if m not in self.modes:
+                if m not in self._tree:
                     raise ValueError(f"{name}: transition {tr.src}->{tr.dst} names unknown mode {m!r}")
         self.initial = initial
         self._out: dict[str, list[Transition]] = {m: [] for m in self.modes}
         for tr in transitions:
             self._out[tr.src].append(tr)
-        self.mode = initial
-        self.entered_t = 0.0
-        self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
+        self.boundaries = {tr.guard.name: tr.guard for tr in transitions if isinstance(tr.guard, Boundary)}
+        self.reset(0.0)
 
+    # ---- the tree ----------------------------------------------------------------------------------
+    def path(self, mode: str | None = None) -> tuple[str, ...]:
+        """Outermost-first chain of modes holding ``mode`` (itself included; default the active leaf)."""
+        out, m = [], mode or self.mode
+        while m is not None:
+            out.append(m)
+            m = self._tree[m][1]
+        return tuple(reversed(out))
+
+    def _leaf(self, mode: str) -> str:
+        spec = self._tree[mode][0]
+        while spec.children:
+            spec = self._tree[spec.initial or spec.children[0].name][0]
+        return spec.name
+
+    def in_mode(self, mode: str) -> bool:
+        """True when ``mode`` is the active leaf or holds it."""
+        return mode in self.path()
+
+    # ---- state -------------------------------------------------------------------------------------
     def reset(self, t: float = 0.0) -> None:
         """Back to the initial mode at time ``t`` [s], with an empty history."""
-        self.mode, self.entered_t, self.history = self.initial, t, []
+        self.mode, self.entered_t = self._leaf(self.initial), t
+        self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
+        self._g: dict[str, tuple[float, float]] = {}  # boundary name -> (t [s], g) at its last evaluation
+        self.g_now: dict[str, float] = {}  # the boundaries evaluated at the last update
+        self.invariant_violations = 0
+        self._t_last = t
 
     def time_in_mode(self, t: float) -> float:
         """Seconds spent in the current mode at time ``t`` [s]."""
         return t - self.entered_t
 
+    def _guard(self, tr: Transition, t: float, x: Any) -> tuple[bool, float | None]:
+        """Whether ``tr`` fires, and the located crossing time of its boundary (None: a plain guard)."""
+        if not isinstance(tr.guard, Boundary):
+            return bool(tr.guard(x)), None
+        g = self.g_now[tr.guard.name]
+        fires = tr.guard.holds(g) and (tr.when is None or bool(tr.when(x)))
+        t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
+        t_cross = crossing_time(t_prev, g_prev, t, g) if not tr.guard.holds(g_prev) else t
+        return fires, t_cross
+
+    def _evaluate(self, t: float, x: Any) -> None:
+        """Evaluate g of every boundary leaving the active path, remembered for the next crossing location."""
+        self._g = {k: (self._t_last, v) for k, v in self.g_now.items()}  # only the previous update's
+        self.g_now = {}
+        for m in self.path():
+            for tr in self._out[m]:
+                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
+                    self.g_now[tr.guard.name] = tr.guard.value(x)
+        self._t_last = t
+
     def update(self, t: float, x: Any, events: EventLog | None = None) -> tuple[str, Any]:
         """Take at most one transition whose guard holds; return (mode, possibly reset state)."""
-        for tr in self._out[self.mode]:
-            if tr.guard(x):
-                self.history.append((t, tr.src, tr.dst, tr.label))
-                if events is not None:
-                    events.emit(t, self.name, "mode", f"{tr.src} -> {tr.dst}: {tr.label}",
-                                src=tr.src, dst=tr.dst)
-                self.mode, self.entered_t = tr.dst, t
-                return self.mode, (tr.reset(x) if tr.reset else x)
+        self._evaluate(t, x)
+        for m in self.path():  # outermost first: a mode's own jump pre-empts its sub-modes'
+            for tr in self._out[m]:
+                fires, t_cross = self._guard(tr, t, x)
+                if fires:
+                    self._jump(t, tr, t_cross, events)
+                    return self.mode, (tr.reset(x) if tr.reset else x)
+        self._check_invariant(t, x, events)
         return self.mode, x
+
+    def _jump(self, t: float, tr: Transition, t_cross: float | None, events: EventLog | None) -> None:
+        src_leaf, dst_leaf = self.mode, self._leaf(tr.dst)
+        old, new = self.path(src_leaf), self.path(dst_leaf)
+        common = 0
+        while common < min(len(old), len(new)) and old[common] == new[common] and old[common] != tr.src:
+            common += 1
+        for m in reversed(old[common:]):
+            if self._tree[m][0].exit:
+                self._tree[m][0].exit(t)
+        self.history.append((t, src_leaf, dst_leaf, tr.label))
+        if events is not None:
+            data: dict[str, Any] = {**self.event_data, "src": src_leaf, "dst": dst_leaf}
+            if isinstance(tr.guard, Boundary) and t_cross is not None:
+                data.update(boundary=tr.guard.name, t_cross=t_cross, g=self.g_now[tr.guard.name])
+            prefix = f"{self.tag}: " if self.tag else ""
+            text = f"{'.'.join(old)} -> {'.'.join(new)}: {tr.label}"  # dotted paths: avoid.clear
+            events.emit(t, self.name, "mode", prefix + text, **data)
+        self.mode, self.entered_t = dst_leaf, t
+        for m in new[common:]:
+            if self._tree[m][0].entry:
+                self._tree[m][0].entry(t)
+
+    def _check_invariant(self, t: float, x: Any, events: EventLog | None) -> None:
+        for m in self.path():
+            inv = self._tree[m][0].invariant
+            if inv is None:
+                continue
+            ok = inv.holds(inv.value(x)) if isinstance(inv, Boundary) else bool(inv(x))
+            if not ok:
+                self.invariant_violations += 1
+                if events is not None:
+                    prefix = f"{self.tag}: " if self.tag else ""
+                    events.emit(t, self.name, "invariant", f"{prefix}{m}: invariant violated",
+                                **self.event_data, mode=m)
+

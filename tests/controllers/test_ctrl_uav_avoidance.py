@@ -13,7 +13,7 @@ from corridor.run import build
 from corridor.scenario import validate
 
 
-def scenario(controller: str, loss_p: float, duration: float = 4.0) -> Any:
+def scenario(controller: str, loss_p: float, duration: float = 4.0, params: dict[str, Any] | None = None) -> Any:
     """Two quads 70 m apart flying head-on (goals swapped) and a c172x passing 1 km away."""
     return validate({
         "name": "t", "duration": duration, "dt": 0.1,
@@ -27,7 +27,7 @@ def scenario(controller: str, loss_p: float, duration: float = 4.0) -> Any:
                  "role": "piloted"}]}},
             "link": {"type": "mavlink_link", "params": {"channel": "m"}},
         },
-        "controllers": {"avoid": {"type": controller, "period": 0.2}},
+        "controllers": {"avoid": {"type": controller, "period": 0.2, "params": params or {}}},
         "monitors": {"sep": {"type": "uav_separation"}},
     }, "test")
 
@@ -161,3 +161,22 @@ def test_relevance_range_covers_everything_the_method_reacts_to(controller: str,
             assert len(method._relevant(near, v_ego)) == 1
     for c in sim.ctx.components.values():
         c.close()
+
+
+def test_avoid_enter_boundary_gates_the_method_and_locates_its_crossing(tmp_path: Path) -> None:
+    """With the default probe (10 km) a UAV enters ``avoid`` at its first track; with
+    ``avoid_enter.dist_m`` 55 m and no look-ahead it stays in ``mission`` (the field sees nobody) until
+    the head-on pair, 70 m apart and closing at ~12 m/s, is within 55 m; the crossing is located
+    between two decisions."""
+    def first_avoid(params: dict[str, Any] | None) -> Any:
+        sim = build(scenario("potential_field", 0.0, 3.0, params), 0, tmp_path)
+        sim.run()
+        return [e for e in sim.ctx.events.of_kind("mode") if e.data["uav"] == "a" and e.data["src"] == "mission"][0]
+
+    default = first_avoid(None)
+    late = first_avoid({"boundaries": {"avoid_enter": {"ttc_s": 0.0, "dist_m": 55.0},
+                                       "avoid_exit": {"ttc_s": 0.0, "dist_m": 55.0}}})
+    assert default.data["boundary"] == late.data["boundary"] == "avoid_enter"
+    assert "mission -> avoid.clear" in late.message
+    assert late.t > default.t + 0.5
+    assert late.t - 0.2 - 1e-9 <= late.data["t_cross"] < late.t
