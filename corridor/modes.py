@@ -149,6 +149,9 @@ class HybridAutomaton:
         self.g_now: dict[str, float] = {}  # the boundaries evaluated at the last update
         self.invariant_violations = 0
         self._t_last = t
+        # boundary name -> outcome decided from outside (a learning agent's action): the guard takes it
+        # instead of the sign of g (g is still evaluated and logged)
+        self.decided: dict[str, bool] = {}
 
     def time_in_mode(self, t: float) -> float:
         """Seconds spent in the current mode at time ``t`` [s]."""
@@ -159,7 +162,8 @@ class HybridAutomaton:
         if not isinstance(tr.guard, Boundary):
             return bool(tr.guard(x)), None
         g = self.g_now[tr.guard.name]
-        fires = tr.guard.holds(g) and (tr.when is None or bool(tr.when(x)))
+        holds = self.decided.get(tr.guard.name, tr.guard.holds(g))
+        fires = holds and (tr.when is None or bool(tr.when(x)))
         t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
         t_cross = crossing_time(t_prev, g_prev, t, g) if not tr.guard.holds(g_prev) else t
         return fires, t_cross
