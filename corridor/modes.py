@@ -31,6 +31,9 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
 from corridor.events import EventLog
 
 Guard = Callable[[Any], bool]
@@ -81,6 +84,22 @@ class Transition:
     when: Guard | None = None  # a discrete condition ANDed with a boundary guard (never located)
 
 
+class SwitchingParams(BaseModel):
+    """Boundary-localised stochastic switching (Grudic & Ungar's BLRL policy), off by default.
+
+    With a ``temperature`` T, a boundary whose value is within ``band`` x T of zero holds with
+    probability sigma(g / T) (a Bernoulli draw, once per boundary and time); farther away its sign
+    decides as usual.  Each draw is a ``switch_draw`` event carrying its score-function gradient
+    d log pi(a) / d theta_k = (a - p) / T x dg/d theta_k (dg/d theta by central differences), which the
+    run sums into its row (``blrl.score.<component>.<boundary>.<param>``) for the learner.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    temperature: float | None = Field(None, gt=0.0)  # T in units of g; None: deterministic switching
+    band: float = Field(4.0, gt=0.0)  # stochastic only where |g| < band x T (sigma(4) = 0.982)
+
+
 def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
     """Linear interpolation of the zero of g between (t0, g0 < 0) and (t1, g1 >= 0) [s]."""
     if not (math.isfinite(g0) and math.isfinite(g1)) or g1 == g0:
@@ -101,8 +120,13 @@ class HybridAutomaton:
     """Hierarchical modes with guarded transitions; records each jump (and located crossing) as an event."""
 
     def __init__(self, name: str, modes: Iterable[str | Mode], initial: str,
-                 transitions: Sequence[Transition], tag: str = "", **event_data: Any) -> None:
+                 transitions: Sequence[Transition], tag: str = "", switching: SwitchingParams | None = None,
+                 rng: np.random.Generator | None = None, **event_data: Any) -> None:
         self.name = name
+        self.switching = switching if switching is not None and switching.temperature is not None else None
+        if self.switching is not None and rng is None:
+            raise ValueError(f"{name}: stochastic switching needs a random generator")
+        self.rng = rng
         self.tag = tag  # prefix of the event messages (e.g. the governed vehicle's id)
         self.event_data = event_data  # added to every event's data (e.g. uav="uav_0")
         self._tree: dict[str, tuple[Mode, str | None]] = {}
@@ -152,6 +176,8 @@ class HybridAutomaton:
         # boundary name -> outcome decided from outside (a learning agent's action): the guard takes it
         # instead of the sign of g (g is still evaluated and logged)
         self.decided: dict[str, bool] = {}
+        self._drawn: dict[str, tuple[float, bool]] = {}  # boundary -> (t, outcome) of its last draw
+        self.pending_draws: list[dict[str, Any]] = []
 
     def time_in_mode(self, t: float) -> float:
         """Seconds spent in the current mode at time ``t`` [s]."""
@@ -162,11 +188,38 @@ class HybridAutomaton:
         if not isinstance(tr.guard, Boundary):
             return bool(tr.guard(x)), None
         g = self.g_now[tr.guard.name]
-        holds = self.decided.get(tr.guard.name, tr.guard.holds(g))
+        holds = self.decided.get(tr.guard.name)
+        if holds is None:
+            holds = self._draw(tr.guard, t, g, x) if self._near(g) else tr.guard.holds(g)
         fires = holds and (tr.when is None or bool(tr.when(x)))
         t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
         t_cross = crossing_time(t_prev, g_prev, t, g) if not tr.guard.holds(g_prev) else t
         return fires, t_cross
+
+    def _near(self, g: float) -> bool:
+        sw = self.switching
+        return sw is not None and math.isfinite(g) and abs(g) < sw.band * sw.temperature  # type: ignore[operator]
+
+    def _draw(self, b: Boundary, t: float, g: float, x: Any) -> bool:
+        """The stochastic switch near boundary ``b`` (one draw per boundary and time)."""
+        last = self._drawn.get(b.name)
+        if last is not None and last[0] == t:
+            return last[1]
+        temp = float(self.switching.temperature)  # type: ignore[union-attr, arg-type]
+        p = 1.0 / (1.0 + math.exp(-g / temp))
+        a = bool(self.rng.random() < p)  # type: ignore[union-attr]
+        self._drawn[b.name] = (t, a)
+        score = {k: (float(a) - p) / temp * self._dg(b, x, k) for k in b.theta}
+        self.pending_draws.append({"boundary": b.name, "a": a, "p": p, "g": g, "score": score})
+        return a
+
+    @staticmethod
+    def _dg(b: Boundary, x: Any, key: str) -> float:
+        """dg/d theta_key by a central difference (step 1e-4 of the parameter's size)."""
+        h = 1e-4 * max(abs(float(b.theta[key])), 1.0)
+        up, down = dict(b.theta), dict(b.theta)
+        up[key], down[key] = float(b.theta[key]) + h, float(b.theta[key]) - h
+        return (float(b.fn(x, up)) - float(b.fn(x, down))) / (2.0 * h)
 
     def _evaluate(self, t: float, x: Any) -> None:
         """Evaluate g of every boundary leaving the active path, remembered for the next crossing location."""
@@ -181,6 +234,16 @@ class HybridAutomaton:
     def update(self, t: float, x: Any, events: EventLog | None = None) -> tuple[str, Any]:
         """Take at most one transition whose guard holds; return (mode, possibly reset state)."""
         self._evaluate(t, x)
+        self.pending_draws = []
+        try:
+            return self._update(t, x, events)
+        finally:
+            if events is not None:
+                for d in self.pending_draws:
+                    events.emit(t, self.name, "switch_draw", f"{d['boundary']}: {int(d['a'])} (p {d['p']:.3f})",
+                                **self.event_data, **d)
+
+    def _update(self, t: float, x: Any, events: EventLog | None) -> tuple[str, Any]:
         for m in self.path():  # outermost first: a mode's own jump pre-empts its sub-modes'
             for tr in self._out[m]:
                 fires, t_cross = self._guard(tr, t, x)

@@ -43,6 +43,7 @@ from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.controllers.uav.switching import SwitchState, UavBoundaries, uav_automaton
 from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.modes import SwitchingParams
 from corridor.vehicles.air.autopilot import VelocityCommand
 from corridor.vehicles.air.backend import AirBackend, AircraftCommand, air_rows
 from corridor.vehicles.mavlink.air_link import AirLink, Relevance
@@ -76,6 +77,8 @@ class UavAvoidanceParams(BaseModel):
     control_tube: ControlTubeParams = Field(default_factory=ControlTubeParams)
     # when the method is shown the intruders (see controllers.uav.switching; defaults: always)
     boundaries: UavBoundaries = Field(default_factory=UavBoundaries)
+    # stochastic switching near the boundaries (run_scenario --learn --method blrl); default deterministic
+    switching: SwitchingParams = Field(default_factory=SwitchingParams)
 
 
 def patrol_target(angle_rad: float, a0: float, a1: float, direction: float, lookahead_rad: float,
@@ -132,7 +135,8 @@ class _UavController(Controller):
             self.mode[uid] = "cruise"
             self.deflecting[uid] = False
             if self.uses_link:
-                self.automata[uid] = uav_automaton(self.name, uid, self.params.boundaries)
+                self.automata[uid] = uav_automaton(self.name, uid, self.params.boundaries, self.params.switching,
+                                                   ctx.rng(f"{self.name}.switching.{uid}"))
         self.uav_ids = list(ids)
         self.patrol = self._patrol_sectors()
         self.patrol_dir = {uid: 1.0 for uid in self.patrol}

@@ -31,7 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.uav.models import AvoidanceObservation
-from corridor.modes import Boundary, HybridAutomaton, Mode, Transition
+from corridor.modes import Boundary, HybridAutomaton, Mode, SwitchingParams, Transition
 
 MODES = ("mission", "avoid", "clear", "deflect", "return")
 
@@ -103,7 +103,8 @@ def course_margin(x: SwitchState, theta: dict[str, float]) -> float:
     return float(v @ e / (nv * ne)) - float(np.cos(np.radians(theta["heading_deg"])))
 
 
-def uav_automaton(name: str, uid: str, b: UavBoundaries) -> HybridAutomaton:
+def uav_automaton(name: str, uid: str, b: UavBoundaries, switching: SwitchingParams | None = None,
+                  rng: np.random.Generator | None = None) -> HybridAutomaton:
     """The mission/avoid/return automaton of UAV ``uid`` with boundaries ``b``."""
     enter = Boundary("avoid_enter", threat_margin, b.avoid_enter.model_dump())
     modes = [Mode("mission"), Mode("avoid", children=(Mode("clear"), Mode("deflect"))), Mode("return")]
@@ -116,4 +117,4 @@ def uav_automaton(name: str, uid: str, b: UavBoundaries) -> HybridAutomaton:
         Transition("clear", "deflect", lambda x: x.deflecting, "method deflects"),
         Transition("deflect", "clear", lambda x: not x.deflecting, "method on goal course"),
     ]
-    return HybridAutomaton(name, modes, "mission", transitions, tag=uid, uav=uid)
+    return HybridAutomaton(name, modes, "mission", transitions, tag=uid, switching=switching, rng=rng, uav=uid)
