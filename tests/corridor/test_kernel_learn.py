@@ -82,3 +82,26 @@ def test_bad_learn_input_is_one_line_exit_2_before_any_folder(
     err = capsys.readouterr().err.strip()
     assert says in err and len(err.splitlines()) == 1
     assert not out.exists()
+
+
+def test_learn_cma_end_to_end_writes_a_rerunnable_learned_yaml(tmp_path: Path) -> None:
+    """Short runs (the encounter is not reached: the objective is flat), but every piece runs: stages
+    through the batch executor, the held-out comparison, learn.json, learned.yaml that loads with the
+    learned theta, and --resume reading the finished runs back to the same result."""
+    import json
+
+    from corridor.scenario import load
+
+    out = tmp_path / "learn"
+    args = [*LEARN[:3], "--method", "cma", "--quiet", "--learn", "avoid_enter.dist_m", "--objective",
+            "-path_ratio_mean", "--constraint", "nmac == 0", "--budget", "12", "--holdout", "2",
+            "--set", "duration=3", "--workers", "2", "--out", str(out)]
+    assert main(args) == 0
+    data = json.loads((out / "learn.json").read_text())
+    assert data["training_runs"] == 12 and len(data["curve"]) == 2 and data["holdout"]["runs"] == 2
+    key = "controllers.avoid.params.boundaries.avoid_enter.dist_m"
+    assert data["theta0"][key] == 10000.0
+    sc, raw = load(out / "learned.yaml")
+    assert raw["controllers"]["avoid"]["params"]["boundaries"]["avoid_enter"]["dist_m"] == pytest.approx(data["theta"][key])
+    assert main([*args, "--resume"]) == 0
+    assert json.loads((out / "learn.json").read_text())["theta"] == data["theta"]
