@@ -269,6 +269,8 @@ class HybridAutomaton:
                 data.update(boundary=tr.guard.name, t_cross=t_cross, g=self.g_now[tr.guard.name])
             prefix = f"{self.tag}: " if self.tag else ""
             text = f"{'.'.join(old)} -> {'.'.join(new)}: {tr.label}"  # dotted paths: avoid.clear
+            if "boundary" in data:
+                text += f" ({data['boundary']} crossed at {data['t_cross']:.2f} s)"
             events.emit(t, self.name, "mode", prefix + text, **data)
         self.mode, self.entered_t = dst_leaf, t
         for m in new[common:]:

@@ -120,6 +120,7 @@ class _UavController(Controller):
         self.cruise: dict[str, float] = {}
         self.mode: dict[str, str] = {}
         self.automata: dict[str, Any] = {}
+        self.last_pos: dict[str, np.ndarray] = {}  # [m] ENU at the last decision (the overlays)
         self.deflecting: dict[str, bool] = {}
         self.avoid_decisions = 0
         self.decisions = 0
@@ -201,6 +202,7 @@ class _UavController(Controller):
                 out[uid] = o
                 continue
             ha.update(o.t, SwitchState(o, self.deflecting[uid]), self.events)
+            self.last_pos[uid] = o.own_pos
             out[uid] = o if ha.in_mode("avoid") or not o.others else replace(o, others=())
         return out
 
@@ -219,6 +221,19 @@ class _UavController(Controller):
             v = self.fence(o.own_pos, v)
             out.append(AircraftCommand(uid, VelocityCommand(tuple(float(x) for x in v))))
         return out
+
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """What a recorder may draw: the ``avoid_enter`` range (``dist_m``) around each UAV, as a ground
+        circle, per mode (``mission`` / ``avoid`` / ``return``); ranges over 2 km are not drawn."""
+        r = self.params.boundaries.avoid_enter.dist_m
+        if r > 2000.0 or not self.last_pos:
+            return {}
+        a = np.linspace(0.0, 2.0 * np.pi, 49)
+        ring = r * np.column_stack([np.cos(a), np.sin(a)])
+        out: dict[str, list[np.ndarray]] = {}
+        for uid, pos in self.last_pos.items():
+            out.setdefault(self.automata[uid].path()[0], []).append(ring + pos[:2])
+        return {f"boundaries/avoid_enter/{mode}": ("lines", rings) for mode, rings in out.items()}
 
     def fence(self, pos: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Vertical geofence: climb/descent limited to k x the distance to the ceiling/floor, so the

@@ -180,3 +180,15 @@ def test_avoid_enter_boundary_gates_the_method_and_locates_its_crossing(tmp_path
     assert "mission -> avoid.clear" in late.message
     assert late.t > default.t + 0.5
     assert late.t - 0.2 - 1e-9 <= late.data["t_cross"] < late.t
+
+
+def test_rerun_overlay_draws_the_avoid_enter_range_per_mode(tmp_path: Path) -> None:
+    sim = build(scenario("potential_field", 0.0, 1.0, {"boundaries": {"avoid_enter": {"ttc_s": 0.0, "dist_m": 55.0}}}),
+                0, tmp_path)
+    sim.run()
+    ctrl = sim.ctx.components["avoid"]
+    layers = ctrl.overlays()
+    rings = [q for _, (kind, data) in layers.items() for q in data]
+    assert set(layers) == {"boundaries/avoid_enter/mission"} and len(rings) == 2  # 70 m apart: both in mission
+    for uid, q in zip(sorted(ctrl.last_pos), rings, strict=True):
+        np.testing.assert_allclose(np.linalg.norm(q - ctrl.last_pos[uid][:2], axis=1), 55.0)
