@@ -193,7 +193,8 @@ class HybridAutomaton:
             holds = self._draw(tr.guard, t, g, x) if self._near(g) else tr.guard.holds(g)
         fires = holds and (tr.when is None or bool(tr.when(x)))
         t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
-        t_cross = crossing_time(t_prev, g_prev, t, g) if not tr.guard.holds(g_prev) else t
+        crossed = tr.guard.holds(g) and not tr.guard.holds(g_prev)  # a stochastic switch may fire before g = 0
+        t_cross = crossing_time(t_prev, g_prev, t, g) if crossed else t
         return fires, t_cross
 
     def _near(self, g: float) -> bool:

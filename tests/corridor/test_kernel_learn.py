@@ -105,3 +105,17 @@ def test_learn_cma_end_to_end_writes_a_rerunnable_learned_yaml(tmp_path: Path) -
     assert raw["controllers"]["avoid"]["params"]["boundaries"]["avoid_enter"]["dist_m"] == pytest.approx(data["theta"][key])
     assert main([*args, "--resume"]) == 0
     assert json.loads((out / "learn.json").read_text())["theta"] == data["theta"]
+
+
+def test_a_stochastic_switch_before_the_crossing_is_logged_at_its_own_time() -> None:
+    """g = -0.5 (deterministic, no switch) then -0.03: a switch drawn there is not a crossing (g has not
+    reached 0), so t_cross is the jump's own time, not an extrapolation past it."""
+    for seed in range(50):
+        ha, ev = _automaton(0.05, seed), EventLog()
+        ha.update(0.0, 150.0, ev)
+        ha.update(0.1, 103.0, ev)
+        if ha.mode == "avoid":
+            (jump,) = ev.of_kind("mode")
+            assert jump.data["t_cross"] == jump.t == 0.1 and jump.data["g"] < 0
+            return
+    raise AssertionError("no seed switched")
