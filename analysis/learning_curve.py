@@ -32,17 +32,19 @@ def figure(folders: list[Path]) -> Figure:
     for folder in folders:
         data = json.loads((Path(folder) / "learn.json").read_text())
         runs, mean, lo, hi, viol = _curve(data)
-        line = ax.plot(runs, mean, marker="o", label=f"{data['method']} (training stages)")[0]
+        start = ", ".join(f"{k.rsplit('.', 1)[-1]} {v:g}" for k, v in data.get("theta0", {}).items())
+        name = f"{data['method']} from {start}" if start else data["method"]
+        line = ax.plot(runs, mean, marker="o", label=f"{name} (training stages)")[0]
         ax.fill_between(runs, lo, hi, alpha=0.2, color=line.get_color())
         h = data.get("holdout") or {}
         if h:
             for key, style in (("hand_tuned", "s"), ("learned", "*")):
                 ax.plot([runs[-1] + 2], [h[key]["objective_mean"]], style, color=line.get_color(), markersize=9,
-                        label=f"{data['method']} held-out {key.replace('_', '-')} ({h['runs']} seeds)")
+                        label=f"{name}: held-out {key.replace('_', '-')} ({h['runs']} seeds)")
         ax2.bar(runs, viol, width=2.0, alpha=0.6, color=line.get_color())
     ax.set_ylabel(f"objective: {data['objective']}")
     ax.set_title(f"{data['scenario']} [{data['variant']}]: learning {', '.join(k.split('boundaries.')[-1] for k in data['keys'])}")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6, framealpha=0.7)
     ax2.set_ylabel("violating runs")
     ax2.set_xlabel("training runs")
     return fig
