@@ -267,11 +267,10 @@ class HybridAutomaton:
         if events is not None:
             data: dict[str, Any] = {**self.event_data, "src": src_leaf, "dst": dst_leaf}
             if isinstance(tr.guard, Boundary) and t_cross is not None:
-                data.update(boundary=tr.guard.name, t_cross=t_cross, g=self.g_now[tr.guard.name])
+                data.update(boundary=tr.guard.name, t_cross=t_cross, g=self.g_now[tr.guard.name],
+                            located=t_cross != t)  # False: g was already past 0 (a `when` or a draw fired)
             prefix = f"{self.tag}: " if self.tag else ""
             text = f"{'.'.join(old)} -> {'.'.join(new)}: {tr.label}"  # dotted paths: avoid.clear
-            if "boundary" in data:
-                text += f" ({data['boundary']} crossed at {data['t_cross']:.2f} s)"
             events.emit(t, self.name, "mode", prefix + text, **data)
         self.mode, self.entered_t = dst_leaf, t
         for m in new[common:]:

@@ -176,7 +176,7 @@ def test_avoid_enter_boundary_gates_the_method_and_locates_its_crossing(tmp_path
     default = first_avoid(None)
     late = first_avoid({"boundaries": {"avoid_enter": {"ttc_s": 0.0, "dist_m": 55.0},
                                        "avoid_exit": {"ttc_s": 0.0, "dist_m": 55.0}}})
-    assert default.data["boundary"] == late.data["boundary"] == "avoid_enter"
+    assert default.data["boundary"] == late.data["boundary"] == "avoid_enter" and late.data["located"]
     assert "mission -> avoid.clear" in late.message
     assert late.t > default.t + 0.5
     assert late.t - 0.2 - 1e-9 <= late.data["t_cross"] < late.t
