@@ -1,6 +1,6 @@
 # Two commands do all the set-up on a fresh machine:
 #   make run    creates .venv, installs corridor, runs the default batch (scenarios/merging.yaml)
-#   make test   creates .venv, installs corridor[dev], runs ruff, the import contracts and the test suite
+#   make test   creates .venv, installs corridor[dev], runs ruff, the import contracts, mypy and the test suite
 #               (tests/docs builds the documentation site strictly and runs the docs' runnable blocks)
 PY ?= python3
 VENV := .venv
@@ -33,14 +33,17 @@ chromium:
 test: $(DEV_STAMP) chromium
 	$(BIN)/ruff check .
 	$(BIN)/python tools/lint_imports.py
+	$(BIN)/mypy
 	$(BIN)/pytest -q -n 2
 
 test-all: $(DEV_STAMP) chromium
 	$(BIN)/pytest -q -n 2 -m ''
 
+# ruff, the import contracts (and no kernel import cycle), mypy (strict on the kernel: [tool.mypy])
 lint: $(DEV_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/python tools/lint_imports.py
+	$(BIN)/mypy
 
 # make bench: every benchmark in benchmarks/, short settings, under 10 minutes on 2 cores (one command a line)
 bench: $(STAMP)

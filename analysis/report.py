@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import html
 import math
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +35,7 @@ from scipy.stats import t as student_t
 from corridor.analysis.glossary import glossary_section, safety_event_columns, units_of
 from corridor.analysis.plots import box_or_points, figure, svg
 from corridor.analysis.stats import clopper_pearson, mean_ci
+from corridor.reports import report_sections
 from corridor.traffic.sumo.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
 from corridor.variants import component_class as _component_class
@@ -419,13 +419,8 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     return path
 
 
-SECTIONS_GROUP = "corridor.report_sections"  # entry points: fn(out_dir, df, scenario, scenario_path) -> [html]
-
-
 def write_batch_report(df: pd.DataFrame, scenario: Any, out_dir: Path, scenario_path: Path | str | None) -> Path:
     """The ``html`` entry of ``corridor.reports``: ``report.html`` with the sections of every
     ``corridor.report_sections`` entry point (in the order of their names) after the distributions."""
-    sections: list[str] = []
-    for ep in sorted(entry_points(group=SECTIONS_GROUP), key=lambda e: e.name):
-        sections += ep.load()(out_dir, df, scenario, scenario_path)
+    sections = report_sections(out_dir, df, scenario, scenario_path)
     return write_report(df, scenario, Path(out_dir) / "report.html", extra_sections=sections)

@@ -68,8 +68,7 @@ def run(scenario: str | Path = "merging", *, runs: int = 1, seed: int | None = N
     checked (one-line ``CorridorError``) before the folder is created or touched.
     """
     from corridor import batch
-    from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, file_stamps, load_with_files, set_overrides
+    from corridor.scenario import MAX_SEED, file_stamps, load_with_files, resolve_scenario, set_overrides
 
     check_options(runs=runs, seed=seed, sets=sets, variants=variants, executor=executor, workers=workers)
     path = resolve_scenario(str(scenario))

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from corridor import __version__
-from corridor.errors import CorridorError, clip
+from corridor.errors import CorridorError, clip_path
 
 MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
@@ -215,6 +215,6 @@ def _check(out: Path, manifest: dict[str, Any], resume: bool, overwrite: bool) -
     old_files, new_files = old.get("files", {}), manifest.get("files", {})
     if old_files != new_files:
         changed = sorted(f for f in old_files.keys() | new_files.keys() if old_files.get(f) != new_files.get(f))
-        raise CorridorError(f"--resume {out}: {clip(changed[0], 80)} changed since the batch started "
+        raise CorridorError(f"--resume {out}: {clip_path(changed[0], 80)} changed since the batch started "
                             "(size or modification time); rows would mix versions: use --overwrite or another --out")
     return True

@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple, TypeGuard, cast
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -309,12 +309,13 @@ class Channel:
         """
         orig = list(messages)
         # per entry, the receivers of its messages (None: a broadcast); a multicast is one message per receiver
-        dsts = [m[3] if _is_multi(m[3]) else (m[3],) for m in orig]
+        dsts = [_receivers(m[3]) for m in orig]
         group = np.repeat(np.arange(len(orig)), [len(d) for d in dsts])  # the entry of each message
         if not isinstance(self.cfg.loss, BernoulliLoss):
             sent = [self.send(t_s, src, payload, src_pos=pos, dst=d)
                     for (src, payload, pos, _), ds in zip(orig, dsts, strict=True) for d in ds]
-            return np.bincount(group, weights=sent, minlength=len(orig)).astype(int).tolist()
+            totals: list[int] = np.bincount(group, weights=sent, minlength=len(orig)).astype(int).tolist()
+            return totals
         if not group.size:
             return [0] * len(orig)
         self._refresh_receivers()
@@ -326,7 +327,7 @@ class Channel:
         if None in flat:
             msg, counts, dst_idx, in_range = self._copies_mixed(src_idx, p_src, flat)
         else:
-            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, flat)
+            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
         n = len(msg)
         # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
         u = self._rng.random(2 * n)
@@ -425,7 +426,8 @@ class Channel:
         if p_src is None:
             return np.ones(len(dst_pos), dtype=bool)
         d2 = np.sum((dst_pos - p_src) ** 2, axis=1)
-        return np.isnan(d2) | (d2 <= self.cfg.range_m**2)
+        near: np.ndarray = np.isnan(d2) | (d2 <= self.cfg.range_m**2)
+        return near
 
     def _draw_loss(
         self, src_idx: int, dst_idx: np.ndarray, in_range: np.ndarray, u: np.ndarray
@@ -499,7 +501,7 @@ class Channel:
         live = self._attached[dst]
         due = (t_recv <= t_s + _T_EPS_S) & live
         rest = ~due & live
-        starts = np.cumsum(sizes) - sizes
+        starts: np.ndarray = np.cumsum(sizes) - sizes
         n_due = np.add.reduceat(due, starts).tolist()
         n_rest = np.add.reduceat(rest, starts).tolist()
         due_batches: list[_Batch] = []
@@ -636,9 +638,14 @@ class Channel:
         self._recv_dirty = False
 
 
-def _is_multi(dst: object) -> bool:
+def _is_multi(dst: object) -> TypeGuard[Sequence[str]]:
     """A multicast destination: a sequence of receiver names (a plain name is a unicast)."""
     return isinstance(dst, list | tuple)
+
+
+def _receivers(dst: str | Sequence[str] | None) -> Sequence[str | None]:
+    """The receivers of one ``send_many`` entry: a multicast's names, else the one (``None``: broadcast)."""
+    return dst if _is_multi(dst) else (cast(str | None, dst),)
 
 
 def _rows3(points: list[Any]) -> np.ndarray:

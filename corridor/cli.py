@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
 from corridor.errors import CorridorError
 
@@ -157,32 +156,6 @@ def _check_learn(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
         p.error("--learn KEYS needs --objective EXPR and --method blrl|cma")
     if args.runs != 1 or args.rerun:
         p.error("--runs and --rerun do not apply to --learn (the method chooses the runs)")
-
-
-def resolve_scenario(name: str) -> Path:
-    path = Path(name)
-    try:
-        exists = path.exists()
-    except OSError:  # e.g. a name too long for the file system
-        exists = False
-    if exists or path.suffix in (".yaml", ".yml"):
-        return path
-    dirs = [Path(__file__).resolve().parent.parent / "scenarios"]
-    try:
-        import corridor.scenarios as pkg  # installed wheel: scenarios ship as package data
-
-        dirs += [Path(p) for p in pkg.__path__]
-    except ImportError:
-        pass
-    if len(name) <= 64 and name.replace("_", "").replace("-", "").isalnum():  # a bare name, not a path
-        for d in dirs:
-            if (d / f"{name}.yaml").is_file():
-                return d / f"{name}.yaml"
-    from corridor.errors import ScenarioError, clip
-
-    names = sorted({p.stem for d in dirs if d.is_dir() for p in d.glob("*.yaml")})
-    raise ScenarioError(f"{clip(name)}: no such file, and no packaged scenario of that name "
-                        f"(packaged: {', '.join(names)})")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -57,7 +57,7 @@ def relative_output_path(text: str) -> str:
     return text
 
 
-def path_inside(root: str | Path, rel: str | Path) -> Path:
+def path_inside(root: str | Path, rel: str | PurePath) -> Path:
     """``root / rel`` resolved (symlinks followed), refused unless it lies inside ``root``."""
     base = Path(root).resolve()
     out = (base / rel).resolve()
@@ -134,15 +134,15 @@ class RunContext:
         Raises:
             ValueError: the path would leave the folder (``..``, an absolute path, a symlink pointing out).
         """
-        rel = PurePath(relative_output_path(str(rel)))
+        target = PurePath(relative_output_path(str(rel)))
         if per_run:
-            rel = rel.with_name(f"{rel.stem}-{self.run_id}{rel.suffix}")
+            target = target.with_name(f"{target.stem}-{self.run_id}{target.suffix}")
         root = self.out_dir if self.out_dir is not None else self.workdir
         if root is None:
-            raise ValueError(f"no output folder for {str(rel)!r}")
-        out = path_inside(root, rel)
+            raise ValueError(f"no output folder for {str(target)!r}")
+        out = path_inside(root, target)
         out.parent.mkdir(parents=True, exist_ok=True)
-        return path_inside(root, rel)  # again after mkdir: a symlinked folder cannot lead out
+        return path_inside(root, target)  # again after mkdir: a symlinked folder cannot lead out
 
     def rng(self, name: str) -> np.random.Generator:
         """An independent generator per subsystem, derived from the run seed and the name only.
@@ -452,7 +452,8 @@ class Simulation:
             peer = getattr(c, attr)
             if peer is None:
                 raise ValueError(f"{c.name}: period_source {src!r}: no such peer in this run")
-            return peer.period
+            period: float = peer.period
+            return period
         return float(attr_path(c, src))
 
     def _ticks_per_period(self, c: Component) -> int:

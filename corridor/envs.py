@@ -80,11 +80,12 @@ class _Episode:
             self.sim = build(sc, seed, Path(self._tmp.name))
         self.sim.start()
         self.ctrl = self.sim.ctx.components[self.controller]
-        automata = getattr(self.ctrl, "automata", None)
+        automata: dict[str, Any] | None = getattr(self.ctrl, "automata", None)
         if not automata:
             raise CorridorError(f"controller {self.controller!r} ({type(self.ctrl).__name__}) has no agents with "
                                 "modes to decide (choose a variant whose controller has boundaries)")
         self.agents = sorted(automata)
+        self.automata = automata
         for ha in automata.values():
             if not set(self.switch) <= set(ha.boundaries):
                 raise CorridorError(f"switch {self.switch}: boundaries of {ha.name} are {sorted(ha.boundaries)}")
@@ -95,7 +96,7 @@ class _Episode:
     def decide(self, actions: dict[str, int]) -> None:
         enter, leave = self.switch
         for agent, a in actions.items():
-            self.ctrl.automata[agent].decided = {enter: bool(a), leave: not bool(a)}
+            self.automata[agent].decided = {enter: bool(a), leave: not bool(a)}
 
     def advance(self) -> tuple[bool, dict[str, Any]]:
         """One decision period; (ended, the row's metrics when it ended)."""
@@ -161,7 +162,7 @@ class CorridorEnv(gym.Env):
         self.observation_space = _observation_space(n_nearest)
         self.action_space = spaces.Discrete(2)
 
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         run_seed = seed if seed is not None else int(self.np_random.integers(2**31 - 1))
         self.episode.start(run_seed)
@@ -171,7 +172,7 @@ class CorridorEnv(gym.Env):
         self._agent = agent
         return self.episode.observe(agent), {"seed": run_seed, "agent": agent}
 
-    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict]:
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         self.episode.decide({self._agent: int(action)})
         obs = self.episode.observe(self._agent)
         ended, metrics = self.episode.advance()
@@ -188,7 +189,7 @@ def parallel_env(**kwargs: Any) -> Any:
     return CorridorParallelEnv(**kwargs)
 
 
-class CorridorParallelEnv(ParallelEnv):
+class CorridorParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has no type information
     """PettingZoo parallel API over the same episodes; all agents share the run's terminal reward."""
 
     metadata: dict[str, Any] = {"render_modes": [], "name": "corridor_parallel_v0"}
@@ -211,13 +212,13 @@ class CorridorParallelEnv(ParallelEnv):
     def action_space(self, agent: str) -> spaces.Discrete:
         return self._act_space
 
-    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict, dict]:
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, np.ndarray], dict[str, dict[str, Any]]]:
         run_seed = seed if seed is not None else int(np.random.default_rng().integers(2**31 - 1))
         self.episode.start(run_seed)
         self.agents = list(self.possible_agents)
         return {a: self.episode.observe(a) for a in self.agents}, {a: {"seed": run_seed} for a in self.agents}
 
-    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], dict[str, float], dict[str, bool], dict[str, bool], dict[str, Any]]:
         self.episode.decide({a: int(u) for a, u in actions.items() if a in self.agents})
         ended, metrics = self.episode.advance()
         obs = {a: self.episode.observe(a) for a in self.agents}

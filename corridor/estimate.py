@@ -18,17 +18,18 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from corridor.engine import stable_key
-from corridor.errors import CorridorError, clip
+from corridor.entrypoints import Registry
+from corridor.errors import CorridorError
 from corridor.rare_event import Event, Level, check_columns
 
 GROUP = "corridor.estimators"
+ESTIMATORS = Registry("method", GROUP)  # rare-event methods: ask/tell classes (corridor.analysis.rare)
 MAX_BUDGET = 10_000_000
 
 
@@ -60,10 +61,13 @@ class Setup:
 
 
 def method_class(name: str) -> Any:
-    eps = {ep.name: ep for ep in entry_points(group=GROUP)}
-    if name not in eps:
-        raise CorridorError(f"--method {clip(name)}: not installed (methods: naive, {', '.join(sorted(eps))})")
-    return eps[name].load()
+    """The estimator (or search) class installed as ``name`` in ``corridor.estimators``.
+
+    An unknown name is one line listing the installed methods (``naive``, the plain batch, too).
+    """
+    if name not in ESTIMATORS:
+        raise ESTIMATORS.unknown(name, ["naive", *ESTIMATORS.names()])
+    return ESTIMATORS.get(name)
 
 
 def stage_seeds(seed: int, stage: int, n: int) -> list[int]:

@@ -147,9 +147,8 @@ def resolve_keys(sc: Any, raw: dict[str, Any], variant: str, keys: str) -> tuple
 def problem(scenario: str | Path, keys: str, objective: str, constraints: Sequence[str], budget: int, method: str,
             variant: str | None, sets: Sequence[str]) -> Problem:
     """Check every input (one-line ``CorridorError``) and build the problem."""
-    from corridor.cli import resolve_scenario
     from corridor.rare_event import known_columns
-    from corridor.scenario import load, set_overrides
+    from corridor.scenario import load, resolve_scenario, set_overrides
 
     if method not in METHODS:
         raise CorridorError(f"--method {clip(str(method))}: --learn methods are {', '.join(METHODS)}")

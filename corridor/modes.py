@@ -148,7 +148,8 @@ class HybridAutomaton:
     # ---- the tree ----------------------------------------------------------------------------------
     def path(self, mode: str | None = None) -> tuple[str, ...]:
         """Outermost-first chain of modes holding ``mode`` (itself included; default the active leaf)."""
-        out, m = [], mode or self.mode
+        out: list[str] = []
+        m: str | None = mode or self.mode
         while m is not None:
             out.append(m)
             m = self._tree[m][1]
@@ -261,8 +262,9 @@ class HybridAutomaton:
         while common < min(len(old), len(new)) and old[common] == new[common] and old[common] != tr.src:
             common += 1
         for m in reversed(old[common:]):
-            if self._tree[m][0].exit:
-                self._tree[m][0].exit(t)
+            on_exit = self._tree[m][0].exit
+            if on_exit is not None:
+                on_exit(t)
         self.history.append((t, src_leaf, dst_leaf, tr.label))
         if events is not None:
             data: dict[str, Any] = {**self.event_data, "src": src_leaf, "dst": dst_leaf}
@@ -274,8 +276,9 @@ class HybridAutomaton:
             events.emit(t, self.name, "mode", prefix + text, **data)
         self.mode, self.entered_t = dst_leaf, t
         for m in new[common:]:
-            if self._tree[m][0].entry:
-                self._tree[m][0].entry(t)
+            on_entry = self._tree[m][0].entry
+            if on_entry is not None:
+                on_entry(t)
 
     def _check_invariant(self, t: float, x: Any, events: EventLog | None) -> None:
         for m in self.path():

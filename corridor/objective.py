@@ -81,7 +81,7 @@ class Expression:
         if name is not None:
             v = row.get(name, math.nan)
             return math.nan if v is None else float(v)
-        if isinstance(node, ast.Constant):
+        if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
             return float(node.value)
         if isinstance(node, ast.BinOp):
             a, b = self._eval(node.left, row), self._eval(node.right, row)

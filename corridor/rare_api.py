@@ -41,8 +41,7 @@ from corridor.scenario import set_overrides
 def _setup(scenario: str | Path, sets: Sequence[str], variant: str | None, seed: int | None, budget: int,
            out: str | Path | None, suffix: str) -> tuple[Any, dict[str, Any], Path, str, int, Path]:
     from corridor.api import _int, check_options
-    from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, load
+    from corridor.scenario import MAX_SEED, load, resolve_scenario
 
     if not 1 <= _int("budget", budget) <= MAX_BUDGET:
         raise CorridorError(f"--budget must be 1..{MAX_BUDGET} runs, got {budget}")
@@ -164,6 +163,7 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
         bad = df[df["status"] != "ok"].iloc[0]
         raise EstimateRunError(f"{len(df) - len(ok)} of {len(df)} runs failed (run {bad['run_id']}: {bad['error']}); "
                                "an estimate needs every run: fix the cause and continue with --resume")
+    assert st.event is not None  # the parsed --estimate EVENT (only a stage-driven search has none)
     for r in rows:
         r["estimate.level"], r["estimate.fail"] = st.level.of(r), st.event.fails(r)
     k, n = sum(r["estimate.fail"] for r in rows), len(rows)
@@ -212,7 +212,9 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
     settings = {"falsify": spec, "budget": budget, "seed": first, "variant": var}
     bdir = _open(sc, raw, path, out_dir, sets, settings, resume, overwrite)
     try:
-        st = Setup(sc, raw, path, out_dir, var, first, ev, ev.default_level(), after=set_overrides(sets))
+        level = ev.default_level()
+        assert level is not None  # a spec's event: its robustness is the level
+        st = Setup(sc, raw, path, out_dir, var, first, ev, level, after=set_overrides(sets))
         m = method_class("falsify")(len(sc.randomize), budget, first)
         stages = drive(st, m, "f", executor, workers, address, progress)
         rows = [r for s in stages for r in s.rows]

@@ -50,7 +50,7 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
     cls = registry.get(spec.type)
     params_model = getattr(cls, "Params", None)
     params = params_model.model_validate(spec.params) if params_model else spec.params
-    comp = cls(name, params, sc)
+    comp: Component = cls(name, params, sc)
     comp.period_override = spec.period  # resolved by the engine at build, before period_source
     return comp
 
@@ -129,7 +129,8 @@ def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = 
         path = path_inside(sig_dir, f"{run_id}.npz")  # a run id with a '/' or '..' cannot lead out
         if path.parent != sig_dir.resolve():
             raise ValueError(f"run id {run_id!r} is not a plain file name")
-        np.savez_compressed(path, **sim.ctx.signals.as_arrays())
+        arrays: dict[str, Any] = sim.ctx.signals.as_arrays()
+        np.savez_compressed(path, **arrays)
     return metrics, sim.ctx, sim.wall_s
 
 

@@ -211,17 +211,20 @@ class RoadFrame:
     @property
     def rows(self) -> np.ndarray:
         """The snapshot row indices of the road entities."""
-        return np.arange(self.offset, self.offset + len(self))
+        rows: np.ndarray = np.arange(self.offset, self.offset + len(self))
+        return rows
 
     @property
     def route(self) -> np.ndarray:
         """Route code per row."""
-        return self.tables.route[self.uid]
+        route: np.ndarray = self.tables.route[self.uid]
+        return route
 
     @property
     def connected(self) -> np.ndarray:
         """Whether each row's vehicle is connected (V2X), per row."""
-        return self.tables.connected[self.uid]
+        connected: np.ndarray = self.tables.connected[self.uid]
+        return connected
 
 
 class WorldSnapshot:
@@ -302,7 +305,8 @@ class WorldSnapshot:
     @property
     def speed(self) -> np.ndarray:
         """Horizontal speed [m/s]."""
-        return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+        speed: np.ndarray = np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+        return speed
 
     def index(self) -> dict[str, int]:
         """Map id -> row (built on demand; cheap for the sizes of a tick)."""
@@ -336,7 +340,7 @@ class WorldSnapshot:
                     raise ValueError("at most one road backend per run: two snapshot parts carry a road frame")
                 road = replace(p.road, offset=offset + p.road.offset)
             offset += len(p)
-        common = {"t": t, "ids": np.concatenate([p.ids for p in parts]),
+        common: dict[str, Any] = {"t": t, "ids": np.concatenate([p.ids for p in parts]),
                   "kind": np.concatenate([p.kind for p in parts]), "role": np.concatenate([p.role for p in parts]),
                   "size": np.concatenate([p.size for p in parts]), "road": road}
         if any(p.pending_poses() for p in parts):

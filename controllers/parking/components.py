@@ -84,7 +84,6 @@ class ParkingLotController(Controller):
         max_speed_mps: float = Field(2.0, gt=0.0)  # [m/s] planned
         max_accel_mps2: float = Field(1.0, gt=0.0)  # [m/s^2] planned
         max_steer_rate_rps: float = Field(1.0, gt=0.0)  # [rad/s] planned
-        plan_time_limit_s: float = Field(20.0, gt=0.0)  # [s] wall clock per planner call
         plan_dt_s: float = Field(0.1, gt=0.0, le=0.1)  # [s]
         cruise_mps: float = Field(2.0, gt=0.0)  # [m/s] tracking speed limit
         straighten_m: float = Field(3.0, ge=0.0)  # [m]
@@ -141,7 +140,7 @@ class ParkingLotController(Controller):
                               max_steer_rate_rps=p.max_steer_rate_rps)
         walls = np.vstack(lot.walls)  # the search area: inside the walls
         bounds = (float(walls[:, 0].min()), float(walls[:, 0].max()), float(walls[:, 1].min()), float(walls[:, 1].max()))
-        return plan(start, goal, obstacles, veh, time_limit_s=p.plan_time_limit_s, dt_s=p.plan_dt_s, bounds=bounds)
+        return plan(start, goal, obstacles, veh, dt_s=p.plan_dt_s, bounds=bounds)
 
     # ------------------------------------------------------------------ observe / step
     def goal_pose(self, lot: ParkingLot) -> np.ndarray:

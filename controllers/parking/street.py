@@ -80,7 +80,6 @@ class ParkingStreetController(Controller):
         slot_margin_m: float = Field(0.5, ge=0.0)  # [m] free length/width beyond the car's a slot needs
         max_steer_rad: float = Field(0.6, gt=0.0)  # [rad] planned
         max_speed_mps: float = Field(1.5, gt=0.0)  # [m/s] planned
-        plan_time_limit_s: float = Field(20.0, gt=0.0)  # [s]
         cruise_mps: float = Field(1.5, gt=0.0)  # [m/s] tracking speed limit
         max_replans: int = Field(20, ge=0)  # a follower may stand behind the ego until it changes lanes
         sensors: RangeSensorParams = Field(default_factory=lambda: RangeSensorParams(sides=(-1,)))
@@ -131,7 +130,7 @@ class ParkingStreetController(Controller):
         top = m.east_lane_y + (2.5 if self.perpendicular else 1.5) * m.lane_width_m + 0.25
         walls = box_polygons(np.array([[0.5 * (x0 + x1), far], [0.5 * (x0 + x1), top]]), np.zeros(2),
                              np.full(2, x1 - x0), np.full(2, 0.5))
-        return plan(start, goal, [*obstacles, *walls], veh, time_limit_s=p.plan_time_limit_s, dt_s=0.1,
+        return plan(start, goal, [*obstacles, *walls], veh, dt_s=0.1,
                     bounds=(x0, x1, far, top))
 
     def _choose(self, rear_x: float, t: float) -> None:

@@ -104,6 +104,7 @@ class MPCResult:
     solve_s: float  # wall time of the solve [s]
     fallback: bool  # True when the rates come from ALINEA
     predicted_tts: float  # TTS over the horizon predicted by the solution [veh h] (nan on fallback)
+    queue_slack_max_veh: float = math.nan  # the plan's largest ramp queue above storage [veh] (nan on fallback)
 
     @property
     def u(self) -> np.ndarray:
@@ -198,6 +199,7 @@ class RampMeteringMPC:
         self.n_fallbacks = 0
         self.n_suboptimal = 0  # limit hit, improving feasible iterate applied
         self.n_cpu_capped = 0  # solves ended by the CPU-time safety net (not by the iteration budget)
+        self.n_dual_warm_starts = 0  # solves started from the shifted multipliers (warm_start_duals)
 
     # ---- construction -------------------------------------------------------------------
     def _build(self) -> tuple[ca.Function, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -299,6 +301,27 @@ class RampMeteringMPC:
         self.solve_times_s, self.solve_cpu_s, self.iter_counts, self.n_solves, self.n_fallbacks = [], [], [], 0, 0
         self.n_suboptimal = 0  # limit hit, improving feasible iterate applied
         self.n_cpu_capped = 0
+        self.n_dual_warm_starts = 0  # solves started from the shifted multipliers (warm_start_duals)
+
+    @property
+    def warm_started(self) -> bool:
+        """The next solve starts from the previous plan shifted by one control step (False at first
+        and after a fallback, which starts from holding the inputs)."""
+        return self._warm.valid
+
+    @property
+    def prediction_model(self) -> ca.Function:
+        """The model the MPC predicts with: ``(x, u, d) -> x+`` over one model step, METANET with its
+        kinks smoothed (finite derivatives wherever the NLP's free states go)."""
+        return self._pred_f
+
+    def hold_tts(self, x0: np.ndarray, demand_forecast: np.ndarray, u_prev: np.ndarray) -> float:
+        """Predicted TTS over the horizon of holding ``u_prev`` [veh h]: the feasible plan the
+        controller could always apply, which a solution must not cost more than."""
+        x0 = np.asarray(x0, dtype=float)
+        dmat = self.forecast_matrix(demand_forecast)
+        p = np.concatenate([x0, dmat.ravel(order="F"), u_prev])
+        return float(self._tts_fun(self._hold_plan(x0, dmat, u_prev), p))
 
     def forecast_matrix(self, demand_forecast: np.ndarray) -> np.ndarray:
         """Disturbances (nd, N): a (nd,) vector is held constant, shorter (K, nd) forecasts are padded."""
@@ -361,6 +384,7 @@ class RampMeteringMPC:
         solver, warm = self._solver, self._warm
         if self.cfg.warm_start_duals and warm.valid and warm.lam_x is not None:
             solver, args["lam_x0"], args["lam_g0"] = self._warm_start_solver(), warm.lam_x, warm.lam_g
+            self.n_dual_warm_starts += 1
         set_casadi_blas_threads(self.cfg.blas_threads)
         t0, c0 = time.perf_counter(), time.process_time()
         try:
@@ -383,13 +407,14 @@ class RampMeteringMPC:
             return self._fallback(x0, dmat[:, 0], occupancy_pct, status, solve_s)
         z = sol["x"].full().ravel()
         self._store_shifted(z, sol["lam_x"].full().ravel(), sol["lam_g"].full().ravel())
-        _, r, s, _ = self.lay.split(z)
+        _, r, s, sig = self.lay.split(z)
         rates = np.clip(r[:, 0], self.cfg.rate_min, self.cfg.rate_max)
         rates_vph = rates * self.net.orig_cap_vph[self.net.metered_idx]
         for a, rv in zip(self.alineas, rates_vph):
             a.rate_vph = float(rv)  # bumpless transfer to the fallback
         return MPCResult(rates=rates, rates_vph=rates_vph, split=s[:, 0].copy(), status=status,
-                         solve_s=solve_s, fallback=False, predicted_tts=float(sol["f"]))
+                         solve_s=solve_s, fallback=False, predicted_tts=float(sol["f"]),
+                         queue_slack_max_veh=float(np.max(sig, initial=0.0)))
 
     def _usable_iterate(self, sol: dict[str, Any], x0: np.ndarray, dmat: np.ndarray, u_prev: np.ndarray,
                         p: np.ndarray) -> bool:

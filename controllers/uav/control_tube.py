@@ -144,6 +144,34 @@ def _norm(v: np.ndarray) -> np.ndarray:
     return np.sqrt(np.einsum("...d,...d->...", v, v))[..., None]
 
 
+@dataclass(frozen=True)
+class StepQP:
+    """The quadratic program of one control-tube step: minimise ``z'Hz/2 + g'z`` subject to
+    ``lba <= a z <= uba`` and ``lbx <= z <= ubx``, where ``z`` holds the planned commands
+    (``n_steps`` x 3, [m/s]) and then one tube slack per intruder [m].  The first ``n_tube_rows``
+    rows of ``a`` are the intruders' tube half-spaces, then the acceleration and speed rows."""
+
+    h: np.ndarray
+    g: np.ndarray
+    a: np.ndarray
+    lba: np.ndarray
+    uba: np.ndarray
+    lbx: np.ndarray
+    ubx: np.ndarray
+    n_intruders: int
+    n_tube_rows: int
+
+    @property
+    def tube_rows(self) -> np.ndarray:
+        """The tube half-space rows of ``a``."""
+        return self.a[: self.n_tube_rows]
+
+    @property
+    def tube_lo(self) -> np.ndarray:
+        """Their lower bounds (z must satisfy ``tube_rows @ z >= tube_lo``)."""
+        return self.lba[: self.n_tube_rows]
+
+
 class _QpStructure:
     """What does not change between steps for one intruder count: Hessian, constant rows and box
     bounds, and the CasADi solver (which keeps qpOASES' working set between calls, i.e. hot starts).
@@ -286,10 +314,12 @@ class ControlTubeAvoidance:
             lbx = np.concatenate([-ub_u, np.zeros(k)])
             ubx = np.concatenate([ub_u, np.full(k, _INF)])
             n_rows = k * len(self.pred.t) + len(fixed)
-            qp = self._qps[k] = _QpStructure(h, fixed, lbx, ubx, self._build_solver(nz, n_rows))
+            qp = self._qps[k] = _QpStructure(h, fixed, lbx, ubx, self.build_solver(nz, n_rows))
         return qp
 
-    def _build_solver(self, nz: int, n_rows: int) -> ca.Function:
+    def build_solver(self, nz: int, n_rows: int) -> ca.Function:
+        """A new CasADi conic for a dense QP of ``nz`` variables and ``n_rows`` rows, with the
+        options the controller solves with (``params.solver``: qpoases or osqp)."""
         h_sp = ca.Sparsity.dense(nz, nz)
         a_sp = ca.Sparsity.dense(n_rows, nz)
         if self.params.solver == "qpoases":
@@ -484,20 +514,46 @@ class ControlTubeAvoidance:
         u_ref = self._reference(obs, nominal) if intruders else nominal
         return _Pending(self, obs, x0, intruders, u_ref, nominal, agents)
 
+    def step_qp(self, obs: AvoidanceObservation) -> StepQP:
+        """The QP that :meth:`step` would solve for ``obs`` now, assembled in full (the step itself
+        writes only the rows that change, or skips the solver when the unconstrained minimiser is
+        feasible).  Changes no state of the controller."""
+        s = self._prepare(obs)
+        k = len(s.intruders)
+        c_rows, c_lo = _collision_rows_many([s])[0] if k else (np.zeros((0, self.n_u)), np.zeros(0))
+        g, a_lo, a_hi = self._objective(s)
+        qp = self._qp(k)
+        lba, uba = self._row_bounds(c_lo, a_lo, a_hi)
+        return StepQP(qp.h.copy(), g, np.vstack([c_rows, qp.fixed]), lba, uba, qp.lbx.copy(), qp.ubx.copy(), k,
+                      len(c_lo))
+
+    def solve_qp(self, q: StepQP) -> tuple[np.ndarray, bool]:
+        """Solve ``q`` with the controller's own solver for its intruder count (zero-copy buffers,
+        hot-started from the previous solve): (z, success)."""
+        return self._qp(q.n_intruders).solve(q.g, q.a, q.lba, q.uba)
+
+    def _objective(self, s: _Pending) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The step's gradient and its acceleration-row bounds."""
+        u_last = self._last_cmd if self._last_cmd is not None else self._saturate(s.obs.own_vel)
+        a_lo, a_hi = self._accel_bounds(s.x0)
+        return self._gradient(s.nominal, u_last, len(s.intruders)), a_lo, a_hi
+
+    def _row_bounds(self, c_lo: np.ndarray, a_lo: np.ndarray, a_hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the rows in their order: tube half-spaces, accelerations, speed octagon."""
+        return (np.concatenate([c_lo, a_lo, self._speed_lo]),
+                np.concatenate([np.full(len(c_lo), _INF), a_hi, self._speed_hi]))
+
     def _solve(self, s: _Pending, c_rows: np.ndarray, c_lo: np.ndarray) -> VelocityCommand:
         """The QP of a prepared step with its tube rows, then the plan bookkeeping."""
-        obs, x0, nominal, k = s.obs, s.x0, s.nominal, len(s.intruders)
-        u_last = self._last_cmd if self._last_cmd is not None else self._saturate(obs.own_vel)
-        a_lo, a_hi = self._accel_bounds(x0)
-        g = self._gradient(nominal, u_last, k)
+        obs, nominal, k = s.obs, s.nominal, len(s.intruders)
+        g, a_lo, a_hi = self._objective(s)
         z = self._unconstrained(g, c_rows, c_lo, a_lo, a_hi)
         if z is not None:
             self.unconstrained_steps += 1
             ok = True
         else:
             qp = self._qp(k)
-            lba = np.concatenate([c_lo, a_lo, self._speed_lo])
-            uba = np.concatenate([np.full(len(c_lo), _INF), a_hi, self._speed_hi])
+            lba, uba = self._row_bounds(c_lo, a_lo, a_hi)
             t0 = time.perf_counter()
             z, ok = qp.solve_rows(g, c_rows if k else None, lba, uba)
             self.solve_times_s.append(time.perf_counter() - t0)

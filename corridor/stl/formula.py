@@ -25,13 +25,14 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, fields
-from typing import ClassVar, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 INF = math.inf
 COMPARISONS = (">", ">=", "<", "<=")
 FUNCTIONS = {"abs": 1, "sqrt": 1, "exp": 1, "min": 2, "max": 2}  # name -> arity
 
 R = TypeVar("R")
+N = TypeVar("N", bound="_Tree")  # the node type of a fold: a formula's nodes are formulas, an expression's expressions
 
 
 class _Tree:
@@ -40,7 +41,7 @@ class _Tree:
     def children(self) -> tuple[_Tree, ...]:
         return ()
 
-    def _label(self) -> tuple:
+    def _label(self) -> tuple[Any, ...]:
         """The node's own (non-child) fields."""
         kids = {id(c) for c in self.children()}
         own = (getattr(self, f.name) for f in fields(self))  # type: ignore[arg-type]
@@ -49,7 +50,7 @@ class _Tree:
     def _text(self, kids: list[str]) -> str:
         raise NotImplementedError
 
-    def _signature(self) -> tuple:
+    def _signature(self) -> tuple[Any, ...]:
         """Post-order (label, arity) of every node: equal signatures <=> equal trees."""
         return tuple(node._label() + (len(node.children()),) for node in postorder(self))
 
@@ -87,14 +88,14 @@ def postorder(root: _Tree) -> list[_Tree]:
     return out
 
 
-def fold(root: _Tree, combine: Callable[[_Tree, list[R]], R]) -> R:
+def fold(root: N, combine: Callable[[N, list[R]], R]) -> R:
     """Bottom-up ``combine(node, [results of its children])`` without recursion.
 
     A child's result is dropped once its parent has used it (big intermediate arrays are freed as in
     a recursive evaluation); a sub-tree object used twice is then evaluated twice.
     """
     done: dict[int, R] = {}
-    stack: list[_Tree] = [root]
+    stack: list[Any] = [root]  # nodes of root's kind (N): a tree's children are of its parent's kind
     while stack:
         node = stack[-1]
         if id(node) in done:
@@ -154,16 +155,16 @@ class Expr(_Tree):
     def __neg__(self) -> Expr:
         return Neg(self)
 
-    def __gt__(self, other: ExprLike) -> Predicate:  # type: ignore[override]
+    def __gt__(self, other: ExprLike) -> Predicate:
         return Predicate(self, ">", as_expr(other))
 
-    def __ge__(self, other: ExprLike) -> Predicate:  # type: ignore[override]
+    def __ge__(self, other: ExprLike) -> Predicate:
         return Predicate(self, ">=", as_expr(other))
 
-    def __lt__(self, other: ExprLike) -> Predicate:  # type: ignore[override]
+    def __lt__(self, other: ExprLike) -> Predicate:
         return Predicate(self, "<", as_expr(other))
 
-    def __le__(self, other: ExprLike) -> Predicate:  # type: ignore[override]
+    def __le__(self, other: ExprLike) -> Predicate:
         return Predicate(self, "<=", as_expr(other))
 
 
@@ -266,7 +267,10 @@ class Formula(_Tree):
 
     def horizon(self) -> float:
         """Seconds of future signal needed to decide the formula at a time point (may be inf)."""
-        return fold(self, lambda node, kids: node._horizon(kids))
+        def one(node: Formula, kids: list[float]) -> float:
+            return node._horizon(kids)
+
+        return fold(self, one)
 
     def _horizon(self, kids: list[float]) -> float:
         return max(kids, default=0.0)
@@ -467,7 +471,7 @@ def rebalance(formula: Formula) -> Formula:
             return _balanced(op, flat)
         if not kids:
             return node
-        return type(node)(*kids, *node._label()[1:])  # type: ignore[call-arg]
+        return type(node)(*kids, *node._label()[1:])
 
     return fold(formula, combine)
 

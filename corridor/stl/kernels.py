@@ -128,4 +128,5 @@ def _until(phi: np.ndarray, psi: np.ndarray, lo: int, hi: float) -> np.ndarray:
         shifted[: n - lo] = reach[lo:]
     if lo == 0:
         return shifted
-    return np.minimum(window_min(phi, 0, lo - 1), shifted)
+    out: np.ndarray = np.minimum(window_min(phi, 0, lo - 1), shifted)
+    return out

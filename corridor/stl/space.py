@@ -143,7 +143,8 @@ def predicate_robustness(pred: Predicate, signals: Mapping[str, np.ndarray], n: 
     """Signed distance to the predicate's boundary: ``lhs - rhs`` for ``>``/``>=``, else ``rhs - lhs``."""
     lhs = evaluate_expr(pred.lhs, signals, n)
     rhs = evaluate_expr(pred.rhs, signals, n)
-    return lhs - rhs if pred.op in (">", ">=") else rhs - lhs
+    rho: np.ndarray = lhs - rhs if pred.op in (">", ">=") else rhs - lhs
+    return rho
 
 
 def predicate_holds(pred: Predicate, rho: np.ndarray) -> np.ndarray:
@@ -160,14 +161,19 @@ LeafFn = Callable[[Predicate], np.ndarray]
 
 def apply_operator(formula: Formula, children: list[np.ndarray], dt: float) -> np.ndarray:
     """One operator's min/max semantics on its children's traces (all of one length)."""
+    trace: np.ndarray
     if isinstance(formula, Not):
-        return -children[0]
+        trace = -children[0]
+        return trace
     if isinstance(formula, And):
-        return np.minimum(children[0], children[1])
+        trace = np.minimum(children[0], children[1])
+        return trace
     if isinstance(formula, Or):
-        return np.maximum(children[0], children[1])
+        trace = np.maximum(children[0], children[1])
+        return trace
     if isinstance(formula, Implies):
-        return np.maximum(-children[0], children[1])
+        trace = np.maximum(-children[0], children[1])
+        return trace
     if isinstance(formula, Always | Eventually | Until):
         lo, hi = interval_indices(formula.a, formula.b, dt)
         if isinstance(formula, Always):

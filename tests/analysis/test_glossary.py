@@ -10,15 +10,14 @@ import pandas as pd
 from corridor.analysis.glossary import declared_metrics, glossary_markdown, glossary_section, match
 from corridor.analysis.report import NON_METRICS
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import REPO, SCENARIOS
 
 
 def test_every_column_of_a_real_merging_run_is_declared(tmp_path: Path) -> None:
     from corridor import batch
     from corridor.run import execute
 
-    path = REPO / "scenarios" / "merging.yaml"
+    path = SCENARIOS / "merging.yaml"
     sc, raw = load(path, ["duration=20", "warmup=0"])
     specs = batch.expand(sc, raw, str(path), 1, out_dir=str(tmp_path), variants=["sumo_default", "v2x_cps"])
     df = pd.DataFrame([execute(s) for s in specs])

@@ -19,12 +19,11 @@ from corridor.analysis.report import (
     write_report,
 )
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import SCENARIOS
 
 
 def _scenario(name: str, sets: list[str] | None = None):  # noqa: ANN202 - a corridor Scenario
-    return load(REPO / "scenarios" / f"{name}.yaml", sets or [])[0]
+    return load(SCENARIOS / f"{name}.yaml", sets or [])[0]
 
 
 def _rows(variants: list[str], seeds: int, **cols_of_seed) -> pd.DataFrame:  # noqa: ANN003
@@ -152,7 +151,7 @@ def test_merging_sections_from_signals(tmp_path: Path) -> None:
     df.loc[df.run_id == "v2x_cps-s0", "status"] = "error"
     _merging_signals(tmp_path, variants, range(1, 3))
     _save(tmp_path, "sumo_default-s0", {"min_ttc": (np.array([0.0, 1.0]), np.array([5.0, 5.0]))})
-    secs = report_sections(tmp_path, df, sc, REPO / "scenarios" / "merging.yaml")
+    secs = report_sections(tmp_path, df, sc, SCENARIOS / "merging.yaml")
     titles = [re.search(r"<h2>(.*?)</h2>", s).group(1) for s in secs]
     assert titles == ["Minimum time-to-collision", "Mean speed", "Vehicles in the network", "Time lost around the merge"]
     ttc = secs[0]
@@ -243,7 +242,7 @@ def test_real_short_merging_run_has_time_series(tmp_path: Path) -> None:
     from corridor.analysis.report_series import report_sections
     from corridor.run import execute
 
-    path = REPO / "scenarios" / "merging.yaml"
+    path = SCENARIOS / "merging.yaml"
     sc, raw = load(path, ["duration=20", "warmup=0"])
     specs = batch.expand(sc, raw, str(path), 1, out_dir=str(tmp_path), variants=["sumo_default"])
     df = pd.DataFrame([execute(s) for s in specs])

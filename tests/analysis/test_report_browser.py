@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import REPO, SCENARIOS
+
 CHROMIUM = Path("/usr/bin/chromium")
 BATCHES = {  # scenario -> (options, the figure kinds its report must show)
     "merging": (["--runs", "2", "--set", "duration=60", "--set", "warmup=10", "--variant", "sumo_default",
@@ -35,7 +36,7 @@ def browser():  # noqa: ANN201 - a playwright Browser
 
 def _batch(name: str, out: Path) -> Path:
     opts, _ = BATCHES[name]
-    res = subprocess.run([sys.executable, "-m", "corridor.cli", str(REPO / "scenarios" / f"{name}.yaml"),
+    res = subprocess.run([sys.executable, "-m", "corridor.cli", str(SCENARIOS / f"{name}.yaml"),
                           "--out", str(out), "--quiet", *opts], capture_output=True, text=True, cwd=REPO, timeout=900)
     assert res.returncode in (0, 1), res.stderr[-2000:]  # 1: a safety event (the UAV none variant)
     return out / "report.html"

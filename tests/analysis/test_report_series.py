@@ -23,8 +23,8 @@ from corridor.analysis.report_series import (
 from corridor.engine import Signals
 from corridor.scenario import load
 from corridor.traffic.macro.calibrate import FdFit
+from tests.conftest import SCENARIOS
 
-REPO = Path(__file__).resolve().parents[2]
 RAMPS = ["ccw0", "ccw1", "ccw10", "cw0"]
 LOOP_T = [60.0, 120.0, 180.0]  # [s] loop interval ends
 
@@ -136,7 +136,7 @@ def test_diagram_draws_every_detector_point(tmp_path: Path) -> None:
 
 def test_report_of_ramp_scenario_has_sections(tmp_path: Path, ramp_batch: pd.DataFrame) -> None:
     scen = tmp_path / "ring.yaml"
-    scen.write_text((REPO / "scenarios" / "ramp_metering.yaml").read_text())
+    scen.write_text((SCENARIOS / "ramp_metering.yaml").read_text())
     sc, _ = load(scen, [])
     assert ramp_storage_veh(sc) == 160.0  # 1200 m ramps / 7.5 m per queued vehicle
     assert calibration_path(scen) is None
@@ -151,10 +151,10 @@ def test_report_of_ramp_scenario_has_sections(tmp_path: Path, ramp_batch: pd.Dat
 
 
 def test_other_scenarios_get_no_extra_sections(tmp_path: Path) -> None:
-    sc, _ = load(REPO / "scenarios" / "merging.yaml", [])
+    sc, _ = load(SCENARIOS / "merging.yaml", [])
     sig = Signals()
     sig.record("min_ttc", 0.0, 4.0)
     _save(tmp_path, "sumo_default-s0", sig)
     df = pd.DataFrame({"run_id": ["sumo_default-s0"], "variant": ["sumo_default"], "status": ["ok"]})
     assert ramp_storage_veh(sc) is None
-    assert report_sections(tmp_path, df, sc, REPO / "scenarios" / "merging.yaml") == []
+    assert report_sections(tmp_path, df, sc, SCENARIOS / "merging.yaml") == []

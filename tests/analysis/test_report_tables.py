@@ -12,8 +12,7 @@ import pandas as pd
 
 from corridor.analysis.report import distribution_plot, draw_sensitivity, kpi_table, write_report
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import SCENARIOS
 
 
 def _df(n: int, ttc: list[float] | None = None) -> pd.DataFrame:
@@ -55,7 +54,7 @@ def test_sensitivity_table_names_metric_unit_and_interval() -> None:
 
 
 def test_written_report_has_no_nan(tmp_path: Path) -> None:
-    sc = load(REPO / "scenarios" / "merging.yaml", [])[0]
+    sc = load(SCENARIOS / "merging.yaml", [])[0]
     text = write_report(_df(2, ttc=[np.nan, np.nan]), sc, tmp_path / "r.html").read_text()
     body = re.sub(r"<svg.*?</svg>", "", text, flags=re.S)
     assert not re.search(r"\bnan\b", body, re.I) and "– ± –" not in body

@@ -10,8 +10,7 @@ import pandas as pd
 from corridor.analysis.glossary import safety_event_columns
 from corridor.analysis.report import write_report
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import SCENARIOS
 
 
 def _uav_rows(nmac_none: int) -> pd.DataFrame:
@@ -30,7 +29,7 @@ def _verdict(text: str) -> str:
 
 
 def test_uav_nmac_is_not_reported_as_a_clean_batch(tmp_path: Path) -> None:
-    sc = load(REPO / "scenarios" / "uav_encounter.yaml", [])[0]
+    sc = load(SCENARIOS / "uav_encounter.yaml", [])[0]
     assert {"collisions", "nmac", "los", "nmac_pairs"} <= set(safety_event_columns(_uav_rows(1).columns, sc))
     verdict = _verdict(write_report(_uav_rows(1), sc, tmp_path / "r.html").read_text())
     assert "No run" not in verdict and "class=good>No" not in verdict
@@ -42,7 +41,7 @@ def test_uav_nmac_is_not_reported_as_a_clean_batch(tmp_path: Path) -> None:
 
 
 def test_pair_class_events_and_spec_violations_count(tmp_path: Path) -> None:
-    sc = load(REPO / "scenarios" / "air_ground_watch.yaml", [])[0]
+    sc = load(SCENARIOS / "air_ground_watch.yaml", [])[0]
     df = pd.DataFrame({"run_id": ["a-s0", "a-s1"], "variant": ["a", "a"], "seed": [0, 1], "status": ["ok", "ok"],
                        "error": ["", ""], "collisions": [0, 0], "nmac_uav_aircraft": [0, 2],
                        "spec.keep_apart.satisfied": [False, True]})

@@ -10,8 +10,7 @@ import pyarrow as pa
 
 from corridor.run import build
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import SCENARIOS
 
 
 def _times(rrd: Path, entity: str) -> np.ndarray:
@@ -27,7 +26,7 @@ def _times(rrd: Path, entity: str) -> np.ndarray:
 
 
 def test_last_partial_block_of_signals_is_recorded(tmp_path: Path) -> None:
-    sc, _ = load(REPO / "scenarios" / "merging.yaml", ["duration=12", "warmup=0"])
+    sc, _ = load(SCENARIOS / "merging.yaml", ["duration=12", "warmup=0"])
     rrd = tmp_path / "m.rrd"
     sim = build(sc, 0, tmp_path, rerun_path=str(rrd), run_id="sumo_default-s0")
     sim.run()

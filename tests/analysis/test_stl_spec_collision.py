@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -26,8 +25,9 @@ from corridor.run import simulate
 from corridor.scenario import load
 from corridor.stl import STLSignalError
 from corridor.vehicles.ground.bicycle import BicycleParams
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "overtaking.yaml"
+SCENARIO = SCENARIOS / "overtaking.yaml"
 CLEARANCE_SPEC = "G(clearance > 0)"
 
 

@@ -172,24 +172,14 @@ def test_ct_zero_copy_solver_call_equals_the_plain_casadi_call() -> None:
                                 rng.normal(0.0, 4.0, 3)) for i in range(3))
     obs = AvoidanceObservation(0.0, np.array([0.0, 0.0, 50.0]), np.array([6.0, 0.0, 0.0]),
                                np.array([400.0, 0.0, 50.0]), others)
-    x0 = np.concatenate([obs.own_pos, obs.own_vel])
-    intruders = ctrl._relevant(obs, ctrl._ego_speed_bound(x0[3:]))
-    k = len(intruders)
-    assert k == 3
-    qp = ctrl._qp(k)
-    nominal = ctrl._nominal(x0, obs.goal, ctrl._deflection(obs, intruders))
-    c_rows, c_lo = ctrl._collision_rows(obs, x0, intruders, nominal)
-    a_lo, a_hi = ctrl._accel_bounds(x0)
-    amat = np.vstack([c_rows, qp.fixed])
-    lba = np.concatenate([c_lo, a_lo, ctrl._speed_lo])
-    uba = np.concatenate([np.full(len(c_lo), 1e20), a_hi, ctrl._speed_hi])
-    g = ctrl._gradient(nominal, obs.own_vel, k)
-    z, ok = qp.solve(g, amat, lba, uba)
-    plain = ctrl._build_solver(len(g), len(lba))
-    ref = np.asarray(plain(h=qp.h, g=g, a=amat, lba=lba, uba=uba, lbx=qp.lbx, ubx=qp.ubx)["x"]).ravel()
+    q = ctrl.step_qp(obs)
+    assert q.n_intruders == 3
+    z, ok = ctrl.solve_qp(q)
+    plain = ctrl.build_solver(len(q.g), len(q.lba))
+    ref = np.asarray(plain(h=q.h, g=q.g, a=q.a, lba=q.lba, uba=q.uba, lbx=q.lbx, ubx=q.ubx)["x"]).ravel()
     assert ok and plain.stats()["success"]
     np.testing.assert_allclose(z, ref, atol=1e-9)
-    assert np.min(c_rows @ z - c_lo) > -1e-6  # the optimum respects every tube half-space
+    assert np.min(q.tube_rows @ z - q.tube_lo) > -1e-6  # the optimum respects every tube half-space
 
 
 def test_ct_fleet_step_equals_uav_by_uav_steps() -> None:
@@ -220,16 +210,7 @@ def test_ct_fleet_step_equals_uav_by_uav_steps() -> None:
 
 def _qpoases_optimum(ctrl: ControlTubeAvoidance, obs: AvoidanceObservation) -> np.ndarray:
     """The step's QP solved by qpOASES (the full problem, no shortcut), as the controller builds it."""
-    s = ctrl._prepare(obs)
-    k = len(s.intruders)
-    c_rows, c_lo = ctrl._collision_rows(obs, s.x0, s.intruders, s.u_ref) if k else (np.zeros((0, ctrl.n_u)), np.zeros(0))
-    a_lo, a_hi = ctrl._accel_bounds(s.x0)
-    qp = ctrl._qp(k)
-    amat = np.vstack([c_rows, qp.fixed])
-    lba = np.concatenate([c_lo, a_lo, ctrl._speed_lo])
-    uba = np.concatenate([np.full(len(c_lo), 1e20), a_hi, ctrl._speed_hi])
-    last = ctrl._last_cmd if ctrl._last_cmd is not None else ctrl._saturate(obs.own_vel)
-    z, ok = qp.solve(ctrl._gradient(s.nominal, last, k), amat, lba, uba)
+    z, ok = ctrl.solve_qp(ctrl.step_qp(obs))
     assert ok
     return z[:3]
 

@@ -64,7 +64,7 @@ def test_position_std_matches_filterpy_propagation(model: str) -> None:
 
     pred = RoadVehiclePredictor(PredictorParams(model=model))
     _track(pred, np.random.default_rng(1), 0.0, 15.0, 30)
-    kf = pred._tracks["car"].kf
+    kf = pred.filter("car")
     for dt in (0.5, 3.0, 8.0):
         F = np.eye(kf.dim_x)
         F[0, 1] = dt

@@ -27,8 +27,9 @@ from corridor.traffic.macro.metanet import MetanetParams
 from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 from corridor.traffic.sensing.detectors import RampMeasurement
 from corridor.traffic.sumo.road_spec import road_spec
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
+SCENARIO = SCENARIOS / "ramp_metering.yaml"
 
 
 def _ramps(n: int, occ: float = 10.0, speed_mps: float = 20.0, queue: float = 0.0) -> dict[str, RampMeasurement]:

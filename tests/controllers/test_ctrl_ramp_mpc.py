@@ -33,21 +33,18 @@ def test_mpc_returns_feasible_rates_within_bounds() -> None:
     assert np.all(res.split >= net.split_lo - 1e-8) and np.all(res.split <= net.split_hi + 1e-8)
     np.testing.assert_allclose(res.rates_vph, res.rates * net.orig_cap_vph[net.metered_idx])
     # the optimum is no worse than holding the previous input (the solver's feasible initial guess)
-    p = np.concatenate([x0, mpc.forecast_matrix(demand).ravel(order="F"), net.default_u()])
-    mpc._warm.valid = False
-    z_hold = mpc._initial_guess(x0, mpc.forecast_matrix(demand), net.default_u())
-    hold_tts = float(mpc._tts_fun(z_hold, p))
+    hold_tts = mpc.hold_tts(x0, demand, net.default_u())
     assert res.predicted_tts <= hold_tts * (1.0 + 1e-5)  # up to IPOPT's tolerance (MPCConfig.tol = 1e-5)
     # queues of the plan respect storage up to the soft-constraint slack, which should be ~0 here
-    xs, _, _, sig = mpc.lay.split(mpc._warm.z)
-    assert np.max(sig) < 1.0
+    assert 0.0 <= res.queue_slack_max_veh < 1.0
 
 
 def test_warm_start_is_kept_and_reused() -> None:
     net, x0, demand = congested_case()
     mpc = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=3))
+    assert not mpc.warm_started
     first = mpc.solve(x0, demand, net.default_u())
-    assert mpc._warm.valid
+    assert mpc.warm_started
     second = mpc.solve(x0, demand, first.u)
     assert not second.fallback
     assert mpc.solve_time_stats()["solves"] == 2.0
@@ -60,7 +57,7 @@ def test_solver_failure_falls_back_to_alinea(cfg: MPCConfig) -> None:
     x0 = steady_state(net, 40.0)  # above critical density 33.5 and empty queues: pure ALINEA law
     mpc = RampMeteringMPC(net, cfg)
     res = mpc.solve(x0, demand, net.default_u())
-    assert res.fallback and mpc.n_fallbacks == 1 and not mpc._warm.valid
+    assert res.fallback and mpc.n_fallbacks == 1 and not mpc.warm_started
     assert np.isnan(res.predicted_tts)
     np.testing.assert_allclose(res.split, net.split_default)
     # ALINEA starts open (rate_max * capacity) and integrates once: r = clip(C + K (o_set - o))
@@ -85,9 +82,7 @@ def test_iteration_limit_applies_a_feasible_improving_iterate_instead_of_falling
     res = short.solve(x0, demand, net.default_u())
     assert not res.fallback and res.status.startswith("Suboptimal_Feasible")
     assert short.n_suboptimal == 1 and short.n_fallbacks == 0
-    dmat = short.forecast_matrix(demand)
-    p = np.concatenate([x0, dmat.ravel(order="F"), net.default_u()])
-    hold = float(short._tts_fun(short._hold_plan(x0, dmat, net.default_u()), p))
+    hold = short.hold_tts(x0, demand, net.default_u())
     # (an iterate within the feasibility tolerance may undercut the optimum by a hair)
     assert opt.predicted_tts - 1e-3 <= res.predicted_tts < hold - 1e-3
     assert np.all((res.rates >= 0.0) & (res.rates <= 1.0))
@@ -124,7 +119,7 @@ def test_dual_warm_start_reaches_the_primal_warm_starts_plan() -> None:
         assert abs(a.predicted_tts - b.predicted_tts) <= 1e-4 * abs(a.predicted_tts)
         np.testing.assert_allclose(a.u, b.u, atol=1e-3)
         u_a, u_b = a.u, b.u
-    assert duals._warm.lam_x is not None and duals._warm_solver is not None  # the warm solver was used
+    assert duals.n_dual_warm_starts == 2 and plain.n_dual_warm_starts == 0  # every solve after the first
 
 
 def test_prediction_model_has_a_finite_jacobian_at_negative_density() -> None:
@@ -136,12 +131,12 @@ def test_prediction_model_has_a_finite_jacobian_at_negative_density() -> None:
     mpc = RampMeteringMPC(net, MPCConfig(horizon_ctrl_steps=1))
     x = ca.SX.sym("x", net.nx)
     u = net.default_u()
-    jac = ca.Function("j", [x], [ca.jacobian(mpc._pred_f(x, u, d)[0], x)])
+    jac = ca.Function("j", [x], [ca.jacobian(mpc.prediction_model(x, u, d)[0], x)])
     bad = np.array(x0, dtype=float)
     bad[0] = -0.5  # [veh/km/lane]
     assert np.all(np.isfinite(jac(bad).full()))
     plain = ca.Function("p", [x], [ca.jacobian(net.function(x, u, d)[0], x)])
     assert not np.all(np.isfinite(plain(bad).full()))
     # away from zero both models agree (to the smoothing's size)
-    good = mpc._pred_f(x0, u, d)[0].full().ravel() - net.function(x0, u, d)[0].full().ravel()
+    good = mpc.prediction_model(x0, u, d)[0].full().ravel() - net.function(x0, u, d)[0].full().ravel()
     assert np.max(np.abs(good[: 2 * net.n_seg])) < 5.0  # the other smoothings (origin flows, destinations)

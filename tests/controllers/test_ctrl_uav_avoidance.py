@@ -155,10 +155,9 @@ def test_relevance_range_covers_everything_the_method_reacts_to(controller: str,
             near = _at_relevance_edge(ctrl, speed, -ctrl.params.relevance_margin_m - 15.0)
             assert np.linalg.norm(method.field(near)[0] - method.field(alone)[0]) > 0.0
         else:
-            v_ego = method._ego_speed_bound(outside.own_vel)
-            assert method._relevant(outside, v_ego) == []
+            assert method.step_qp(outside).n_intruders == 0
             near = _at_relevance_edge(ctrl, speed, -ctrl.params.relevance_margin_m - 5.0)
-            assert len(method._relevant(near, v_ego)) == 1
+            assert method.step_qp(near).n_intruders == 1
     for c in sim.ctx.components.values():
         c.close()
 

@@ -7,13 +7,14 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-spec = importlib.util.spec_from_file_location("lint_imports", ROOT / "tools" / "lint_imports.py")
+from tests.conftest import REPO
+
+spec = importlib.util.spec_from_file_location("lint_imports", REPO / "tools" / "lint_imports.py")
 lint_imports = importlib.util.module_from_spec(spec)
 sys.modules["lint_imports"] = lint_imports
 spec.loader.exec_module(lint_imports)
 
-CONFIG = ["--config", str(ROOT / "pyproject.toml")]
+CONFIG = ["--config", str(REPO / "pyproject.toml")]
 
 
 def test_the_contracts_hold():
@@ -91,7 +92,24 @@ def test_except_patterns_match_whole_segments() -> None:
 
 
 def _import_rules():
-    spec = importlib.util.spec_from_file_location("import_rules", ROOT / "tools" / "import_rules.py")
+    spec = importlib.util.spec_from_file_location("import_rules", REPO / "tools" / "import_rules.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def test_the_kernel_has_no_import_cycle() -> None:
+    """No two kernel modules import each other, not even lazily inside a function (api, cli and
+    rare_api did through ``resolve_scenario``; scenario and distributions through ``Distribution``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        cycles = lint_imports.kernel_cycles(lint_imports.mirror(Path(tmp)))
+    assert cycles == []
+
+
+def test_a_lazy_import_back_is_a_kernel_cycle() -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = lint_imports.mirror(Path(tmp))
+        with open(tree / "corridor" / "errors.py", "a") as f:  # errors <- api, and now errors -> api
+            f.write("\n\ndef _late():\n    from corridor import api  # noqa: F401\n")
+        cycles = lint_imports.kernel_cycles(tree)
+    assert len(cycles) == 1 and "corridor.api" in cycles[0] and "corridor.errors" in cycles[0], cycles

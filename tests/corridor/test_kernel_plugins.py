@@ -13,8 +13,9 @@ import sys
 import tomllib
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-PLUGIN = ROOT / "tests" / "plugins" / "corridor_example_plugin"
+from tests.conftest import REPO
+
+PLUGIN = REPO / "tests" / "plugins" / "corridor_example_plugin"
 
 
 def install(target: Path) -> None:
@@ -42,7 +43,7 @@ print(json.dumps(res.rows[["variant", "status", "error", "tts_vh", "example_mete
 def test_a_plugin_controller_runs_in_a_scenario(tmp_path):
     install(tmp_path / "site")
     scenario = tmp_path / "plugin.yaml"
-    scenario.write_text(f"extends: {ROOT / 'scenarios' / 'hegyi_benchmark.yaml'}\n"
+    scenario.write_text(f"extends: {REPO / 'scenarios' / 'hegyi_benchmark.yaml'}\n"
                         "name: plugin\nduration: 3600\n"
                         "controllers: {meter: {type: example_fixed_meter, params: {rate: 0.2}}}\n"
                         "sweep: {open: {controllers.meter: {type: none}}}\n")
@@ -60,7 +61,7 @@ def test_a_plugin_controller_runs_in_a_scenario(tmp_path):
 
 def test_without_the_plugin_its_type_is_one_clear_line(tmp_path):
     scenario = tmp_path / "plugin.yaml"
-    scenario.write_text(f"extends: {ROOT / 'scenarios' / 'hegyi_benchmark.yaml'}\n"
+    scenario.write_text(f"extends: {REPO / 'scenarios' / 'hegyi_benchmark.yaml'}\n"
                         "controllers: {meter: {type: example_fixed_meter}}\n")
     proc = subprocess.run([sys.executable, "-m", "corridor.cli", str(scenario), "--out", str(tmp_path / "o")],
                           capture_output=True, text=True, timeout=120, cwd=tmp_path)

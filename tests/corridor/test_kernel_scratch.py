@@ -13,9 +13,8 @@ from corridor import run as run_mod
 from corridor.batch import expand
 from corridor.cli import main
 from corridor.scenario import load
+from tests.conftest import REPO, SCENARIOS
 from tests.corridor.rare_data import GAUSS
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_build_refuses_the_current_directory_as_workdir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -27,7 +26,7 @@ def test_build_refuses_the_current_directory_as_workdir(tmp_path: Path, monkeypa
         run_mod.build(sc, 0, Path("."))
     run_mod.build(sc, 0, tmp_path / "scratch")  # any other folder is fine
     for bench in ("air_ground_watch_time.py", "uav_swarm_rtf.py"):
-        assert 'Path(".")' not in (ROOT / "benchmarks" / bench).read_text()
+        assert 'Path(".")' not in (REPO / "benchmarks" / bench).read_text()
 
 
 def test_a_runs_scratch_is_under_the_batch_folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -63,7 +62,7 @@ def test_a_uav_batch_leaves_nothing_in_the_system_temp_folder(tmp_path: Path, mo
     monkeypatch.setenv("TMPDIR", str(sys_tmp))
     monkeypatch.setenv("CORRIDOR_CACHE", str(cache))
     out = tmp_path / "uav"
-    assert main([str(ROOT / "scenarios" / "uav_encounter.yaml"), "--runs", "2", "--workers", "2", "--out", str(out),
+    assert main([str(SCENARIOS / "uav_encounter.yaml"), "--runs", "2", "--workers", "2", "--out", str(out),
                  "--set", "duration=1", "--variant", "none", "--quiet", "--no-report"]) == 0
     assert sorted(os.listdir(sys_tmp)) == []
     assert len(list((cache / "jsbsim").glob("aircraft-*"))) == 1  # one shared folder, reused

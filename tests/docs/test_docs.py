@@ -18,8 +18,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-DOCS = ROOT / "docs"
+from tests.conftest import REPO
+
+DOCS = REPO / "docs"
 MARKER = re.compile(r"^<!--\s*runs(?::\s*exit\s+(\d+))?\s*-->\s*$")
 FENCE = re.compile(r"^(`{3,})\s*([\w+-]*)")
 BLOCK_TIMEOUT_S = 120  # a block is meant to take under ~20 s on an idle core; this only stops a hang
@@ -69,7 +70,7 @@ def all_blocks() -> list[Block]:
 def scratch_folder(tmp: Path) -> Path:
     """A folder that looks like a clone to the docs' commands (links, nothing copied)."""
     for name in ("scenarios", "tests", "benchmarks", "tools"):
-        (tmp / name).symlink_to(ROOT / name)
+        (tmp / name).symlink_to(REPO / name)
     (tmp / ".venv").symlink_to(Path(sys.prefix))
     return tmp
 
@@ -125,7 +126,7 @@ def test_a_marker_without_a_block_is_an_error(tmp_path: Path) -> None:
 
 def test_site_builds_strictly(tmp_path: Path) -> None:
     res = subprocess.run([str(Path(sys.executable).parent / "mkdocs"), "build", "--strict", "--site-dir",
-                          str(tmp_path / "site")], cwd=ROOT, capture_output=True, text=True, timeout=300)
+                          str(tmp_path / "site")], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr[-4000:]
     assert (tmp_path / "site" / "index.html").exists()
     assert (tmp_path / "site" / "reference" / "engine" / "index.html").exists()

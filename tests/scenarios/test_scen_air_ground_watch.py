@@ -4,15 +4,15 @@ decode with pymavlink's parser, traffic estimates included."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from corridor.run import simulate
 from corridor.scenario import apply_overrides, load, validate
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "air_ground_watch.yaml"
+SCENARIO = SCENARIOS / "air_ground_watch.yaml"
 MACHINE = {"wall_s", "rtf", "wall_per_sim_s", "cpu_per_sim_s", "mpc_solve_p50_s", "mpc_solve_p95_s", "tube_solve_ms_mean"}
 
 

@@ -11,15 +11,16 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-ENCOUNTER = ROOT / "scenarios" / "uav_encounter.yaml"
-SWARM = ROOT / "scenarios" / "uav_swarm.yaml"
+from tests.conftest import REPO, SCENARIOS
+
+ENCOUNTER = SCENARIOS / "uav_encounter.yaml"
+SWARM = SCENARIOS / "uav_swarm.yaml"
 
 
 def cli(*args: str) -> pd.DataFrame:
     out = Path(args[args.index("--out") + 1])
     exe = [sys.executable, "-m", "corridor.cli", *args, "--quiet", "--no-report"]
-    res = subprocess.run(exe, capture_output=True, text=True, cwd=ROOT, timeout=1800)
+    res = subprocess.run(exe, capture_output=True, text=True, cwd=REPO, timeout=1800)
     assert res.returncode == 0, res.stderr[-2000:]
     return pd.read_parquet(out / "runs.parquet")
 

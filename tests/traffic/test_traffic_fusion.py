@@ -122,10 +122,10 @@ def test_zero_test_rejects_a_stuck_station_only_when_its_carriageway_is_busy():
     ring = _ring(1800.0, 12.0)
     ring[3].flow_down_vph, ring[3].occupancy_down_pct = 0.0, 0.0  # cw1/down stuck at zero
     ring[5].flow_up_vph, ring[5].occupancy_up_pct = 0.0, 95.0  # cw2/up: a vehicle standing on the loop
-    kept = {(k, side) for k, side, _ in fusion._plausible(ring)}
+    kept = {(k, side) for k, side, _ in fusion.plausible(ring)}
     assert ("cw1", "down") not in kept and len(kept) == 31 and ("cw2", "up") in kept
     assert fusion.zero_stations == {"cw1/down"} and fusion.zero_rejected == 1
     quiet = _ring(0.0, 0.0)  # nobody anywhere (a quiet interval): zeros are plausible
-    assert len(fusion._plausible(quiet)) == 32
+    assert len(fusion.plausible(quiet)) == 32
     off = SegmentFusion("fusion", SegmentFusion.Params(zero_check_vph=None), None)
-    assert len(off._plausible(ring)) == 32
+    assert len(off.plausible(ring)) == 32

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,8 +17,9 @@ from corridor.traffic.sumo.meters import (
     realised_rate_vph,
     red_time_s,
 )
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
+SCENARIO = SCENARIOS / "ramp_metering.yaml"
 
 
 def test_red_time_is_cycle_minus_green() -> None:

@@ -13,8 +13,9 @@ import pytest
 
 from corridor.analysis.monitoring.tick_block import TickBlock
 from corridor.snapshot import RoadFrame, RoadTables, WorldSnapshot
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def _snapshot(uids: list[int], xs: list[float], offset: int = 0) -> WorldSnapshot:

@@ -40,9 +40,9 @@ def test_pool_matches_filterpy_tables_bit_for_bit_in_1d() -> None:
         for r, table in ref.items():
             assert sorted(s for s in names if pool.has_track(r, s)) == sorted(table.ids)
             for s in table.ids:
-                row = pool._rows[r][s]
-                kf = table._tracks[s].kf
-                assert np.array_equal(pool.x[row], kf.x) and np.array_equal(pool.P[row], kf.P)
+                x, cov = pool.state(r, s)
+                kf = table.filter(s)
+                assert np.array_equal(x, kf.x) and np.array_equal(cov, kf.P)
                 assert pool.last_update_s(r, s) == table.last_update_s(s)
             known, x, age = pool.predict_states(r, names, t_now + 0.05)
             pred = table.predict_all(t_now + 0.05)

@@ -91,7 +91,7 @@ def test_batched_prediction_equals_per_track_prediction() -> None:
         for i, tid in enumerate(("a", "b", "c", "d")):
             if (k + i) % 3:  # irregular, different update times per track
                 table.update(tid, 0.1 * k + 0.01 * i, rng.normal(0.0, 50.0, 3), rng.normal(0.0, 5.0, 3))
-    before = {tid: table._tracks[tid].kf.x.copy() for tid in table.ids}
+    before = {tid: table.filter(tid).x.copy() for tid in table.ids}
     t = 3.25
     ids, x, cov, age = table.predict_arrays(t)
     batch = table.predict_all(t)
@@ -101,7 +101,7 @@ def test_batched_prediction_equals_per_track_prediction() -> None:
         assert np.array_equal(np.concatenate([one.pos, one.vel]), x[i])
         assert np.array_equal(one.cov, cov[i]) and one.age_s == age[i] == batch[tid].age_s
         assert np.array_equal(batch[tid].pos, one.pos) and np.array_equal(batch[tid].cov, one.cov)
-        assert np.array_equal(table._tracks[tid].kf.x, before[tid])
+        assert np.array_equal(table.filter(tid).x, before[tid])
     assert TrackTable(dim=1, process_noise=1.0, meas_noise=1.0, stale_after_s=1.0).predict_arrays(0.0)[0] == []
 
 
@@ -119,4 +119,4 @@ def test_filters_invert_the_innovation_covariance_like_numpy() -> None:
         _inverse(np.zeros((6, 6)))
     table = TrackTable(dim=3, process_noise=1.0, meas_noise=0.5, stale_after_s=5.0, vel_noise=0.3)
     table.update("x", 0.0, np.zeros(3), np.ones(3))
-    assert table._tracks["x"].kf.inv is _inverse
+    assert table.filter("x").inv is _inverse

@@ -113,7 +113,7 @@ class SegmentFusion(Component):
             self._seen_loops[key] = m.t_loops
             fresh.append(m)
         readings = []
-        for key, side, m in self._plausible(fresh):
+        for key, side, m in self.plausible(fresh):
             r = self._loop(f"{key}/{side}", self.station_segment(key, side), m, side)
             if r is not None:
                 readings.append(r)
@@ -131,7 +131,7 @@ class SegmentFusion(Component):
                 self.uav_age_sum_s += age
                 self.uav_age_max_s = max(self.uav_age_max_s, age)
 
-    def _plausible(self, fresh: list[RampMeasurement]) -> list[tuple[str, str, RampMeasurement]]:
+    def plausible(self, fresh: list[RampMeasurement]) -> list[tuple[str, str, RampMeasurement]]:
         """The (key, side, measurement) station intervals that pass the zero test (see ``zero_check_vph``)."""
         out = [(m.key, side, m) for m in fresh for side in ("down", "up")]
         limit = self.params.zero_check_vph

@@ -10,7 +10,6 @@ on one file system, so concurrent builders never see half-written files.
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import importlib.metadata
 import json
@@ -30,6 +29,7 @@ import numpy as np
 import sumolib
 from pydantic import BaseModel
 
+from corridor.entrypoints import Registry
 from corridor.traffic.networks.landmarks import Landmarks, parse_landmarks
 
 CACHE_FORMAT = 2  # bump when the on-disk layout or any builder's output changes
@@ -86,7 +86,9 @@ BUILDERS: dict[str, tuple[type[BaseModel], BuildFn]] = {}
 LANDMARKS: dict[str, type[Landmarks]] = {}  # builder name -> the landmarks model its networks carry
 # every builder, corridor's own and a plug-in's, is an entry point of this group: ``name = "pkg.module"``,
 # a module that registers ``name`` with ``register_builder`` when imported (only when a scenario uses it)
+# (the kernel's entry-point mechanism: one name declared twice differently is an error)
 ENTRY_POINTS = "corridor.networks"
+NETWORKS = Registry("network kind", ENTRY_POINTS)
 
 
 def register_builder(name: str, model: type[BaseModel],
@@ -115,28 +117,16 @@ def landmarks_model(kind: str) -> type[Landmarks]:
 
 def builder_names() -> list[str]:
     """Every builder name: the ``corridor.networks`` entry points and those registered in code."""
-    return sorted(set(_declared()) | set(BUILDERS))
+    return sorted(set(NETWORKS) | set(BUILDERS))
 
 
 def _lookup(kind: str) -> tuple[type[BaseModel], BuildFn]:
-    if kind not in BUILDERS and kind in _declared():
-        importlib.import_module(_declared()[kind])
+    """The builder ``kind``: its module imported on first use (an ``UnknownName``, a KeyError, if none)."""
+    if kind not in BUILDERS and kind in NETWORKS:
+        NETWORKS.get(kind)  # imports the module, which registers the builder
     if kind not in BUILDERS:
-        raise KeyError(f"unknown network kind {kind!r}; known: {', '.join(builder_names())}")
+        raise NETWORKS.unknown(kind, builder_names())
     return BUILDERS[kind]
-
-
-@functools.cache
-def _declared() -> dict[str, str]:
-    """name -> module of every ``corridor.networks`` entry point; one name declared twice with
-    different modules is an error (no silent shadowing)."""
-    out: dict[str, str] = {}
-    for ep in importlib.metadata.entry_points(group=ENTRY_POINTS):
-        module = ep.value.partition(":")[0]
-        if out.setdefault(ep.name, module) != module:
-            raise ValueError(f"{ENTRY_POINTS}: network builder {ep.name!r} is declared twice ({out[ep.name]} and "
-                             f"{module})")
-    return out
 
 
 # ---------------------------------------------------------------------------------------------------

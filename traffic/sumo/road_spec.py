@@ -232,7 +232,7 @@ def require_landmarks(scenario: Any, model: type[BaseModel], who: str) -> None:
     point, a beltway's ramps): the road's network builder must report them, else one line naming
     what is needed and which networks have it (``check_scenario`` of the component calls this)."""
     from corridor.traffic.networks.landmarks import Landmarks
-    from corridor.traffic.networks.registry import LANDMARKS, landmarks_model
+    from corridor.traffic.networks.registry import builder_names, landmarks_model
 
     road = road_spec(scenario)
     if road is None:
@@ -241,7 +241,8 @@ def require_landmarks(scenario: Any, model: type[BaseModel], who: str) -> None:
         return
     fields = [f for f in model.model_fields if f not in Landmarks.model_fields]
     named = ", ".join(fields[:4]) + (", ..." if len(fields) > 4 else "")
-    kinds = sorted(k for k, m in LANDMARKS.items() if issubclass(m, model))
+    # the builders that report them: every declared builder's module imported (only on this error path)
+    kinds = sorted(k for k in builder_names() if issubclass(landmarks_model(k), model))
     raise ValueError(f"{who} needs the landmarks of a {' or '.join(kinds) or model.__name__} network ({named}); "
                      f"road.network type {road.network.type!r} has none")
 

@@ -56,6 +56,12 @@ class TrackPool:
     def has_track(self, rx: str, src: str) -> bool:
         return src in self._rows.get(rx, ())
 
+    def state(self, rx: str, src: str) -> tuple[np.ndarray, np.ndarray]:
+        """The fused state ``x`` (positions then velocities [m, m/s]) and covariance ``P`` of the track
+        of ``src`` kept by ``rx`` (views into the pool; KeyError if none)."""
+        row = self._rows[rx][src]
+        return self.x[row], self.P[row]
+
     def last_update_s(self, rx: str, src: str) -> float:
         """Time [s] of the newest measurement of ``src`` fused by ``rx`` (KeyError if none)."""
         return float(self.t_s[self._rows[rx][src]])

@@ -76,6 +76,11 @@ class RoadVehiclePredictor:
     def ids(self) -> list[str]:
         return list(self._tracks)
 
+    def filter(self, vid: str) -> KalmanFilter:
+        """The Kalman filter of vehicle ``vid`` (filterpy): state ``x`` (position [m], speed [m/s],
+        and acceleration [m/s^2] for the ``ca`` model), covariance ``P``; KeyError if untracked."""
+        return self._tracks[vid].kf
+
     def update(self, t_s: float, vid: str, x_m: float, v_mps: float) -> None:
         """Fuse one measurement of vehicle ``vid`` taken at time ``t_s``."""
         tr = self._tracks.get(vid)

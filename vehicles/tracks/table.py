@@ -251,3 +251,8 @@ class TrackTable:
     @property
     def ids(self) -> list[str]:
         return list(self._tracks)
+
+    def filter(self, track_id: str) -> KalmanFilter:
+        """The Kalman filter of a track (filterpy): its last updated state ``x`` (positions then
+        velocities [m, m/s]) and covariance ``P``; KeyError for an unknown id."""
+        return self._tracks[track_id].kf
