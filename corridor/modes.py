@@ -233,27 +233,44 @@ class HybridAutomaton:
                     self.g_now[tr.guard.name] = tr.guard.value(x)
         self._t_last = t
 
-    def update(self, t: float, x: Any, events: EventLog | None = None) -> tuple[str, Any]:
-        """Take at most one transition whose guard holds; return (mode, possibly reset state)."""
+    def update(self, t: float, x: Any, events: EventLog | None = None, settle: int = 1) -> tuple[str, Any]:
+        """Take at most ``settle`` transitions whose guards hold; return (mode, possibly reset state).
+
+        One transition per pass; after a jump the new mode's guards are tried on the same ``x``.
+        ``settle`` > 1 lets a memoryless controller land, within one update, in the mode its state
+        decides (e.g. entering a composite and at once switching sub-mode).
+        """
         self._evaluate(t, x)
         self.pending_draws = []
         try:
-            return self._update(t, x, events)
+            for _ in range(max(settle, 1)):
+                jumped, x = self._update(t, x, events)
+                if not jumped:
+                    break
+                self._evaluate_new(x)
+            return self.mode, x
         finally:
             if events is not None:
                 for d in self.pending_draws:
                     events.emit(t, self.name, "switch_draw", f"{d['boundary']}: {int(d['a'])} (p {d['p']:.3f})",
                                 **self.event_data, **d)
 
-    def _update(self, t: float, x: Any, events: EventLog | None) -> tuple[str, Any]:
+    def _evaluate_new(self, x: Any) -> None:
+        """After a jump: g of the boundaries leaving the new path not yet evaluated at this update."""
+        for m in self.path():
+            for tr in self._out[m]:
+                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
+                    self.g_now[tr.guard.name] = tr.guard.value(x)
+
+    def _update(self, t: float, x: Any, events: EventLog | None) -> tuple[bool, Any]:
         for m in self.path():  # outermost first: a mode's own jump pre-empts its sub-modes'
             for tr in self._out[m]:
                 fires, t_cross = self._guard(tr, t, x)
                 if fires:
                     self._jump(t, tr, t_cross, events)
-                    return self.mode, (tr.reset(x) if tr.reset else x)
+                    return True, (tr.reset(x) if tr.reset else x)
         self._check_invariant(t, x, events)
-        return self.mode, x
+        return False, x
 
     def _jump(self, t: float, tr: Transition, t_cross: float | None, events: EventLog | None) -> None:
         src_leaf, dst_leaf = self.mode, self._leaf(tr.dst)
