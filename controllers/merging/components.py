@@ -204,6 +204,27 @@ class V2XMerging(Controller):
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
         self.channel.send_many(ctx.t, cams + assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
+        self._last_state = state  # the overlays' vehicle positions
+
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """What a recorder may draw: the ``yield_enter`` and ``merge_enter`` distances as lines across
+        the mainline (``merge_enter`` is measured along the ramp; its line marks the same distance to
+        the conflict point) and the coordinated vehicles by mode (``modes/<leaf mode>`` points)."""
+        out: dict[str, tuple[str, Any]] = {}
+        if not hasattr(self, "x_merge"):
+            return out
+        for key in ("yield_enter", "merge_enter"):
+            x = self.x_merge - self.theta[key]["dist_m"]
+            out[f"boundaries/{key}"] = ("lines", [np.array([[x, 0.0], [x, self.y_rsu]])])
+        st = getattr(self, "_last_state", None)
+        if st is not None:
+            row = {v: k for k, v in enumerate(st["ids"])}
+            pts: dict[str, list[np.ndarray]] = {}
+            for vid, ha in self.automata.items():
+                if vid in row:
+                    pts.setdefault(ha.mode, []).append(st["pos"][row[vid]][:2])
+            out.update({f"modes/{m}": ("points", np.array(p)) for m, p in pts.items()})
+        return out
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
         """Own-vehicle facts each vehicle knows exactly (GNSS/odometry): distance to the merge, road."""

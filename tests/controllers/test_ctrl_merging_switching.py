@@ -84,7 +84,7 @@ def test_unknown_gap_never_switches():
 
 # ---- in SUMO: theta from the scenario reaches the controller's decisions -------------------------------
 
-def _run(sets: list[str]) -> tuple[dict[str, Any], list[Any]]:
+def _run(sets: list[str]) -> tuple[dict[str, Any], list[Any], dict[str, Any]]:
     from corridor.run import simulate
     from corridor.scenario import load
     from corridor.variants import variant_scenarios
@@ -93,13 +93,13 @@ def _run(sets: list[str]) -> tuple[dict[str, Any], list[Any]]:
     sc, _ = load(SCENARIOS / "merging.yaml", ["duration=120", "warmup=30", "outputs.signals=false",
                                               *(f"{pre}.{s}" for s in sets)])
     metrics, ctx, _ = simulate(variant_scenarios(sc)["v2x_cps"], 0)
-    return metrics, ctx.events.of_kind("mode")
+    return metrics, ctx.events.of_kind("mode"), ctx.components["merge"].overlays()
 
 
 def test_theta_from_the_scenario_changes_the_decisions():
-    base, base_ev = _run([])
-    same, _ = _run(["boundaries.yield_enter.dist_m=100", "boundaries.merge_enter.dist_m=100"])
-    near, near_ev = _run(["boundaries.yield_enter.dist_m=30", "boundaries.yield_exit.dist_m=30",
+    base, base_ev, base_drawn = _run([])
+    same, _, _ = _run(["boundaries.yield_enter.dist_m=100", "boundaries.merge_enter.dist_m=100"])
+    near, near_ev, drawn = _run(["boundaries.yield_enter.dist_m=30", "boundaries.yield_exit.dist_m=30",
                           "boundaries.merge_enter.dist_m=30"])
     keys = ("v2x_commands", "delay_mean_s", "hard_brakes", "min_virtual_gap_m", "events_mode")
     assert {k: same[k] for k in keys} == {k: base[k] for k in keys}  # the defaults are today's 100 m
@@ -109,3 +109,8 @@ def test_theta_from_the_scenario_changes_the_decisions():
         enters = [e for e in ev if e.data.get("boundary") in ("merge_enter", "yield_enter")]
         assert enters and all(e.data["t_cross"] <= e.t for e in enters)
         assert any(e.data["located"] and e.t - 0.1 < e.data["t_cross"] < e.t for e in enters)
+    # Rerun draws the boundary where theta puts it: 30 m before the conflict point
+    (line,) = drawn["boundaries/yield_enter"][1]
+    conflict_x = line[0, 0] + 30.0
+    (base_line,) = base_drawn["boundaries/yield_enter"][1]
+    assert base_line[0, 0] == pytest.approx(conflict_x - 100.0)
