@@ -43,12 +43,13 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.controllers.merging.switching import (
+    DIST_BOUNDARIES,
     MergeBoundaries,
     MergeState,
     VirtualGap,
@@ -141,6 +142,20 @@ class V2XMerging(Controller):
         boundaries: MergeBoundaries = Field(default_factory=MergeBoundaries)
         # stochastic switching near the boundaries (run_scenario --learn --method blrl); default deterministic
         switching: SwitchingParams = Field(default_factory=SwitchingParams)
+
+        @model_validator(mode="before")
+        @classmethod
+        def _distances_default_to_virtual_leader(cls, data: Any) -> Any:
+            """A distance boundary without ``dist_m`` takes ``virtual_leader_m`` (the learner reads numbers)."""
+            if not isinstance(data, dict) or not isinstance(data.get("boundaries", {}), dict):
+                return data
+            d = data.get("virtual_leader_m", 100.0)
+            bounds = dict(data.get("boundaries") or {})
+            for key in DIST_BOUNDARIES:
+                theta = bounds.get(key, {})
+                if isinstance(theta, dict) and theta.get("dist_m") is None:
+                    bounds[key] = {**theta, "dist_m": d}
+            return {**data, "boundaries": bounds}
 
     @classmethod
     def check_scenario(cls, params: Params, scenario: Any) -> None:

@@ -42,6 +42,7 @@ from corridor.modes import Boundary, HybridAutomaton, Mode, SwitchingParams, Tra
 
 RAMP_MODES = ("ramp", "approach", "merge", "behind", "ahead")
 MAIN_MODES = ("main", "free", "yield", "open", "pass")
+DIST_BOUNDARIES = ("merge_enter", "yield_enter", "yield_exit")  # their dist_m defaults to virtual_leader_m
 
 
 class DistTheta(BaseModel):

@@ -37,6 +37,18 @@ def test_defaults_are_the_controllers_constants():
     assert resolved(MergeBoundaries(), virtual_leader_m=70.0)["merge_enter"] == {"dist_m": 70.0}
 
 
+def test_scenario_params_fill_distances_from_virtual_leader_m():
+    from corridor.controllers.merging.components import V2XMerging
+    from corridor.learn import boundary_params
+    from corridor.scenario import load
+
+    assert V2XMerging.Params(virtual_leader_m=70.0).boundaries.yield_exit.dist_m == 70.0
+    assert V2XMerging.Params(boundaries={"yield_enter": {"dist_m": 30.0}}).boundaries.yield_enter.dist_m == 30.0
+    sc, raw = load(SCENARIOS / "merging.yaml")
+    have = boundary_params(sc, raw, "v2x_cps")["merge"]  # what --learn reads: numbers
+    assert have["merge_enter.dist_m"] == 100.0 and have["gap_reject.lag_lengths"] == 1.0
+
+
 def test_ramp_vehicle_switches_at_its_theta_with_located_crossing():
     ev = EventLog()
     ha = merge_automaton("merge", "r1", "ramp", _theta(merge_enter={"dist_m": 50.0}))
