@@ -104,7 +104,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     learn = p.add_argument_group("learning mode boundaries (stages of runs instead of --runs)")
     learn.add_argument("--learn", default=None, metavar="KEYS",
                        help="boundary parameters to learn, comma-separated (avoid_enter.dist_m,avoid_enter.ttc_s); "
-                            "with --objective, --budget and --method blrl|cma")
+                            "with --objective, --budget and --method blrl|cma|ppo")
     learn.add_argument("--objective", default=None, metavar="EXPR",
                        help="maximised over the row, e.g. '-path_ratio_mean'")
     learn.add_argument("--constraint", action="append", default=None, metavar="EXPR",
@@ -153,7 +153,7 @@ def _check_learn(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
     if args.estimate is not None or args.falsify is not None:
         p.error("--learn excludes --estimate and --falsify")
     if args.objective is None or args.method is None:
-        p.error("--learn KEYS needs --objective EXPR and --method blrl|cma")
+        p.error("--learn KEYS needs --objective EXPR and --method blrl|cma|ppo")
     if args.runs != 1 or args.rerun:
         p.error("--runs and --rerun do not apply to --learn (the method chooses the runs)")
 

@@ -7,7 +7,7 @@ instead of by the sign of g.  Everything else (the method inside each mode, the 
 monitors) is the scenario as ``run_scenario`` runs it.
 
 - ``reset(seed=s)`` builds the run of seed ``s`` (the scenario's ``randomize`` draws for that seed,
-  the variant's overrides), sets it up and runs its first controller period (decided by the
+  or ``options={"draws": {...}}``, and the variant's overrides), sets it up and runs its first controller period (decided by the
   boundaries, so that the world snapshot exists).  The same seed
   gives the same observation and, for the same actions, the same trajectory.
 - ``step(action)``: ``Discrete(2)``; 1 = the enter boundary holds and the exit one does not (switch
@@ -18,7 +18,7 @@ monitors) is the scenario as ``run_scenario`` runs it.
   from the world snapshot, relative to the agent), zero rows when fewer exist.
 - Reward: 0 until the run ends; at the end ``objective(row) - penalty x violations(row)`` on the
   run's results row (the same expressions as ``run_scenario --learn``).  The episode ends by
-  truncation at the scenario's duration; ``info`` then holds the row's metrics.
+  truncation at the scenario's duration; ``info`` then holds the row's metrics, the run's ``seed`` and its ``draw.*`` values.
 
 libsumo allows one simulation per process: ``reset`` closes the previous run before building the
 next, and ``close`` closes the current one.
@@ -71,9 +71,12 @@ class _Episode:
         self._tmp: tempfile.TemporaryDirectory[str] | None = None
         self.agents: list[str] = []
 
-    def start(self, seed: int) -> None:
+    def start(self, seed: int, draws: dict[str, Any] | None = None) -> None:
+        """Build and set up the run of ``seed``; ``draws``: the randomize values (default: the seed's)."""
         self.close()
-        overrides = {**self.variant_overrides, **draws_for(self.sc, seed)}
+        self.seed = seed
+        self.draws = draws_for(self.sc, seed) if draws is None else dict(draws)
+        overrides = {**self.variant_overrides, **self.draws}
         self._tmp = tempfile.TemporaryDirectory(prefix="corridor-env-")
         with scenario_dir(self.path.parent):
             sc = validate(apply_overrides(self.raw, overrides), f"{self.path} [env]")
@@ -108,7 +111,8 @@ class _Episode:
             self.tick += 1
         if self.tick < self.sim.n_ticks:
             return False, {}
-        metrics = {**self.sim.finish(), **event_counts(self.sim.ctx)}
+        metrics = {**self.sim.finish(), **event_counts(self.sim.ctx), "seed": self.seed,
+                   **{f"draw.{k}": v for k, v in self.draws.items()}}
         self.close()
         return True, metrics
 
@@ -165,7 +169,7 @@ class CorridorEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
         run_seed = seed if seed is not None else int(self.np_random.integers(2**31 - 1))
-        self.episode.start(run_seed)
+        self.episode.start(run_seed, (options or {}).get("draws"))
         agent = self.agent or self.episode.agents[0]
         if agent not in self.episode.agents:
             raise CorridorError(f"agent {agent!r}: the controller's agents are {self.episode.agents}")

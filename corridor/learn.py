@@ -1,4 +1,4 @@
-"""``run_scenario SCENARIO --learn KEYS --objective EXPR --budget N --method blrl|cma``: learn boundaries.
+"""``run_scenario SCENARIO --learn KEYS --objective EXPR --budget N --method blrl|cma|ppo``: learn boundaries.
 
 The boundary parameters ``KEYS`` (``avoid_enter.dist_m`` or the full path
 ``controllers.avoid.params.boundaries.avoid_enter.dist_m``) of one sweep variant are tuned to
@@ -13,6 +13,8 @@ over the scenario's ``randomize`` distribution.  Positive parameters are searche
   near the boundary has no gradient: theta stays (the method only learns where decisions are close).
 - ``cma``: CMA-ES (the ``cma`` package) on the same log parameters, one run per candidate,
   deterministic switching.
+- ``ppo``: stable-baselines3 PPO through the Gymnasium environment (``corridor.learn_ppo``): it learns a
+  policy, not theta (no ``learned.yaml``; ``ppo_policy.zip`` instead).
 
 Stages run through the batch executors and write their rows as they finish (``--resume`` continues).
 At the end theta0 and the learned theta are both run on ``--holdout`` seeds never used in training
@@ -25,14 +27,19 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from corridor.errors import CorridorError, clip
-from corridor.objective import Expression, value, violations
+from corridor.learn_core import Problem
+from corridor.learn_core import ci95 as _ci
+from corridor.learn_core import finite as _f
+from corridor.learn_core import is_nan as _nan
+from corridor.learn_core import specs as _specs
+from corridor.learn_core import summary as _summary
+from corridor.objective import Expression, value
 
 RUNS_PER_STAGE = 8  # blrl
 CMA_POPSIZE = 6
@@ -40,47 +47,14 @@ MIN_STAGES = 2
 T0 = 0.1  # initial temperature (units of g)
 ANNEAL = 0.8  # T per stage
 STEP = 0.4  # first blrl step [log units], then STEP / sqrt(1 + stage)
-PENALTY = 1.0  # objective units per broken constraint
-METHODS = ("blrl", "cma")
+METHODS = ("blrl", "cma", "ppo")
+PPO_EPISODES_PER_STAGE = 4  # corridor.learn_ppo.EPISODES_PER_STAGE (that module imports stable-baselines3 lazily)
 
 
 def min_budget(method: str) -> int:
     """Runs the method needs for ``MIN_STAGES`` stages."""
-    return MIN_STAGES * (RUNS_PER_STAGE if method == "blrl" else CMA_POPSIZE)
-
-
-@dataclass
-class Problem:
-    """What is learned and how it is judged (validated before any folder is touched)."""
-
-    sc: Any
-    raw: dict[str, Any]
-    path: Path
-    variant: str
-    controller: str
-    keys: list[str]  # full dotted paths
-    theta0: np.ndarray
-    log: np.ndarray  # per key: searched in log space
-    objective: Expression
-    constraints: list[Expression]
-    after: dict[str, Any] = field(default_factory=dict)  # --set values
-
-    def theta(self, u: np.ndarray) -> np.ndarray:
-        return np.where(self.log, np.exp(u), u)
-
-    def u0(self) -> np.ndarray:
-        return np.where(self.log, np.log(np.where(self.log, self.theta0, 1.0)), self.theta0)
-
-    def overrides(self, theta: np.ndarray, temperature: float | None) -> dict[str, Any]:
-        out: dict[str, Any] = {k: float(v) for k, v in zip(self.keys, theta, strict=True)}
-        out[f"controllers.{self.controller}.params.switching.temperature"] = temperature
-        return out
-
-    def reward(self, row: dict[str, Any]) -> float:
-        if row.get("status") != "ok":
-            return math.nan
-        v = value(self.objective, row)
-        return (v if math.isfinite(v) else -PENALTY) - PENALTY * violations(self.constraints, row)
+    per_stage = {"blrl": RUNS_PER_STAGE, "cma": CMA_POPSIZE, "ppo": PPO_EPISODES_PER_STAGE}
+    return MIN_STAGES * per_stage.get(method, RUNS_PER_STAGE)
 
 
 def boundary_params(sc: Any, raw: dict[str, Any], variant: str) -> dict[str, dict[str, float]]:
@@ -173,34 +147,6 @@ def problem(scenario: str | Path, keys: str, objective: str, constraints: Sequen
 
 
 # ---- stages ------------------------------------------------------------------------------------------
-def _z(seed: int, tag: str, stage: int, n: int, d: int) -> np.ndarray:
-    from corridor.engine import stable_key
-
-    ss = np.random.SeedSequence(seed, spawn_key=(stable_key(f"learn-{tag}"), stage))
-    return np.random.default_rng(ss).standard_normal((n, d))
-
-
-def _specs(pb: Problem, out: Path, seed: int, tag: str, stage: int, thetas: np.ndarray,
-           temperature: float | None, prefix: str | None = None) -> list[Any]:
-    """One run per theta; the draws and seeds are keyed by ``tag`` and the stage (common to every
-    ``prefix``: the held-out runs of theta0 and the learned theta see the same inputs)."""
-    from corridor.distributions import draws_from_normal
-    from corridor.estimate import stage_seeds
-    from corridor.run import RunSpec
-
-    z = _z(seed, tag, stage, len(thetas), len(pb.sc.randomize))
-    seeds = stage_seeds(seed + (0 if tag == "train" else 7919), stage, len(thetas))
-    specs = []
-    for i, (th, zi, s) in enumerate(zip(thetas, z, seeds, strict=True)):
-        draws = draws_from_normal(pb.sc.randomize, zi)
-        specs.append(RunSpec(run_id=f"{pb.variant}-{prefix or tag}{stage:03d}-{i:05d}", scenario=pb.sc.name, source=str(pb.path),
-                             variant=pb.variant, seed=s, base=pb.raw,
-                             overrides={**pb.sc.sweep[pb.variant], **draws, **pb.after,
-                                        **pb.overrides(th, temperature)},
-                             draws=draws, out_dir=str(out)))
-    return specs
-
-
 def _run(specs: list[Any], store_dir: Path, executor: str, workers: int, address: str | None,
          progress: bool) -> list[dict[str, Any]]:
     from corridor import batch
@@ -217,33 +163,6 @@ def _score(pb: Problem, row: dict[str, Any]) -> np.ndarray:
     """d log pi / d theta of one run (summed over its draws), per key."""
     cols = [f"blrl.score.{pb.controller}.{k.split('.params.boundaries.', 1)[1]}" for k in pb.keys]
     return np.array([float(row.get(c) or 0.0) if not _nan(row.get(c)) else 0.0 for c in cols])
-
-
-def _nan(v: Any) -> bool:
-    return v is None or (isinstance(v, float) and math.isnan(v))
-
-
-def _summary(rewards: np.ndarray, rows: list[dict[str, Any]], pb: Problem) -> dict[str, Any]:
-    objs = np.array([value(pb.objective, r) if r.get("status") == "ok" else math.nan for r in rows])
-    viol = int(sum(violations(pb.constraints, r) > 0 for r in rows))
-    return {"objective_mean": _f(np.nanmean(objs)), "objective_ci95": _ci(objs), "reward_mean": _f(np.nanmean(rewards)),
-            "violating_runs": viol, "runs": len(rows)}
-
-
-def _f(x: Any) -> float | None:
-    x = float(x)
-    return x if math.isfinite(x) else None
-
-
-def _ci(x: np.ndarray) -> list[float | None]:
-    """95 % t interval of the mean."""
-    from scipy import stats
-
-    x = x[np.isfinite(x)]
-    if len(x) < 2:
-        return [None, None]
-    h = float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
-    return [_f(x.mean() - h), _f(x.mean() + h)]
 
 
 def blrl(pb: Problem, budget: int, seed: int, out: Path, run: Any) -> tuple[np.ndarray, list[dict[str, Any]]]:
@@ -326,6 +245,10 @@ def learn(scenario: str | Path, keys: str, objective: str, *, budget: int, metho
     pb = problem(scenario, keys, objective, constraints, budget, method, variant, sets)
     if not isinstance(holdout_runs, int) or holdout_runs < 0:
         raise CorridorError(f"--holdout {holdout_runs}: must be a number of runs >= 0")
+    if method == "ppo":
+        from corridor import learn_ppo
+
+        learn_ppo.check(pb, resume, executor)
     first = pb.sc.seed if seed is None else seed
     out_dir = Path(out) if out is not None else Path("results") / f"{pb.sc.name}-learn-{method}"
     settings = {"keys": pb.keys, "objective": objective, "constraints": list(constraints), "budget": budget,
@@ -342,6 +265,8 @@ def learn(scenario: str | Path, keys: str, objective: str, *, budget: int, metho
         return rows
 
     try:
+        if method == "ppo":
+            return _learn_ppo(pb, settings, list(sets), budget, first, out_dir, run, holdout_runs, all_rows)
         theta, curve = (blrl if method == "blrl" else cma_es)(pb, budget, first, out_dir, run)
         data = {"kind": "learn", "scenario": pb.sc.name, "source": str(pb.path), **settings, "sets": list(sets),
                 "theta0": dict(zip(pb.keys, pb.theta0.tolist(), strict=True)),
@@ -356,11 +281,39 @@ def learn(scenario: str | Path, keys: str, objective: str, *, budget: int, metho
         bdir.close()
 
 
+def _learn_ppo(pb: Problem, settings: dict[str, Any], sets: list[str], budget: int, seed: int, out_dir: Path,
+               run: Any, holdout_runs: int, all_rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """--method ppo (corridor.learn_ppo): a policy instead of theta (no learned.yaml)."""
+    import pandas as pd
+
+    from corridor import learn_ppo
+    from corridor.estimate import write_json
+
+    switch = learn_ppo.check(pb, False, "local")
+    curve, rows = learn_ppo.train(pb, budget, seed, out_dir, sets, switch)
+    all_rows.extend(rows)
+    hold, hold_rows = learn_ppo.holdout(pb, out_dir, holdout_runs, seed, sets, switch, run,
+                                        {int(r["seed"]) for r in rows if r.get("seed") is not None})
+    all_rows.extend(hold_rows)
+    data = {"kind": "learn", "scenario": pb.sc.name, "source": str(pb.path), **settings, "sets": sets,
+            "theta0": dict(zip(pb.keys, pb.theta0.tolist(), strict=True)), "theta": None,
+            "policy": learn_ppo.POLICY, "normaliser": learn_ppo.NORMALISER, "switch": list(switch),
+            "curve": curve, "training_runs": sum(c["runs"] for c in curve), "holdout": hold}
+    write_json(out_dir / "learn.json", data)
+    pd.DataFrame(all_rows).astype({"learn.stage": str}).to_parquet(out_dir / "runs.parquet", index=False)
+    return data
+
+
 def learn_lines(data: dict[str, Any]) -> list[str]:
     """The summary ``run_scenario --learn`` prints."""
     lines = [f"{data['scenario']} [{data['variant']}] --learn {data['method']}: {data['training_runs']} training runs"]
     for k, v0 in data["theta0"].items():
-        lines.append(f"  {k.split('.params.boundaries.', 1)[1]}: {v0:g} -> {data['theta'][k]:g}")
+        if data["theta"] is None:  # ppo: a policy, not boundary parameters
+            lines.append(f"  {k.split('.params.boundaries.', 1)[1]}: {v0:g} (hand-tuned; ppo learns a policy)")
+        else:
+            lines.append(f"  {k.split('.params.boundaries.', 1)[1]}: {v0:g} -> {data['theta'][k]:g}")
+    if data.get("policy"):
+        lines.append(f"  policy: {data['policy']} (+ {data['normaliser']}); no learned.yaml")
     for c in data["curve"]:
         lo, hi = c["objective_ci95"]
         ci = f" [{lo:.4g}, {hi:.4g}]" if lo is not None else ""
