@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from corridor.errors import CorridorError, clip
-from corridor.learn_core import Problem
+from corridor.learn_core import PPO_EPISODES_PER_STAGE, Problem
 from corridor.learn_core import ci95 as _ci
 from corridor.learn_core import finite as _f
 from corridor.learn_core import is_nan as _nan
@@ -48,7 +48,6 @@ T0 = 0.1  # initial temperature (units of g)
 ANNEAL = 0.8  # T per stage
 STEP = 0.4  # first blrl step [log units], then STEP / sqrt(1 + stage)
 METHODS = ("blrl", "cma", "ppo")
-PPO_EPISODES_PER_STAGE = 4  # corridor.learn_ppo.EPISODES_PER_STAGE (that module imports stable-baselines3 lazily)
 
 
 def min_budget(method: str) -> int:

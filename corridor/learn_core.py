@@ -12,6 +12,7 @@ import numpy as np
 from corridor.objective import Expression, value, violations
 
 PENALTY = 1.0  # objective units per broken constraint
+PPO_EPISODES_PER_STAGE = 4  # --method ppo: runs per PPO rollout (corridor.learn_ppo)
 
 
 @dataclass

@@ -36,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from corridor.errors import CorridorError
-from corridor.learn_core import PENALTY, Problem, ci95, finite, specs, summary
+from corridor.learn_core import PENALTY, PPO_EPISODES_PER_STAGE, Problem, ci95, finite, specs, summary
 from corridor.objective import value
 
-EPISODES_PER_STAGE = 4  # runs per PPO rollout (n_steps = EPISODES_PER_STAGE x decisions per run)
+EPISODES_PER_STAGE = PPO_EPISODES_PER_STAGE  # runs per rollout (n_steps = EPISODES_PER_STAGE x decisions per run)
 N_EPOCHS = 4
 LEARNING_RATE = 3e-4
 SWITCHES = {"avoid_enter": ("avoid_enter", "avoid_exit"), "avoid_exit": ("avoid_enter", "avoid_exit")}
