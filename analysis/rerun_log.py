@@ -22,6 +22,13 @@ import numpy as np
 from corridor.engine import Component, Phase, RunContext
 from corridor.snapshot import Kind, Role
 
+
+def _crossing(ev: Any) -> str:
+    """`` (avoid_enter = 0 at 7.13 s)`` for a mode jump whose boundary crossing was located."""
+    d = ev.data
+    return f" ({d['boundary']} = 0 at {d['t_cross']:.2f} s)" if d.get("located") else ""
+
+
 ROLE_COLORS = {  # RGBA
     int(Role.MAINLINE): (70, 130, 220, 255),
     int(Role.RAMP): (240, 160, 40, 255),
@@ -172,7 +179,7 @@ class RerunRecorder(Component):
         for ev in ctx.events.events[self._events_seen:]:
             rec.set_time("sim_time", duration=ev.t)
             level = "ERROR" if ev.kind == "collision" else ("WARN" if ev.kind in ("fallback", "teleport") else "INFO")
-            rec.log("events", rr.TextLog(f"[{ev.kind}] {ev.source}: {ev.message}", level=level))
+            rec.log("events", rr.TextLog(f"[{ev.kind}] {ev.source}: {ev.message}{_crossing(ev)}", level=level))
             line = ev.data.get("polyline")
             if line is not None and len(line) > 1:
                 xy = np.asarray(line, dtype=float)

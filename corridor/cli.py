@@ -25,6 +25,8 @@ examples:
   run_scenario scenarios/merging.yaml --executor ray --out results/ray      a private local Ray
   run_scenario uav_encounter --estimate 'nmac > 0' --level sep_min_h_m --method ce --budget 1000
                                                            P(NMAC) by importance sampling (see "Safety statistics")
+  run_scenario uav_encounter --learn avoid_enter.dist_m --objective -path_ratio_mean --constraint 'nmac == 0' \\
+      --method blrl --budget 48 --variant potential_field    learn a mode boundary (see "Modes and boundaries")
   run_scenario overtaking --falsify safety_space --budget 200
                                                            search for a violation; writes DIR/counterexample.yaml
 
@@ -99,24 +101,61 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     r.add_argument("--falsify", default=None, metavar="SPEC",
                    help="minimise SPEC's robustness over the randomized inputs (CMA-ES); writes "
                         "DIR/counterexample.yaml on a violation; default DIR results/<name>-falsify")
-    args = p.parse_args(argv)
+    learn = p.add_argument_group("learning mode boundaries (stages of runs instead of --runs)")
+    learn.add_argument("--learn", default=None, metavar="KEYS",
+                       help="boundary parameters to learn, comma-separated (avoid_enter.dist_m,avoid_enter.ttc_s); "
+                            "with --objective, --budget and --method blrl|cma|ppo")
+    learn.add_argument("--objective", default=None, metavar="EXPR",
+                       help="maximised over the row, e.g. '-path_ratio_mean'")
+    learn.add_argument("--constraint", action="append", default=None, metavar="EXPR",
+                       help="a safety constraint on the row (repeatable; default 'collisions == 0')")
+    learn.add_argument("--holdout", type=int, default=20, metavar="N",
+                       help="held-out seeds on which the hand-tuned and learned boundaries are compared")
+    args = p.parse_args(_glue_expressions(sys.argv[1:] if argv is None else list(argv)))
+    if args.learn is not None:
+        _check_learn(p, args)
+    elif args.objective is not None or args.constraint is not None:
+        p.error("--objective and --constraint go with --learn KEYS")
     if args.runs < 1:
         p.error("--runs must be >= 1")
     if args.workers < 1:
         p.error("--workers must be >= 1")
-    if args.method is not None and args.estimate is None:
+    if args.method is not None and args.estimate is None and args.learn is None:
         p.error("--method goes with --estimate EVENT (--falsify has its own search)")
     if args.level is not None and args.estimate is None:
         p.error("--level goes with --estimate EVENT")
     if args.estimate is not None and args.falsify is not None:
         p.error("--estimate and --falsify exclude each other")
-    if (args.estimate is not None or args.falsify is not None) != (args.budget is not None):
-        p.error("--budget N goes with --estimate or --falsify (and they need it)")
+    if (args.estimate is not None or args.falsify is not None or args.learn is not None) != (args.budget is not None):
+        p.error("--budget N goes with --estimate, --falsify or --learn (and they need it)")
     if (args.estimate is not None or args.falsify is not None) and (args.runs != 1 or args.rerun):
         p.error("--runs and --rerun do not apply to --estimate/--falsify (the method chooses the runs)")
     if args.budget is not None and args.budget < 1:
         p.error("--budget must be >= 1")
     return args
+
+
+def _glue_expressions(argv: list[str]) -> list[str]:
+    """``--objective -path_ratio_mean``: an expression may start with a minus (argparse would take it
+    for an option), so the value after ``--objective``/``--constraint`` is glued to it."""
+    out: list[str] = []
+    it = iter(argv)
+    for a in it:
+        if a in ("--objective", "--constraint"):
+            nxt = next(it, None)
+            out.append(a if nxt is None else f"{a}={nxt}")
+        else:
+            out.append(a)
+    return out
+
+
+def _check_learn(p: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    if args.estimate is not None or args.falsify is not None:
+        p.error("--learn excludes --estimate and --falsify")
+    if args.objective is None or args.method is None:
+        p.error("--learn KEYS needs --objective EXPR and --method blrl|cma|ppo")
+    if args.runs != 1 or args.rerun:
+        p.error("--runs and --rerun do not apply to --learn (the method chooses the runs)")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,6 +174,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
+    if args.learn is not None:
+        return _learn(args)
     if args.estimate is not None or args.falsify is not None:
         return _rare(args)
     from corridor.api import run
@@ -157,6 +198,21 @@ def _main(args: argparse.Namespace) -> int:
         print(f"run {r['run_id']} failed: {r['error']}", file=sys.stderr)
     return 1 if len(errors) else 0
 
+
+
+def _learn(args: argparse.Namespace) -> int:
+    from corridor import learn
+
+    if len(args.variant) > 1:
+        raise CorridorError("--learn tunes one sweep variant: give at most one --variant")
+    data = learn.learn(args.scenario, args.learn, args.objective, budget=args.budget, method=args.method,
+                       constraints=args.constraint or ("collisions == 0",),
+                       variant=args.variant[0] if args.variant else None, holdout_runs=args.holdout, seed=args.seed,
+                       sets=args.sets, out=args.out, resume=args.resume, overwrite=args.overwrite,
+                       executor=args.executor, workers=args.workers, address=args.address, progress=not args.quiet)
+    if not args.quiet:
+        print("\n".join(learn.learn_lines(data)))
+    return 0
 
 
 def _rare(args: argparse.Namespace) -> int:

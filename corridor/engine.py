@@ -493,21 +493,38 @@ class Simulation:
         self._run(Phase.DETECT)
         self._run(Phase.RECORD)
 
+    @property
+    def n_ticks(self) -> int:
+        """Ticks of the whole run (duration / dt)."""
+        return round(self.ctx.duration / self.ctx.dt)
+
+    def start(self) -> None:
+        """Set every component up (providers first); then ``step`` until ``n_ticks``, then ``stop``."""
+        for c in self.setup_order:
+            c.setup(self.ctx)
+
+    def finish(self) -> dict[str, Any]:
+        """Every component's metrics, merged (column owners checked)."""
+        metrics: dict[str, Any] = {}
+        owner: dict[str, str] = {}
+        for c in self.ctx.components.values():
+            merge_metrics(metrics, owner, c.finish(self.ctx), c.name)
+        return metrics
+
+    def close(self) -> None:
+        """Close every component (a backend releases its library: libsumo allows one run per process)."""
+        for c in self.ctx.components.values():
+            c.close()
+
     def run(self) -> dict[str, Any]:
         """Set up, tick to the end, collect every component's metrics; always closes components."""
         t0 = time.perf_counter()
-        n_ticks = round(self.ctx.duration / self.ctx.dt)
         try:
-            for c in self.setup_order:
-                c.setup(self.ctx)
-            for _ in range(n_ticks):
+            self.start()
+            for _ in range(self.n_ticks):
                 self.step()
-            metrics: dict[str, Any] = {}
-            owner: dict[str, str] = {}
-            for c in self.ctx.components.values():
-                merge_metrics(metrics, owner, c.finish(self.ctx), c.name)
+            metrics = self.finish()
         finally:
-            for c in self.ctx.components.values():
-                c.close()
+            self.close()
             self.wall_s = time.perf_counter() - t0
         return metrics

@@ -1,76 +1,312 @@
-"""Hybrid-automaton modes (after CHARON): named modes, guarded transitions with resets.
+"""Hybrid-automaton modes (after CHARON): hierarchical modes, guarded transitions, named boundaries.
 
 A controller that switches behaviour owns a ``HybridAutomaton``; each ``update`` evaluates the guards
-of the current mode in declaration order and takes the first that holds.  Every transition is an
-event in the run's event log, so reports and the Rerun timeline show *why* behaviour changed.
+of the current mode (and of the modes that hold it, outermost first) in declaration order and takes
+the first that holds.  Every transition is an event in the run's event log, so reports and the Rerun
+timeline show *why* behaviour changed.
+
+Guards are either plain predicates ``guard(x) -> bool`` or **boundaries**: a named function
+``g(x; theta)`` whose sign decides the switch (it holds when ``g >= 0``, or ``g > 0`` when strict),
+with its parameters ``theta`` (a mapping of named floats) taken from the scenario YAML, so that
+``--set``, ``randomize``, sweeps and learning reach them.  When a boundary changes sign between two
+updates its crossing time is located by linear interpolation of ``g`` and logged with the event
+(``t_cross``), as the collision check does for contacts.
+
+Hierarchy: a ``Mode`` may hold sub-modes (entered at its ``initial`` child) with ``entry`` / ``exit``
+actions; the active mode is always a leaf, and transitions may leave from or lead to any mode (a
+composite target is entered at its initial leaf).  A mode's ``invariant`` must hold while it is
+active: a violation is an ``invariant`` event (the model promised a jump before it).
 
     ha = HybridAutomaton("ego", ["follow", "pass"], initial="follow", transitions=[
         Transition("follow", "pass", guard=lambda x: x["gap_ok"], label="gap found"),
         Transition("pass", "follow", guard=lambda x: x["done"], label="passed"),
     ])
-    mode = ha.update(t, x, events)
+    mode, x = ha.update(t, x, events)
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+import math
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.events import EventLog
 
 Guard = Callable[[Any], bool]
 Reset = Callable[[Any], Any]
+Action = Callable[[float], None]
+BoundaryFn = Callable[[Any, Mapping[str, float]], float]
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """A named, parameterised guard ``g(x; theta)``: it holds when ``g >= 0`` (``g > 0`` if ``strict``)."""
+
+    name: str
+    fn: BoundaryFn
+    theta: Mapping[str, float] = field(default_factory=dict)
+    strict: bool = False
+
+    def value(self, x: Any) -> float:
+        """g(x; theta) (dimensionless or in the unit its docstring names; only its sign and zero matter)."""
+        return float(self.fn(x, self.theta))
+
+    def holds(self, g: float) -> bool:
+        """Whether the guard holds at the value ``g``."""
+        return g > 0.0 if self.strict else g >= 0.0
+
+
+@dataclass(frozen=True)
+class Mode:
+    """A mode; with ``children`` a composite entered at ``initial`` (default: the first child)."""
+
+    name: str
+    children: tuple[Mode, ...] = ()
+    initial: str | None = None
+    entry: Action | None = None  # called with t [s] when the mode is entered
+    exit: Action | None = None  # called with t [s] when the mode is left
+    invariant: Guard | Boundary | None = None  # must hold while the mode is active
 
 
 @dataclass(frozen=True)
 class Transition:
-    """A guarded jump ``src`` -> ``dst``, taken when ``guard(state)`` holds; ``reset`` maps the state."""
+    """A jump ``src`` -> ``dst``, taken when ``guard`` holds (and ``when``, if given); ``reset`` maps the state."""
 
     src: str
     dst: str
-    guard: Guard
+    guard: Guard | Boundary
     label: str = ""
     reset: Reset | None = None  # maps the controller's continuous state on the jump
+    when: Guard | None = None  # a discrete condition ANDed with a boundary guard (never located)
+
+
+class SwitchingParams(BaseModel):
+    """Boundary-localised stochastic switching (Grudic & Ungar's BLRL policy), off by default.
+
+    With a ``temperature`` T, a boundary whose value is within ``band`` x T of zero holds with
+    probability sigma(g / T) (a Bernoulli draw, once per boundary and time); farther away its sign
+    decides as usual.  Each draw is a ``switch_draw`` event carrying its score-function gradient
+    d log pi(a) / d theta_k = (a - p) / T x dg/d theta_k (dg/d theta by central differences), which the
+    run sums into its row (``blrl.score.<component>.<boundary>.<param>``) for the learner.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    temperature: float | None = Field(None, gt=0.0)  # T in units of g; None: deterministic switching
+    band: float = Field(4.0, gt=0.0)  # stochastic only where |g| < band x T (sigma(4) = 0.982)
+
+
+def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
+    """Linear interpolation of the zero of g between (t0, g0 < 0) and (t1, g1 >= 0) [s]."""
+    if not (math.isfinite(g0) and math.isfinite(g1)) or g1 == g0:
+        return t1
+    return t0 + (t1 - t0) * (-g0) / (g1 - g0)
+
+
+def _flatten(modes: Iterable[str | Mode], parent: str | None, out: dict[str, tuple[Mode, str | None]]) -> None:
+    for m in modes:
+        mode = Mode(m) if isinstance(m, str) else m
+        if mode.name in out:
+            raise ValueError(f"mode {mode.name!r} declared twice")
+        out[mode.name] = (mode, parent)
+        _flatten(mode.children, mode.name, out)
 
 
 class HybridAutomaton:
-    """A finite set of modes with guarded transitions; records each jump as an event."""
+    """Hierarchical modes with guarded transitions; records each jump (and located crossing) as an event."""
 
-    def __init__(self, name: str, modes: Iterable[str], initial: str,
-                 transitions: Sequence[Transition]) -> None:
+    def __init__(self, name: str, modes: Iterable[str | Mode], initial: str,
+                 transitions: Sequence[Transition], tag: str = "", switching: SwitchingParams | None = None,
+                 rng: np.random.Generator | None = None, **event_data: Any) -> None:
         self.name = name
-        self.modes = tuple(modes)
-        if initial not in self.modes:
+        self.switching = switching if switching is not None and switching.temperature is not None else None
+        if self.switching is not None and rng is None:
+            raise ValueError(f"{name}: stochastic switching needs a random generator")
+        self.rng = rng
+        self.tag = tag  # prefix of the event messages (e.g. the governed vehicle's id)
+        self.event_data = event_data  # added to every event's data (e.g. uav="uav_0")
+        self._tree: dict[str, tuple[Mode, str | None]] = {}
+        _flatten(modes, None, self._tree)
+        self.modes = tuple(self._tree)
+        if initial not in self._tree:
             raise ValueError(f"{name}: initial mode {initial!r} not in {self.modes}")
         for tr in transitions:
             for m in (tr.src, tr.dst):
-                if m not in self.modes:
+                if m not in self._tree:
                     raise ValueError(f"{name}: transition {tr.src}->{tr.dst} names unknown mode {m!r}")
         self.initial = initial
         self._out: dict[str, list[Transition]] = {m: [] for m in self.modes}
         for tr in transitions:
             self._out[tr.src].append(tr)
-        self.mode = initial
-        self.entered_t = 0.0
-        self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
+        self.boundaries = {tr.guard.name: tr.guard for tr in transitions if isinstance(tr.guard, Boundary)}
+        self.reset(0.0)
 
+    # ---- the tree ----------------------------------------------------------------------------------
+    def path(self, mode: str | None = None) -> tuple[str, ...]:
+        """Outermost-first chain of modes holding ``mode`` (itself included; default the active leaf)."""
+        out: list[str] = []
+        m: str | None = mode or self.mode
+        while m is not None:
+            out.append(m)
+            m = self._tree[m][1]
+        return tuple(reversed(out))
+
+    def _leaf(self, mode: str) -> str:
+        spec = self._tree[mode][0]
+        while spec.children:
+            spec = self._tree[spec.initial or spec.children[0].name][0]
+        return spec.name
+
+    def in_mode(self, mode: str) -> bool:
+        """True when ``mode`` is the active leaf or holds it."""
+        return mode in self.path()
+
+    # ---- state -------------------------------------------------------------------------------------
     def reset(self, t: float = 0.0) -> None:
         """Back to the initial mode at time ``t`` [s], with an empty history."""
-        self.mode, self.entered_t, self.history = self.initial, t, []
+        self.mode, self.entered_t = self._leaf(self.initial), t
+        self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
+        self._g: dict[str, tuple[float, float]] = {}  # boundary name -> (t [s], g) at its last evaluation
+        self.g_now: dict[str, float] = {}  # the boundaries evaluated at the last update
+        self.invariant_violations = 0
+        self._t_last = t
+        # boundary name -> outcome decided from outside (a learning agent's action): the guard takes it
+        # instead of the sign of g (g is still evaluated and logged)
+        self.decided: dict[str, bool] = {}
+        self._drawn: dict[str, tuple[float, bool]] = {}  # boundary -> (t, outcome) of its last draw
+        self.pending_draws: list[dict[str, Any]] = []
 
     def time_in_mode(self, t: float) -> float:
         """Seconds spent in the current mode at time ``t`` [s]."""
         return t - self.entered_t
 
-    def update(self, t: float, x: Any, events: EventLog | None = None) -> tuple[str, Any]:
-        """Take at most one transition whose guard holds; return (mode, possibly reset state)."""
-        for tr in self._out[self.mode]:
-            if tr.guard(x):
-                self.history.append((t, tr.src, tr.dst, tr.label))
+    def _guard(self, tr: Transition, t: float, x: Any) -> tuple[bool, float | None]:
+        """Whether ``tr`` fires, and the located crossing time of its boundary (None: a plain guard)."""
+        if not isinstance(tr.guard, Boundary):
+            return bool(tr.guard(x)), None
+        g = self.g_now[tr.guard.name]
+        holds = self.decided.get(tr.guard.name)
+        if holds is None:
+            holds = self._draw(tr.guard, t, g, x) if self._near(g) else tr.guard.holds(g)
+        fires = holds and (tr.when is None or bool(tr.when(x)))
+        t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
+        crossed = tr.guard.holds(g) and not tr.guard.holds(g_prev)  # a stochastic switch may fire before g = 0
+        t_cross = crossing_time(t_prev, g_prev, t, g) if crossed else t
+        return fires, t_cross
+
+    def _near(self, g: float) -> bool:
+        sw = self.switching
+        return sw is not None and math.isfinite(g) and abs(g) < sw.band * sw.temperature  # type: ignore[operator]
+
+    def _draw(self, b: Boundary, t: float, g: float, x: Any) -> bool:
+        """The stochastic switch near boundary ``b`` (one draw per boundary and time)."""
+        last = self._drawn.get(b.name)
+        if last is not None and last[0] == t:
+            return last[1]
+        temp = float(self.switching.temperature)  # type: ignore[union-attr, arg-type]
+        p = 1.0 / (1.0 + math.exp(-g / temp))
+        a = bool(self.rng.random() < p)  # type: ignore[union-attr]
+        self._drawn[b.name] = (t, a)
+        score = {k: (float(a) - p) / temp * self._dg(b, x, k) for k in b.theta}
+        self.pending_draws.append({"boundary": b.name, "a": a, "p": p, "g": g, "score": score})
+        return a
+
+    @staticmethod
+    def _dg(b: Boundary, x: Any, key: str) -> float:
+        """dg/d theta_key by a central difference (step 1e-4 of the parameter's size)."""
+        h = 1e-4 * max(abs(float(b.theta[key])), 1.0)
+        up, down = dict(b.theta), dict(b.theta)
+        up[key], down[key] = float(b.theta[key]) + h, float(b.theta[key]) - h
+        return (float(b.fn(x, up)) - float(b.fn(x, down))) / (2.0 * h)
+
+    def _evaluate(self, t: float, x: Any) -> None:
+        """Evaluate g of every boundary leaving the active path, remembered for the next crossing location."""
+        self._g = {k: (self._t_last, v) for k, v in self.g_now.items()}  # only the previous update's
+        self.g_now = {}
+        for m in self.path():
+            for tr in self._out[m]:
+                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
+                    self.g_now[tr.guard.name] = tr.guard.value(x)
+        self._t_last = t
+
+    def update(self, t: float, x: Any, events: EventLog | None = None, settle: int = 1) -> tuple[str, Any]:
+        """Take at most ``settle`` transitions whose guards hold; return (mode, possibly reset state).
+
+        One transition per pass; after a jump the new mode's guards are tried on the same ``x``.
+        ``settle`` > 1 lets a memoryless controller land, within one update, in the mode its state
+        decides (e.g. entering a composite and at once switching sub-mode).
+        """
+        self._evaluate(t, x)
+        self.pending_draws = []
+        try:
+            for _ in range(max(settle, 1)):
+                jumped, x = self._update(t, x, events)
+                if not jumped:
+                    break
+                self._evaluate_new(x)
+            return self.mode, x
+        finally:
+            if events is not None:
+                for d in self.pending_draws:
+                    events.emit(t, self.name, "switch_draw", f"{d['boundary']}: {int(d['a'])} (p {d['p']:.3f})",
+                                **self.event_data, **d)
+
+    def _evaluate_new(self, x: Any) -> None:
+        """After a jump: g of the boundaries leaving the new path not yet evaluated at this update."""
+        for m in self.path():
+            for tr in self._out[m]:
+                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
+                    self.g_now[tr.guard.name] = tr.guard.value(x)
+
+    def _update(self, t: float, x: Any, events: EventLog | None) -> tuple[bool, Any]:
+        for m in self.path():  # outermost first: a mode's own jump pre-empts its sub-modes'
+            for tr in self._out[m]:
+                fires, t_cross = self._guard(tr, t, x)
+                if fires:
+                    self._jump(t, tr, t_cross, events)
+                    return True, (tr.reset(x) if tr.reset else x)
+        self._check_invariant(t, x, events)
+        return False, x
+
+    def _jump(self, t: float, tr: Transition, t_cross: float | None, events: EventLog | None) -> None:
+        src_leaf, dst_leaf = self.mode, self._leaf(tr.dst)
+        old, new = self.path(src_leaf), self.path(dst_leaf)
+        common = 0
+        while common < min(len(old), len(new)) and old[common] == new[common] and old[common] != tr.src:
+            common += 1
+        for m in reversed(old[common:]):
+            on_exit = self._tree[m][0].exit
+            if on_exit is not None:
+                on_exit(t)
+        self.history.append((t, src_leaf, dst_leaf, tr.label))
+        if events is not None:
+            data: dict[str, Any] = {**self.event_data, "src": src_leaf, "dst": dst_leaf}
+            if isinstance(tr.guard, Boundary) and t_cross is not None:
+                data.update(boundary=tr.guard.name, t_cross=t_cross, g=self.g_now[tr.guard.name],
+                            located=t_cross != t)  # False: g was already past 0 (a `when` or a draw fired)
+            prefix = f"{self.tag}: " if self.tag else ""
+            text = f"{'.'.join(old)} -> {'.'.join(new)}: {tr.label}"  # dotted paths: avoid.clear
+            events.emit(t, self.name, "mode", prefix + text, **data)
+        self.mode, self.entered_t = dst_leaf, t
+        for m in new[common:]:
+            on_entry = self._tree[m][0].entry
+            if on_entry is not None:
+                on_entry(t)
+
+    def _check_invariant(self, t: float, x: Any, events: EventLog | None) -> None:
+        for m in self.path():
+            inv = self._tree[m][0].invariant
+            if inv is None:
+                continue
+            ok = inv.holds(inv.value(x)) if isinstance(inv, Boundary) else bool(inv(x))
+            if not ok:
+                self.invariant_violations += 1
                 if events is not None:
-                    events.emit(t, self.name, "mode", f"{tr.src} -> {tr.dst}: {tr.label}",
-                                src=tr.src, dst=tr.dst)
-                self.mode, self.entered_t = tr.dst, t
-                return self.mode, (tr.reset(x) if tr.reset else x)
-        return self.mode, x
+                    prefix = f"{self.tag}: " if self.tag else ""
+                    events.emit(t, self.name, "invariant", f"{prefix}{m}: invariant violated",
+                                **self.event_data, mode=m)
+

@@ -97,13 +97,32 @@ def scratch_root(out_dir: str | Path | None) -> Path | None:
     return root
 
 
+def event_counts(ctx: RunContext) -> dict[str, int]:
+    """The row's event columns (``events_mode``, ``events_fallback``)."""
+    return {f"events_{kind}": ctx.events.counts.get(kind, 0) for kind in ("mode", "fallback")}
+
+
+def switch_scores(ctx: RunContext) -> dict[str, float]:
+    """Stochastic boundary switching (``corridor.modes.SwitchingParams``): the number of draws and
+    the summed score-function gradient per boundary parameter; nothing when no switch was drawn."""
+    draws = ctx.events.of_kind("switch_draw")
+    if not draws:
+        return {}
+    out: dict[str, float] = {"blrl.draws": float(len(draws))}
+    for e in draws:
+        for k, v in e.data["score"].items():
+            col = f"blrl.score.{e.source}.{e.data['boundary']}.{k}"
+            out[col] = out.get(col, 0.0) + float(v)
+    return out
+
+
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
     with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
         metrics = sim.run()
-    for kind in ("mode", "fallback"):
-        metrics[f"events_{kind}"] = sim.ctx.events.counts.get(kind, 0)
+    metrics.update(event_counts(sim.ctx))
+    metrics.update(switch_scores(sim.ctx))
     if out_dir and sc.outputs.signals:
         sig_dir = Path(out_dir) / "signals"
         sig_dir.mkdir(parents=True, exist_ok=True)

@@ -43,13 +43,22 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
+from corridor.controllers.merging.switching import (
+    DIST_BOUNDARIES,
+    MergeBoundaries,
+    MergeState,
+    VirtualGap,
+    merge_automaton,
+    resolved,
+)
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
+from corridor.modes import HybridAutomaton, SwitchingParams
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
@@ -129,6 +138,24 @@ class V2XMerging(Controller):
         #   with Krauss drivers it makes no measurable difference (8 seeds: cps 12.80 / 12.82 s)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
+        # when a vehicle switches (controllers.merging.switching; defaults: the constants above)
+        boundaries: MergeBoundaries = Field(default_factory=MergeBoundaries)
+        # stochastic switching near the boundaries (run_scenario --learn --method blrl); default deterministic
+        switching: SwitchingParams = Field(default_factory=SwitchingParams)
+
+        @model_validator(mode="before")
+        @classmethod
+        def _distances_default_to_virtual_leader(cls, data: Any) -> Any:
+            """A distance boundary without ``dist_m`` takes ``virtual_leader_m`` (the learner reads numbers)."""
+            if not isinstance(data, dict) or not isinstance(data.get("boundaries", {}), dict):
+                return data
+            d = data.get("virtual_leader_m", 100.0)
+            bounds = dict(data.get("boundaries") or {})
+            for key in DIST_BOUNDARIES:
+                theta = bounds.get(key, {})
+                if isinstance(theta, dict) and theta.get("dist_m") is None:
+                    bounds[key] = {**theta, "dist_m": d}
+            return {**data, "boundaries": bounds}
 
     @classmethod
     def check_scenario(cls, params: Params, scenario: Any) -> None:
@@ -151,10 +178,13 @@ class V2XMerging(Controller):
         self.stale_releases = 0
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
+        self.theta = resolved(params.boundaries, params.virtual_leader_m)
+        self.automata: dict[str, HybridAutomaton] = {}  # vid -> its automaton while it holds an assignment
 
     # ------------------------------------------------------------------ wiring
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
+        self._ctx = ctx  # per-vehicle switching generators (stochastic switching only)
         lm = self.landmarks = road_frame(ctx).tables.landmarks
         if not hasattr(lm, "joins_mainline"):
             raise ValueError(f"{self.name}: V2X merging needs an on-ramp network (highway_onramp), not {lm.kind!r}")
@@ -189,6 +219,27 @@ class V2XMerging(Controller):
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
         self.channel.send_many(ctx.t, cams + assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
+        self._last_state = state  # the overlays' vehicle positions
+
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """What a recorder may draw: the ``yield_enter`` and ``merge_enter`` distances as lines across
+        the mainline (``merge_enter`` is measured along the ramp; its line marks the same distance to
+        the conflict point) and the coordinated vehicles by mode (``modes/<leaf mode>`` points)."""
+        out: dict[str, tuple[str, Any]] = {}
+        if not hasattr(self, "x_merge"):
+            return out
+        for key in ("yield_enter", "merge_enter"):
+            x = self.x_merge - self.theta[key]["dist_m"]
+            out[f"boundaries/{key}"] = ("lines", [np.array([[x, 0.0], [x, self.y_rsu]])])
+        st = getattr(self, "_last_state", None)
+        if st is not None:
+            row = {v: k for k, v in enumerate(st["ids"])}
+            pts: dict[str, list[np.ndarray]] = {}
+            for vid, ha in self.automata.items():
+                if vid in row:
+                    pts.setdefault(ha.mode, []).append(st["pos"][row[vid]][:2])
+            out.update({f"modes/{m}": ("points", np.array(p)) for m, p in pts.items()})
+        return out
 
     def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
         """Own-vehicle facts each vehicle knows exactly (GNSS/odometry): distance to the merge, road."""
@@ -376,9 +427,13 @@ class V2XMerging(Controller):
                 self._fallback(t, vid, cmds)
                 continue
             road_k = "ramp" if s["ramp"][k] else "main"
-            near_merge = dist[k] <= self.p.virtual_leader_m
             cross_pred = a.pred is not None and a.pred_road != road_k
-            if road_k == "main" and not (near_merge and cross_pred):
+            x = MergeState(road_k, float(dist[k]), cross_pred,
+                           probe=lambda vid=vid, a=a, k=k: self._virtual_gap(t, vid, a.pred, float(dist[k]), live, length))
+            ha = self._automaton(vid, road_k)
+            ha.update(t, x, self.events, settle=3)
+            near_merge = ha.in_mode("merge") or ha.in_mode("yield")
+            if road_k == "main" and not near_merge:
                 # a mainline vehicle behind a mainline predecessor follows its physical leader, which
                 # is that predecessor: its own driver (SUMO) does that; only gap openers are commanded
                 if vid in self.controlled:
@@ -390,19 +445,16 @@ class V2XMerging(Controller):
             else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
                 acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
             if near_merge and cross_pred:
-                known, est, ages = self.tracks.predict_states(vid, [a.pred], t)
-                if not known[0] or ages[0] > self.p.stale_after_s:
+                vg = x.gap()
+                if not vg.known:
                     self._fallback(t, vid, cmds)
                     continue
-                pos_lead, vel_lead, age_s = float(est[0, 0]), float(est[0, 1]), float(ages[0])
-                lead_len = float(length[live[a.pred]]) if a.pred in live else 5.0
-                gap = float(dist[k]) + pos_lead - lead_len  # both projected on the merge point
-                if gap > -lead_len:  # the predecessor is ahead of (or beside) the ego: keep a safe gap
+                if ha.in_mode("behind") or ha.in_mode("open"):  # keep the gap behind the predecessor
+                    gap, v_lead = vg.gap_m, max(vg.v_lead_mps, 0.0)
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
-                    v_lead = max(vel_lead, 0.0)
-                    if age_s > self.period:  # unheard since: assume it braked as hard as it can
-                        x_last = gap - v_lead * age_s
-                        gap, v_lead = worst_case_leader(x_last, v_lead, age_s, self.p.safety.b_lead_mps2)
+                    if vg.age_s > self.period:  # unheard since: assume it braked as hard as it can
+                        x_last = gap - v_lead * vg.age_s
+                        gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.p.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
                     acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)
@@ -412,7 +464,29 @@ class V2XMerging(Controller):
             cmds.append(SetSpeed(vid, v_next))
             self.controlled.add(vid)
             self.commands_sent += 1
+        for vid in [v for v in self.automata if v not in self.assigned or live.get(v) is None or dist[live[v]] < 0]:
+            del self.automata[vid]  # past the conflict point, gone, or no longer coordinated
         return cmds
+
+    def _automaton(self, vid: str, road: str) -> HybridAutomaton:
+        ha = self.automata.get(vid)
+        if ha is None:
+            sw = self.p.switching
+            rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
+            ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
+        return ha
+
+    def _virtual_gap(self, t: float, vid: str, pred: str | None, dist_m: float, live: dict[str, int],
+                     length: np.ndarray) -> VirtualGap:
+        """``vid``'s V2X track of its predecessor, both projected on the conflict point (not known:
+        never heard, or older than ``stale_after_s``)."""
+        known, est, ages = self.tracks.predict_states(vid, [pred], t)
+        if not known[0] or ages[0] > self.p.stale_after_s:
+            return VirtualGap(False)
+        pos_lead, vel_lead, age_s = float(est[0, 0]), float(est[0, 1]), float(ages[0])
+        lead_len = float(length[live[pred]]) if pred in live else 5.0
+        gap = dist_m + pos_lead - lead_len  # > 0: the predecessor is ahead of the ego
+        return VirtualGap(True, gap, vel_lead, age_s, lead_len)
 
     def _merge_gap_accel(self, gap_m: float, v: float, v_lead: float) -> float:
         """Constant-time-gap rule towards the virtual leader: open the gap that the lane change needs.

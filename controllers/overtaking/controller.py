@@ -12,6 +12,19 @@ Modes (a ``HybridAutomaton``; every jump is an event in the run's ``EventLog``):
     abort --(back in lane behind the lead)--> follow
     abort --(ended up ahead of the lead after all)--> return
 
+Three guards are named boundaries g(x; theta) (``corridor.modes.Boundary``) with their parameters
+under ``controller.boundaries`` in the scenario YAML, so ``--set``, ``randomize`` and sweeps reach them:
+
+- ``pass_enter`` (follow -> decide, strict, while in lane and after the cooldown):
+  ``min((range_m - gap) / range_m, (desired - speed_margin_mps - v_lead) / desired)``: the lead is
+  closer than ``range_m`` and slower than the desired speed by more than ``speed_margin_mps``;
+- ``pass_done`` (pass/abort -> return): ``ahead - (front_gap_m - slack_m)``, the ego's bumper gap
+  ahead of the lead reached the MPC's front gap less ``slack_m``;
+- ``pass_abort`` (pass -> abort, strict, when a re-plan failed): ``(x_lead - x_ego) - behind_m``,
+  the ego is still behind the lead by more than ``behind_m``.
+
+``pass`` has an invariant (the deadline has not passed); a violation is an ``invariant`` event.
+
 Event-triggered re-planning: after each solve the plan is kept and the inputs are played from it.
 Each period the *remaining* plan is re-checked against the safety specification with fresh predictions
 of the other vehicles (filterpy tracks); the STL library gives its space robustness [m] and right time
@@ -21,6 +34,7 @@ the mode changed, or ``replan_max_interval_s`` elapsed.  ``replan="every_step"``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -40,7 +54,7 @@ from corridor.controllers.overtaking.mpc import (
     rollout_guess,
 )
 from corridor.events import EventLog
-from corridor.modes import HybridAutomaton, Transition
+from corridor.modes import Boundary, HybridAutomaton, Mode, Transition
 from corridor.stl import as_formula, evaluate_spec
 from corridor.vehicles.ground.bicycle import BicycleParams, clip_input
 from corridor.vehicles.tracks.predictor import PredictorParams, RoadVehiclePredictor
@@ -51,14 +65,41 @@ _WARM_COMPATIBLE = {(m, m) for m in MODES} | {("pass", "return"), ("abort", "ret
                                                ("abort", "follow")}
 
 
+class PassEnter(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    range_m: float = Field(60.0, gt=0.0)  # [m] consider passing when the lead is this close
+    speed_margin_mps: float = Field(3.0, ge=0.0)  # [m/s] overtake only leads slower by this
+
+
+class PassDone(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    slack_m: float = 1.0  # [m] passed when ahead of the lead by the MPC's front gap less this
+
+
+class PassAbort(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+    behind_m: float = 0.0  # [m] a failed re-plan aborts while still this far behind the lead
+
+
+class OvertakingBoundaries(BaseModel):
+    """The named boundaries of the overtaking automaton (see the module docstring)."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    pass_enter: PassEnter = Field(default_factory=PassEnter)
+    pass_done: PassDone = Field(default_factory=PassDone)
+    pass_abort: PassAbort = Field(default_factory=PassAbort)
+
+
 class OvertakingParams(BaseModel):
     """Everything the overtaking controller needs, with defaults; a scenario overrides what differs."""
 
     model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
 
     desired_speed_mps: float = Field(26.0, gt=0.0)  # [m/s] cruise speed when the road is free
-    pass_speed_margin_mps: float = Field(3.0, ge=0.0)  # [m/s] overtake only leads slower by this
-    decide_range_m: float = Field(60.0, gt=0.0)  # [m] consider passing when the lead is this close
     decide_cooldown_s: float = Field(1.0, ge=0.0)  # [s] wait in follow between two decisions
     deadline_s: float = Field(12.0, gt=0.0)  # [s] the pass must be complete this long after commit
     replan: Literal["event", "every_step"] = "event"
@@ -69,6 +110,7 @@ class OvertakingParams(BaseModel):
     decide_screen_m: float = Field(15.0, ge=0.0)  # [m] refuse without solving if the pass guess misses by more
     monitor_relax_m: float = Field(2.0, ge=0.0)  # [m] monitored spec = planning margins minus this
     prediction_sigmas: float = Field(1.0, ge=0.0)  # gaps are tightened by this many predicted std
+    boundaries: OvertakingBoundaries = Field(default_factory=OvertakingBoundaries)
     mpc: OvertakingMpcParams = OvertakingMpcParams()
     ego: BicycleParams = BicycleParams()
     road: RoadGeometry = RoadGeometry()
@@ -124,13 +166,15 @@ class _Plan:
 class _Context:
     """What the mode guards read."""
 
-    want_pass: bool = False
+    gap_m: float = math.inf  # [m] target's x minus the ego's body-centre x (inf: no target)
+    v_target_mps: float = math.inf  # [m/s] the target's speed
+    ahead_m: float = -math.inf  # [m] the ego's bumper gap ahead of the target
     plan_ok: bool = False
-    passed: bool = False
     in_lane: bool = False
     behind_target: bool = True
     pass_failed: bool = False
     cooldown_over: bool = False
+    deadline_left_s: float = math.inf  # [s] until the committed pass must be complete
     extra: dict = field(default_factory=dict)
 
 
@@ -194,17 +238,33 @@ def safety_spec(lead_m: float = 0.0, ahead_m: float = 0.0, lat_m: float = 0.0, o
     return f"G{body}" if always else body
 
 
-def _transitions() -> list[Transition]:
+def pass_enter_margin(c: _Context, th: dict[str, float], desired_mps: float) -> float:
+    """g of ``pass_enter``: > 0 when the lead is closer than range_m and slow by more than the margin."""
+    return min((th["range_m"] - c.gap_m) / th["range_m"],
+               (desired_mps - th["speed_margin_mps"] - c.v_target_mps) / desired_mps)
+
+
+def _transitions(p: OvertakingParams) -> list[Transition]:
+    b = p.boundaries
+    enter = Boundary("pass_enter", lambda c, th: pass_enter_margin(c, th, p.desired_speed_mps),
+                     b.pass_enter.model_dump(), strict=True)
+    done = Boundary("pass_done", lambda c, th: c.ahead_m - (p.mpc.front_gap_m - th["slack_m"]),
+                    b.pass_done.model_dump())
+    abort = Boundary("pass_abort", lambda c, th: c.gap_m - th["behind_m"], b.pass_abort.model_dump(), strict=True)
     return [
-        Transition("follow", "decide", lambda c: c.want_pass and c.cooldown_over, "lead slow and close"),
+        Transition("follow", "decide", enter, "lead slow and close", when=lambda c: c.in_lane and c.cooldown_over),
         Transition("decide", "pass", lambda c: c.plan_ok, "safe complete pass plan"),
         Transition("decide", "follow", lambda c: not c.plan_ok, "no safe gap"),
-        Transition("pass", "abort", lambda c: c.pass_failed and c.behind_target, "gap closed"),
-        Transition("pass", "return", lambda c: c.passed, "ahead of the lead"),
+        Transition("pass", "abort", abort, "gap closed", when=lambda c: c.pass_failed),
+        Transition("pass", "return", done, "ahead of the lead"),
         Transition("return", "follow", lambda c: c.in_lane, "back in lane"),
-        Transition("abort", "return", lambda c: c.passed, "ahead of the lead after all"),
+        Transition("abort", "return", done, "ahead of the lead after all"),
         Transition("abort", "follow", lambda c: c.in_lane and c.behind_target, "back behind the lead"),
     ]
+
+
+def _modes() -> list[Mode]:
+    return [Mode(m, invariant=(lambda c: c.deadline_left_s >= 0.0) if m == "pass" else None) for m in MODES]
 
 
 class OvertakingController:
@@ -222,7 +282,7 @@ class OvertakingController:
         p = self.params
         self.mpc = cached_mpc(p.mpc, p.ego, p.road)
         self.predictor = RoadVehiclePredictor(p.predictor)
-        self.ha = HybridAutomaton(name, MODES, "follow", _transitions())
+        self.ha = HybridAutomaton(name, _modes(), "follow", _transitions(self.params))
         relax = p.monitor_relax_m
         self._monitor = as_formula(safety_spec(
             lead_m=max(p.mpc.lead_standstill_gap_m - relax, 0.0), ahead_m=max(p.mpc.front_gap_m - relax, 0.0),
@@ -284,16 +344,18 @@ class OvertakingController:
         half_len = 0.5 * (p.ego.length_m + p.road.other_length_m)
         ctx = _Context(in_lane=abs(yc) < 0.3 and abs(ego[2]) < 0.05)
         ctx.cooldown_over = self.mode != "follow" or obs.t_s - self._follow_since_s >= p.decide_cooldown_s
+        if self.deadline_t_s is not None:
+            ctx.deadline_left_s = self.deadline_t_s - obs.t_s
         tid = self._target(obs)
-        if tid is None:
-            ctx.passed = self.mode == "pass"
+        if tid is None:  # nothing to pass: a pass in progress counts as done, nothing is behind us
+            ctx.ahead_m = math.inf if self.mode == "pass" else -math.inf
+            ctx.gap_m = -math.inf if self.mode != "follow" else math.inf
             ctx.behind_target = False
             return ctx
         x_t, v_t, _ = self.predictor.state(tid)
-        ctx.passed = xc - x_t - half_len >= p.mpc.front_gap_m - 1.0
+        ctx.ahead_m = xc - x_t - half_len
+        ctx.gap_m, ctx.v_target_mps = x_t - xc, v_t
         ctx.behind_target = xc < x_t
-        ctx.want_pass = (ctx.in_lane and x_t - xc < p.decide_range_m
-                         and v_t < p.desired_speed_mps - p.pass_speed_margin_mps)
         return ctx
 
     def _advance(self, obs: OvertakingObservation, ctx: _Context) -> None:

@@ -20,14 +20,18 @@ support (zero beyond ``f >= uav_cutoff_m``) and the control tube keeps only intr
 can reach the ego within its horizon, so the aircraft left out are exactly ones the method would
 have ignored (the margin covers the track's uncertainty radius and the report's age).
 
-Modes: every UAV is ``cruise`` or ``avoid`` (the method's ``avoiding`` flag); each transition is a
-``mode`` event, so the Rerun timeline shows when and why a UAV deviated. Two guards sit between a
+Modes: every UAV of an avoiding controller runs the ``mission <-> avoid{clear, deflect} <-> return``
+automaton of ``controllers.uav.switching``, whose guards are named boundaries with their parameters
+under ``params.boundaries`` (``avoid_enter``, ``avoid_exit``, ``return_done``); the method is shown the
+tracked picture only in ``avoid``.  Each transition is a ``mode`` event (with the located crossing
+time of its boundary), so the Rerun timeline shows when and why a UAV deviated. Two guards sit between a
 method and the autopilot: a non-finite command becomes "hold position" (a ``fallback`` event), and a
 vertical geofence (``min_alt_m`` .. ``max_alt_m``) limits the climb/descent the method may command.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -37,7 +41,9 @@ from corridor.controllers.uav.control_tube import ControlTubeParams
 from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
+from corridor.controllers.uav.switching import SwitchState, UavBoundaries, uav_automaton
 from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.modes import SwitchingParams
 from corridor.vehicles.air.autopilot import VelocityCommand
 from corridor.vehicles.air.backend import AirBackend, AircraftCommand, air_rows
 from corridor.vehicles.mavlink.air_link import AirLink, Relevance
@@ -69,6 +75,10 @@ class UavAvoidanceParams(BaseModel):
     # control_tube.period_s defaults to the controller's period (see ControlTubeController.build_methods)
     potential_field: PotentialFieldParams = Field(default_factory=PotentialFieldParams)
     control_tube: ControlTubeParams = Field(default_factory=ControlTubeParams)
+    # when the method is shown the intruders (see controllers.uav.switching; defaults: always)
+    boundaries: UavBoundaries = Field(default_factory=UavBoundaries)
+    # stochastic switching near the boundaries (run_scenario --learn --method blrl); default deterministic
+    switching: SwitchingParams = Field(default_factory=SwitchingParams)
 
 
 def patrol_target(angle_rad: float, a0: float, a1: float, direction: float, lookahead_rad: float,
@@ -109,6 +119,9 @@ class _UavController(Controller):
         self.goal: dict[str, np.ndarray] = {}
         self.cruise: dict[str, float] = {}
         self.mode: dict[str, str] = {}
+        self.automata: dict[str, Any] = {}
+        self.last_pos: dict[str, np.ndarray] = {}  # [m] ENU at the last decision (the overlays)
+        self.deflecting: dict[str, bool] = {}
         self.avoid_decisions = 0
         self.decisions = 0
         self.fallbacks = 0
@@ -121,6 +134,10 @@ class _UavController(Controller):
             self.goal[uid] = np.asarray(specs[uid].goal_enu, float)
             self.cruise[uid] = float(specs[uid].cruise_speed_mps)
             self.mode[uid] = "cruise"
+            self.deflecting[uid] = False
+            if self.uses_link:
+                self.automata[uid] = uav_automaton(self.name, uid, self.params.boundaries, self.params.switching,
+                                                   ctx.rng(f"{self.name}.switching.{uid}"))
         self.uav_ids = list(ids)
         self.patrol = self._patrol_sectors()
         self.patrol_dir = {uid: 1.0 for uid in self.patrol}
@@ -176,12 +193,26 @@ class _UavController(Controller):
         """Every governed UAV's method command (a method may override this to work fleet-wide)."""
         return {uid: self.decide(uid, o) for uid, o in obs.items()}
 
+    def gate(self, obs: dict[str, AvoidanceObservation]) -> dict[str, AvoidanceObservation]:
+        """Switch each UAV's automaton on its observation; outside ``avoid`` the method sees nobody."""
+        out = {}
+        for uid, o in obs.items():
+            ha = self.automata.get(uid)
+            if ha is None:
+                out[uid] = o
+                continue
+            ha.update(o.t, SwitchState(o, self.deflecting[uid]), self.events)
+            self.last_pos[uid] = o.own_pos
+            out[uid] = o if ha.in_mode("avoid") or not o.others else replace(o, others=())
+        return out
+
     def step(self, obs: dict[str, AvoidanceObservation]) -> list[Any]:
         out: list[Any] = []
-        cmds = self.decide_all(obs)
+        shown = self.gate(obs)
+        cmds = self.decide_all(shown)
         for uid, o in obs.items():
             cmd = cmds[uid]
-            self._track_mode(uid, o.t, cmd.avoiding)
+            self._track_mode(uid, o, cmd.avoiding)
             v = np.asarray(cmd.vel_mps, float)
             if not np.all(np.isfinite(v)):  # a method failure must never reach the autopilot
                 self.fallbacks += 1
@@ -190,6 +221,19 @@ class _UavController(Controller):
             v = self.fence(o.own_pos, v)
             out.append(AircraftCommand(uid, VelocityCommand(tuple(float(x) for x in v))))
         return out
+
+    def overlays(self) -> dict[str, tuple[str, Any]]:
+        """What a recorder may draw: the ``avoid_enter`` range (``dist_m``) around each UAV, as a ground
+        circle, per mode (``mission`` / ``avoid`` / ``return``); ranges over 2 km are not drawn."""
+        r = self.params.boundaries.avoid_enter.dist_m
+        if r > 2000.0 or not self.last_pos:
+            return {}
+        a = np.linspace(0.0, 2.0 * np.pi, 49)
+        ring = r * np.column_stack([np.cos(a), np.sin(a)])
+        out: dict[str, list[np.ndarray]] = {}
+        for uid, pos in self.last_pos.items():
+            out.setdefault(self.automata[uid].path()[0], []).append(ring + pos[:2])
+        return {f"boundaries/avoid_enter/{mode}": ("lines", rings) for mode, rings in out.items()}
 
     def fence(self, pos: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Vertical geofence: climb/descent limited to k x the distance to the ceiling/floor, so the
@@ -201,13 +245,15 @@ class _UavController(Controller):
         out[2] = float(np.clip(v[2], lo, hi))
         return out
 
-    def _track_mode(self, uid: str, t: float, avoiding: bool) -> None:
+    def _track_mode(self, uid: str, obs: AvoidanceObservation, avoiding: bool) -> None:
+        """Count the method's deflections; inside ``avoid`` they switch its sub-modes."""
         self.decisions += 1
         self.avoid_decisions += int(avoiding)
-        new = "avoid" if avoiding else "cruise"
-        if new != self.mode[uid]:
-            self.events.emit(t, self.name, "mode", f"{uid}: {self.mode[uid]} -> {new}", uav=uid, mode=new)
-            self.mode[uid] = new
+        self.deflecting[uid] = avoiding
+        ha = self.automata.get(uid)
+        if ha is not None:
+            ha.update(obs.t, SwitchState(obs, avoiding), self.events)
+        self.mode[uid] = ha.mode if ha is not None else ("avoid" if avoiding else "cruise")
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         return {"avoid_share": self.avoid_decisions / max(self.decisions, 1), "avoid_fallbacks": self.fallbacks}

@@ -39,3 +39,15 @@ def test_last_partial_block_of_signals_is_recorded(tmp_path: Path) -> None:
 
     paths = {c.entity_path for c in RrdReader(rrd).stream()}
     assert {"/world/ground", "/world/origin"} <= paths
+
+
+def test_a_located_boundary_crossing_is_named_in_the_text_log() -> None:
+    from corridor.analysis.rerun_log import _crossing
+    from corridor.events import Event
+
+    located = Event(7.2, "avoid", "mode", "uav_a: mission -> avoid.clear: threat predicted",
+                    {"boundary": "avoid_enter", "t_cross": 7.134, "located": True})
+    assert _crossing(located) == " (avoid_enter = 0 at 7.13 s)"
+    assert _crossing(Event(4.0, "ego", "mode", "pass -> abort", {"boundary": "pass_abort", "t_cross": 4.0,
+                                                                  "located": False})) == ""
+    assert _crossing(Event(1.0, "ego", "mode", "follow -> pass", {"src": "follow"})) == ""

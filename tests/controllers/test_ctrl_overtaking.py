@@ -18,7 +18,7 @@ WORLD = OvertakingWorldParams(duration_s=25.0)
 HOSTILE = OvertakingWorldParams(duration_s=25.0, lead_reacts_prob=1.0, lead_reaction_mps=8.0,
                                 lead_speed_mps=(15.0, 17.0), oncoming_first_m=(330.0, 360.0),
                                 oncoming_gap_m=(500.0, 600.0))
-EDGES = {(t.src, t.dst) for t in _transitions()}
+EDGES = {(t.src, t.dst) for t in _transitions(OvertakingParams())}
 
 
 def _check_safe(run: OvertakingRun) -> None:
@@ -102,3 +102,14 @@ def test_twenty_seeds_safe_and_event_triggered_saves_solves() -> None:
         _check_safe(r)
     ratio = np.mean([r.replans for r in runs[:5]]) / np.mean([r.replans for r in every])
     assert ratio < 0.5
+
+
+def test_pass_enter_boundary_decides_and_its_crossing_is_located(runs: list[OvertakingRun]) -> None:
+    """The follow -> decide jump is the ``pass_enter`` boundary: its crossing time is located inside
+    the period before the jump, and a range of 1 m (theta from the params) never lets it fire."""
+    jumps = [e for r in runs for e in r.events.of_kind("mode") if e.data["dst"] == "decide"]
+    assert jumps and all(e.data["boundary"] == "pass_enter" for e in jumps)
+    assert all(e.t - PARAMS.period_s - 1e-9 <= e.data["t_cross"] <= e.t for e in jumps)
+    timid = OvertakingParams(boundaries={"pass_enter": {"range_m": 1.0, "speed_margin_mps": 3.0}})
+    run = run_overtaking(0, timid, WORLD)
+    assert run.outcome == "stayed" and not run.events.of_kind("mode")

@@ -13,7 +13,7 @@ from corridor.run import build
 from corridor.scenario import validate
 
 
-def scenario(controller: str, loss_p: float, duration: float = 4.0) -> Any:
+def scenario(controller: str, loss_p: float, duration: float = 4.0, params: dict[str, Any] | None = None) -> Any:
     """Two quads 70 m apart flying head-on (goals swapped) and a c172x passing 1 km away."""
     return validate({
         "name": "t", "duration": duration, "dt": 0.1,
@@ -27,7 +27,7 @@ def scenario(controller: str, loss_p: float, duration: float = 4.0) -> Any:
                  "role": "piloted"}]}},
             "link": {"type": "mavlink_link", "params": {"channel": "m"}},
         },
-        "controllers": {"avoid": {"type": controller, "period": 0.2}},
+        "controllers": {"avoid": {"type": controller, "period": 0.2, "params": params or {}}},
         "monitors": {"sep": {"type": "uav_separation"}},
     }, "test")
 
@@ -160,3 +160,34 @@ def test_relevance_range_covers_everything_the_method_reacts_to(controller: str,
             assert method.step_qp(near).n_intruders == 1
     for c in sim.ctx.components.values():
         c.close()
+
+
+def test_avoid_enter_boundary_gates_the_method_and_locates_its_crossing(tmp_path: Path) -> None:
+    """With the default probe (10 km) a UAV enters ``avoid`` at its first track; with
+    ``avoid_enter.dist_m`` 55 m and no look-ahead it stays in ``mission`` (the field sees nobody) until
+    the head-on pair, 70 m apart and closing at ~12 m/s, is within 55 m; the crossing is located
+    between two decisions."""
+    def first_avoid(params: dict[str, Any] | None) -> Any:
+        sim = build(scenario("potential_field", 0.0, 3.0, params), 0, tmp_path)
+        sim.run()
+        return [e for e in sim.ctx.events.of_kind("mode") if e.data["uav"] == "a" and e.data["src"] == "mission"][0]
+
+    default = first_avoid(None)
+    late = first_avoid({"boundaries": {"avoid_enter": {"ttc_s": 0.0, "dist_m": 55.0},
+                                       "avoid_exit": {"ttc_s": 0.0, "dist_m": 55.0}}})
+    assert default.data["boundary"] == late.data["boundary"] == "avoid_enter" and late.data["located"]
+    assert "mission -> avoid.clear" in late.message
+    assert late.t > default.t + 0.5
+    assert late.t - 0.2 - 1e-9 <= late.data["t_cross"] < late.t
+
+
+def test_rerun_overlay_draws_the_avoid_enter_range_per_mode(tmp_path: Path) -> None:
+    sim = build(scenario("potential_field", 0.0, 1.0, {"boundaries": {"avoid_enter": {"ttc_s": 0.0, "dist_m": 55.0}}}),
+                0, tmp_path)
+    sim.run()
+    ctrl = sim.ctx.components["avoid"]
+    layers = ctrl.overlays()
+    rings = [q for _, (kind, data) in layers.items() for q in data]
+    assert set(layers) == {"boundaries/avoid_enter/mission"} and len(rings) == 2  # 70 m apart: both in mission
+    for uid, q in zip(sorted(ctrl.last_pos), rings, strict=True):
+        np.testing.assert_allclose(np.linalg.norm(q - ctrl.last_pos[uid][:2], axis=1), 55.0)

@@ -1,0 +1,68 @@
+"""Learning curves of ``run_scenario --learn`` folders: the objective per stage with its 95 % interval,
+the runs that broke a constraint, and the held-out comparison, several methods in one figure.
+
+    python -m corridor.analysis.learning_curve results/uav_encounter-learn-blrl results/uav_encounter-learn-cma \\
+        --out learning_curve.svg
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from matplotlib.figure import Figure
+
+
+def _curve(data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    c = data["curve"]
+    runs = np.cumsum([s["runs"] for s in c])
+    mean = np.array([np.nan if s["objective_mean"] is None else s["objective_mean"] for s in c])
+    lo = np.array([np.nan if s["objective_ci95"][0] is None else s["objective_ci95"][0] for s in c])
+    hi = np.array([np.nan if s["objective_ci95"][1] is None else s["objective_ci95"][1] for s in c])
+    return runs, mean, lo, hi, np.array([s["violating_runs"] for s in c])
+
+
+def figure(folders: list[Path]) -> Figure:
+    """Objective (mean and 95 % interval per stage) and violating runs against training runs."""
+    fig = Figure(figsize=(8.0, 4.6), layout="constrained")
+    ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    for folder in folders:
+        data = json.loads((Path(folder) / "learn.json").read_text())
+        runs, mean, lo, hi, viol = _curve(data)
+        start = ", ".join(f"{k.rsplit('.', 1)[-1]} {v:g}" for k, v in data.get("theta0", {}).items())
+        name = f"{data['method']} from {start}" if start else data["method"]
+        line = ax.plot(runs, mean, marker="o", label=f"{name} (training stages)")[0]
+        ax.fill_between(runs, lo, hi, alpha=0.2, color=line.get_color())
+        h = data.get("holdout") or {}
+        if h:
+            for key, style in (("hand_tuned", "s"), ("learned", "*")):
+                ax.plot([runs[-1] + 2], [h[key]["objective_mean"]], style, color=line.get_color(), markersize=9,
+                        label=f"{name}: held-out {key.replace('_', '-')} ({h['runs']} seeds)")
+        ax2.bar(runs, viol, width=2.0, alpha=0.6, color=line.get_color())
+    ax.set_ylabel(f"objective: {data['objective']}")
+    ax.set_title(f"{data['scenario']} [{data['variant']}]: learning {', '.join(k.split('boundaries.')[-1] for k in data['keys'])}")
+    ax.legend(fontsize=6, framealpha=0.7)
+    ax2.set_ylabel("violating runs")
+    ax2.set_xlabel("training runs")
+    return fig
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("folders", nargs="+", type=Path)
+    ap.add_argument("--out", type=Path, default=Path("learning_curve.svg"))
+    args = ap.parse_args(argv)
+    missing = [f for f in args.folders if not (f / "learn.json").is_file()]
+    if missing:
+        print(f"learning_curve: {missing[0]}: no learn.json (a run_scenario --learn folder?)")
+        return 2
+    figure(args.folders).savefig(args.out)
+    print(args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

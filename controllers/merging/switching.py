@@ -1,0 +1,161 @@
+"""When a V2X-merging vehicle switches: its automaton and the named boundaries (issue 28).
+
+Every vehicle holding an assignment of the roadside unit owns one ``HybridAutomaton``::
+
+    ramp{ approach --merge_enter--> merge{ behind <--gap_accept / gap_reject--> ahead } }
+    main{ free --yield_enter [ramp predecessor]--> yield{ open <--yield_hold / yield_pass--> pass } }
+      yield --yield_exit, or a predecessor on its own road--> free
+
+- ``ramp.approach``: on the ramp, the energy-optimal trajectory to the assigned crossing time.
+- ``ramp.merge``: near the conflict point, cruise at the stream's speed; ``behind`` keeps the gap
+  behind the predecessor from the mainline (virtual-vehicle following: the constant-time-gap rule
+  and the safety layer), ``ahead`` has passed that predecessor and takes the gap in front of it.
+  This is the ramp vehicle's **gap acceptance**; the lane change itself is SUMO's.
+- ``main.free``: a mainline vehicle behind a mainline predecessor is not commanded (its driver
+  follows its physical leader).  ``main.yield``: behind a ramp predecessor near the conflict point
+  it is commanded and **yields** (``open``: opens the gap behind the ramp vehicle) unless the ramp
+  vehicle has fallen behind it (``pass``: cruise).
+
+The boundaries (g >= 0 holds; strict ones g > 0), with their parameters under
+``controllers.X.params.boundaries``:
+
+    merge_enter, yield_enter(x; dist_m)  = dist_m - d                 d: distance to the conflict point [m]
+    yield_exit(x; dist_m)                = d - dist_m          (strict)
+    gap_reject, yield_pass(x; lag_lengths) = -(s + lag_lengths L)    s: virtual gap to the predecessor [m]
+    gap_accept, yield_hold(x; lag_lengths) = s + lag_lengths L  (strict)    L: its length [m]
+
+The defaults (``dist_m`` = ``virtual_leader_m``, 100 m; ``lag_lengths`` 1) are the constants the
+controller had before the boundaries existed, so its rows are unchanged.  ``s`` is not defined
+without a tracked predecessor from the other road (g is NaN: no jump; the controller falls back).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.modes import Boundary, HybridAutomaton, Mode, SwitchingParams, Transition
+
+RAMP_MODES = ("ramp", "approach", "merge", "behind", "ahead")
+MAIN_MODES = ("main", "free", "yield", "open", "pass")
+DIST_BOUNDARIES = ("merge_enter", "yield_enter", "yield_exit")  # their dist_m defaults to virtual_leader_m
+
+
+class DistTheta(BaseModel):
+    """Parameters of a distance boundary (None: the controller's ``virtual_leader_m``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    dist_m: float | None = Field(None, gt=0.0)  # [m] distance to the conflict point
+
+
+class LagTheta(BaseModel):
+    """Parameters of a gap boundary."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    lag_lengths: float = Field(1.0, ge=0.0)  # [predecessor lengths] how far the predecessor may fall
+    #   behind (bumper to bumper) before its gap is given up
+
+
+class MergeBoundaries(BaseModel):
+    """The named boundaries of the merging automaton (scenario: ``controllers.X.params.boundaries``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    merge_enter: DistTheta = Field(default_factory=DistTheta)  # ramp: trajectory -> virtual following
+    gap_accept: LagTheta = Field(default_factory=LagTheta)  # ramp: ahead -> behind its predecessor
+    gap_reject: LagTheta = Field(default_factory=LagTheta)  # ramp: behind -> ahead of it
+    yield_enter: DistTheta = Field(default_factory=DistTheta)  # mainline: free -> yield to a ramp predecessor
+    yield_exit: DistTheta = Field(default_factory=DistTheta)  # mainline: yield -> free
+    yield_hold: LagTheta = Field(default_factory=LagTheta)  # mainline: pass -> open the gap again
+    yield_pass: LagTheta = Field(default_factory=LagTheta)  # mainline: open -> pass (the ramp vehicle fell behind)
+
+
+@dataclass
+class VirtualGap:
+    """The predecessor seen through the vehicle's V2X track, projected on the conflict point."""
+
+    known: bool  # tracked and fresh (age <= stale_after_s)
+    gap_m: float = math.nan  # bumper-to-bumper, > 0: the predecessor is ahead
+    v_lead_mps: float = math.nan
+    age_s: float = math.nan
+    lead_len_m: float = 5.0
+
+
+@dataclass
+class MergeState:
+    """What the guards read; the virtual gap is computed on first use (only near the conflict point)."""
+
+    road: str  # "ramp" or "main": the vehicle's route (a ramp vehicle stays "ramp" on the acceleration lane)
+    dist_m: float  # [m] to the conflict point along the vehicle's road
+    cross_pred: bool  # the predecessor in the crossing order is on the other road
+    probe: Callable[[], VirtualGap] | None = None
+    _gap: VirtualGap | None = field(default=None, repr=False)
+
+    def gap(self) -> VirtualGap:
+        if self._gap is None:
+            self._gap = self.probe() if (self.cross_pred and self.probe is not None) else VirtualGap(False)
+        return self._gap
+
+
+def approach_margin(x: MergeState, theta: Mapping[str, float]) -> float:
+    """dist_m - d [m]: >= 0 within ``dist_m`` of the conflict point."""
+    return float(theta["dist_m"]) - x.dist_m
+
+
+def leave_margin(x: MergeState, theta: Mapping[str, float]) -> float:
+    """d - dist_m [m]: > 0 farther than ``dist_m`` from the conflict point."""
+    return x.dist_m - float(theta["dist_m"])
+
+
+def keep_margin(x: MergeState, theta: Mapping[str, float]) -> float:
+    """s + lag_lengths x L [m]: > 0 while the predecessor is ahead, beside, or less than
+    ``lag_lengths`` of its lengths behind (NaN without a fresh track of it)."""
+    g = x.gap()
+    if not g.known:
+        return math.nan
+    return g.gap_m + float(theta["lag_lengths"]) * g.lead_len_m
+
+
+def give_up_margin(x: MergeState, theta: Mapping[str, float]) -> float:
+    """-(s + lag_lengths x L) [m]: >= 0 once the predecessor fell ``lag_lengths`` lengths behind."""
+    return -keep_margin(x, theta)
+
+
+def resolved(b: MergeBoundaries, virtual_leader_m: float) -> dict[str, dict[str, float]]:
+    """Every boundary's theta, ``dist_m`` None replaced by ``virtual_leader_m``."""
+    out: dict[str, dict[str, float]] = {}
+    for name in MergeBoundaries.model_fields:
+        theta = getattr(b, name).model_dump()
+        if "dist_m" in theta and theta["dist_m"] is None:
+            theta["dist_m"] = virtual_leader_m
+        out[name] = {k: float(v) for k, v in theta.items()}
+    return out
+
+
+def merge_automaton(name: str, vid: str, road: str, theta: Mapping[str, Mapping[str, float]],
+                    switching: SwitchingParams | None = None,
+                    rng: np.random.Generator | None = None) -> HybridAutomaton:
+    """The automaton of vehicle ``vid`` on route ``road`` ("ramp" or "main": its top mode, for good)."""
+    def bnd(key: str, fn: Callable[[MergeState, Mapping[str, float]], float], strict: bool = False) -> Boundary:
+        return Boundary(key, fn, dict(theta[key]), strict=strict)
+
+    modes = [Mode("ramp", children=(Mode("approach"), Mode("merge", children=(Mode("behind"), Mode("ahead"))))),
+             Mode("main", children=(Mode("free"), Mode("yield", children=(Mode("open"), Mode("pass")))))]
+    transitions = [
+        Transition("approach", "merge", bnd("merge_enter", approach_margin), "near the conflict point"),
+        Transition("behind", "ahead", bnd("gap_reject", give_up_margin), "predecessor fell behind"),
+        Transition("ahead", "behind", bnd("gap_accept", keep_margin, strict=True), "gap behind predecessor"),
+        Transition("free", "yield", bnd("yield_enter", approach_margin), "yield to ramp predecessor",
+                   when=lambda x: x.cross_pred),
+        Transition("yield", "free", bnd("yield_exit", leave_margin, strict=True), "far from the conflict point"),
+        Transition("yield", "free", lambda x: not x.cross_pred, "predecessor on own road"),
+        Transition("open", "pass", bnd("yield_pass", give_up_margin), "ramp predecessor fell behind"),
+        Transition("pass", "open", bnd("yield_hold", keep_margin, strict=True), "ramp predecessor ahead"),
+    ]
+    return HybridAutomaton(name, modes, road, transitions, tag=vid, switching=switching, rng=rng, vehicle=vid)

@@ -1,0 +1,104 @@
+"""What every ``--learn`` method shares: the problem, its run specs and the stage summaries."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corridor.objective import Expression, value, violations
+
+PENALTY = 1.0  # objective units per broken constraint
+PPO_EPISODES_PER_STAGE = 4  # --method ppo: runs per PPO rollout (corridor.learn_ppo)
+
+
+@dataclass
+class Problem:
+    """What is learned and how it is judged (validated before any folder is touched)."""
+
+    sc: Any
+    raw: dict[str, Any]
+    path: Path
+    variant: str
+    controller: str
+    keys: list[str]  # full dotted paths
+    theta0: np.ndarray
+    log: np.ndarray  # per key: searched in log space
+    objective: Expression
+    constraints: list[Expression]
+    after: dict[str, Any] = field(default_factory=dict)  # --set values
+
+    def theta(self, u: np.ndarray) -> np.ndarray:
+        return np.where(self.log, np.exp(u), u)
+
+    def u0(self) -> np.ndarray:
+        return np.where(self.log, np.log(np.where(self.log, self.theta0, 1.0)), self.theta0)
+
+    def overrides(self, theta: np.ndarray, temperature: float | None) -> dict[str, Any]:
+        out: dict[str, Any] = {k: float(v) for k, v in zip(self.keys, theta, strict=True)}
+        out[f"controllers.{self.controller}.params.switching.temperature"] = temperature
+        return out
+
+    def reward(self, row: dict[str, Any]) -> float:
+        if row.get("status") != "ok":
+            return math.nan
+        v = value(self.objective, row)
+        return (v if math.isfinite(v) else -PENALTY) - PENALTY * violations(self.constraints, row)
+
+
+def stage_normals(seed: int, tag: str, stage: int, n: int, d: int) -> np.ndarray:
+    from corridor.engine import stable_key
+
+    ss = np.random.SeedSequence(seed, spawn_key=(stable_key(f"learn-{tag}"), stage))
+    return np.random.default_rng(ss).standard_normal((n, d))
+
+
+def specs(pb: Problem, out: Path, seed: int, tag: str, stage: int, thetas: np.ndarray,
+           temperature: float | None, prefix: str | None = None) -> list[Any]:
+    """One run per theta; the draws and seeds are keyed by ``tag`` and the stage (common to every
+    ``prefix``: the held-out runs of theta0 and the learned theta see the same inputs)."""
+    from corridor.distributions import draws_from_normal
+    from corridor.estimate import stage_seeds
+    from corridor.run import RunSpec
+
+    z = stage_normals(seed, tag, stage, len(thetas), len(pb.sc.randomize))
+    seeds = stage_seeds(seed + (0 if tag == "train" else 7919), stage, len(thetas))
+    specs = []
+    for i, (th, zi, s) in enumerate(zip(thetas, z, seeds, strict=True)):
+        draws = draws_from_normal(pb.sc.randomize, zi)
+        specs.append(RunSpec(run_id=f"{pb.variant}-{prefix or tag}{stage:03d}-{i:05d}", scenario=pb.sc.name, source=str(pb.path),
+                             variant=pb.variant, seed=s, base=pb.raw,
+                             overrides={**pb.sc.sweep[pb.variant], **draws, **pb.after,
+                                        **pb.overrides(th, temperature)},
+                             draws=draws, out_dir=str(out)))
+    return specs
+
+
+def is_nan(v: Any) -> bool:
+    return v is None or (isinstance(v, float) and math.isnan(v))
+
+
+def summary(rewards: np.ndarray, rows: list[dict[str, Any]], pb: Problem) -> dict[str, Any]:
+    objs = np.array([value(pb.objective, r) if r.get("status") == "ok" else math.nan for r in rows])
+    viol = int(sum(violations(pb.constraints, r) > 0 for r in rows))
+    return {"objective_mean": finite(np.nanmean(objs)), "objective_ci95": ci95(objs), "reward_mean": finite(np.nanmean(rewards)),
+            "violating_runs": viol, "runs": len(rows)}
+
+
+def finite(x: Any) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def ci95(x: np.ndarray) -> list[float | None]:
+    """95 % t interval of the mean."""
+    from scipy import stats
+
+    x = x[np.isfinite(x)]
+    if len(x) < 2:
+        return [None, None]
+    h = float(stats.t.ppf(0.975, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
+    return [finite(x.mean() - h), finite(x.mean() + h)]

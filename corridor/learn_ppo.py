@@ -1,0 +1,173 @@
+"""``run_scenario SCENARIO --learn KEYS --method ppo``: PPO (stable-baselines3) through the Gymnasium env.
+
+The comparison the issue asks for: a policy-gradient learner that is *not* localised to the
+boundaries.  PPO trains a policy network on ``corridor.envs.CorridorEnv``: one agent (the first of
+the controller's agents, e.g. one UAV) decides, every controller period, the switch whose
+boundaries ``KEYS`` name (``avoid_enter.*`` / ``avoid_exit.*``: the pair ``(avoid_enter,
+avoid_exit)``), from highway-env's Kinematics observation; the other agents keep their boundaries.
+The reward is the row's ``objective - PENALTY x violated constraints`` at the end of the run (the
+same expression ``blrl`` and ``cma`` maximise).
+
+What it produces, and how that maps onto ``blrl``/``cma``:
+
+- stages: a stage is one PPO rollout of ``EPISODES_PER_STAGE`` runs followed by its update; every
+  finished run's row (the env's ``info``: the run's metrics and seed) is written to
+  ``DIR/stages/NNN/rows.parquet`` as the stage ends, and the curve (objective per stage with its
+  95 % interval, violating runs) goes to ``learn.json`` as for the other methods.
+- **no theta**: PPO learns a state-feedback policy, not boundary parameters, so there is no
+  ``learned.yaml`` (``run_scenario`` cannot run a neural policy).  Instead ``DIR/ppo_policy.zip``
+  (the stable-baselines3 model) and ``DIR/ppo_vecnormalize.pkl`` (its observation normaliser);
+  ``learn.json`` has ``"theta": null`` and ``"policy"``.  ``evaluate_policy(DIR, seed, draws)`` re-runs it.
+- held-out: theta0 runs through the batch runner on ``--holdout`` seeds never used in training, with
+  deterministic boundaries (as for ``blrl``/``cma``), and the PPO policy (deterministic actions) runs in
+  the environment on the same seeds with the same ``randomize`` draws; the paired difference of the
+  objective gets a 95 % t interval.  The training seeds are drawn by the environment; how many of
+  them are also held-out seeds is reported (``holdout.overlap_training_seeds``).
+- not mapped: ``--resume`` (the PPO state is not checkpointed per stage) and ``--executor ray`` (the
+  environment is stepped in this process): both are refused with one line.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from corridor.errors import CorridorError
+from corridor.learn_core import PENALTY, PPO_EPISODES_PER_STAGE, Problem, ci95, finite, specs, summary
+from corridor.objective import value
+
+EPISODES_PER_STAGE = PPO_EPISODES_PER_STAGE  # runs per rollout (n_steps = EPISODES_PER_STAGE x decisions per run)
+N_EPOCHS = 4
+LEARNING_RATE = 3e-4
+SWITCHES = {"avoid_enter": ("avoid_enter", "avoid_exit"), "avoid_exit": ("avoid_enter", "avoid_exit")}
+POLICY = "ppo_policy.zip"
+NORMALISER = "ppo_vecnormalize.pkl"
+
+
+def check(pb: Problem, resume: bool, executor: str) -> tuple[str, str]:
+    """The env's switch for ``pb``'s keys; refuses what PPO does not map (one line each)."""
+    names = {k.split(".params.boundaries.", 1)[1].split(".", 1)[0] for k in pb.keys}
+    pairs = {SWITCHES.get(n) for n in names}
+    if None in pairs or len(pairs) != 1:
+        raise CorridorError(f"--method ppo: the Gymnasium environment decides the avoid_enter/avoid_exit switch; "
+                            f"--learn names {', '.join(sorted(names))}")
+    if resume:
+        raise CorridorError("--resume: --method ppo keeps no per-stage training state; start afresh")
+    if executor != "local":
+        raise CorridorError(f"--executor {executor}: --method ppo steps its environment in this process")
+    try:
+        import stable_baselines3  # noqa: F401
+    except ImportError:
+        raise CorridorError("--method ppo needs stable-baselines3: pip install -e '.[rl]'") from None
+    pair = pairs.pop()
+    assert pair is not None
+    return pair
+
+
+def make_env(pb: Problem, sets: list[str], switch: tuple[str, str]) -> Any:
+    from corridor.envs import CorridorEnv
+
+    return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets, switch=switch,
+                       objective=pb.objective.text, constraints=tuple(c.text for c in pb.constraints),
+                       penalty=PENALTY)
+
+
+def decisions_per_run(env: Any) -> int:
+    """Steps of one episode (the decision periods after the first, which the boundaries decide)."""
+    env.reset(seed=0)
+    ep = env.unwrapped.episode
+    n = math.ceil((ep.sim.n_ticks - ep.tick) / ep.ticks_per_decision)
+    env.close()
+    return max(int(n), 1)
+
+
+def train(pb: Problem, budget: int, seed: int, out: Path, sets: list[str], switch: tuple[str, str]
+          ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """PPO for ``budget // EPISODES_PER_STAGE`` stages; (curve, every training row)."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    steps = decisions_per_run(make_env(pb, sets, switch))
+    venv = VecNormalize(DummyVecEnv([lambda: make_env(pb, sets, switch)]), norm_obs=True, norm_reward=False)
+    n_steps = steps * EPISODES_PER_STAGE
+    model = PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=steps, n_epochs=N_EPOCHS,
+                learning_rate=LEARNING_RATE, seed=seed, device="cpu", verbose=0)
+    curve: list[dict[str, Any]] = []
+    rows: list[dict[str, Any]] = []
+
+    class Stages(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.stage_rows: list[dict[str, Any]] = []
+
+        def _on_step(self) -> bool:
+            for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
+                if done:
+                    row = {k: v for k, v in info.items() if k not in ("terminal_observation", "TimeLimit.truncated")}
+                    self.stage_rows.append({**row, "status": "ok"})
+            return True
+
+        def _on_rollout_end(self) -> None:
+            stage = len(curve)
+            import pandas as pd
+
+            batch = [{**r, "run_id": f"{pb.variant}-train{stage:03d}-{i:05d}", "learn.stage": f"{stage:03d}"}
+                     for i, r in enumerate(self.stage_rows)]
+            (out / "stages" / f"{stage:03d}").mkdir(parents=True, exist_ok=True)
+            pd.DataFrame(batch).to_parquet(out / "stages" / f"{stage:03d}" / "rows.parquet", index=False)
+            r = np.array([pb.reward(x) for x in batch])
+            curve.append({"stage": stage, "theta": None, **summary(r, batch, pb)})
+            rows.extend(batch)
+            self.stage_rows = []
+
+    model.learn(total_timesteps=n_steps * (budget // EPISODES_PER_STAGE), callback=Stages())
+    model.save(out / POLICY)
+    venv.save(str(out / NORMALISER))
+    venv.close()
+    return curve, rows
+
+
+def evaluate_policy(folder: str | Path, pb: Problem, sets: list[str], switch: tuple[str, str], seed: int,
+                    draws: dict[str, Any] | None = None) -> dict[str, Any]:
+    """One run of the saved PPO policy (deterministic actions) at ``seed`` with ``draws``: its row."""
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    folder = Path(folder)
+    env = make_env(pb, sets, switch)
+    norm = VecNormalize.load(str(folder / NORMALISER), DummyVecEnv([lambda: make_env(pb, sets, switch)]))
+    norm.training = False
+    model = PPO.load(folder / POLICY, device="cpu")
+    obs, _ = env.reset(seed=seed, options={"draws": draws} if draws is not None else None)
+    try:
+        while True:
+            action, _ = model.predict(norm.normalize_obs(obs[None]), deterministic=True)
+            obs, _, _, truncated, info = env.step(int(action[0]))
+            if truncated:
+                return {**info, "status": "ok"}
+    finally:
+        env.close()
+        norm.close()
+
+
+def holdout(pb: Problem, folder: Path, n: int, seed: int, sets: list[str], switch: tuple[str, str], run: Any,
+            training_seeds: set[int]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """theta0 (batch runner) against the PPO policy (env) on the same ``n`` held-out seeds and draws."""
+    if n < 1:
+        return {}, []
+    hold = specs(pb, folder, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold0")
+    rows0 = run(hold, "hold0")
+    rows1 = [{**evaluate_policy(folder, pb, sets, switch, s.seed, s.draws),
+              "run_id": s.run_id.replace("hold0", "hold1"), "learn.stage": "hold1"} for s in hold]
+    objs = [np.array([value(pb.objective, r) if r.get("status") == "ok" else math.nan for r in rows])
+            for rows in (rows0, rows1)]
+    diff = objs[1] - objs[0]
+    res = {"runs": n, "hand_tuned": summary(np.array([pb.reward(r) for r in rows0]), rows0, pb),
+           "learned": summary(np.array([pb.reward(r) for r in rows1]), rows1, pb),
+           "paired_diff_mean": finite(np.nanmean(diff)), "paired_diff_ci95": ci95(diff),
+           "overlap_training_seeds": len({s.seed for s in hold} & training_seeds)}
+    return res, rows1

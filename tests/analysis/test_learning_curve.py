@@ -1,0 +1,37 @@
+"""The learning-curve figure of --learn folders: one line per method, the interval band, held-out marks."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from corridor.analysis.learning_curve import figure, main
+
+
+def _folder(tmp: Path, method: str, means: list[float]) -> Path:
+    d = tmp / method
+    d.mkdir()
+    curve = [{"stage": i, "runs": 8, "objective_mean": m, "objective_ci95": [m - 0.1, m + 0.1], "violating_runs": i % 2}
+             for i, m in enumerate(means)]
+    hold = {"runs": 20, "hand_tuned": {"objective_mean": -1.2}, "learned": {"objective_mean": -1.1}}
+    (d / "learn.json").write_text(json.dumps({"method": method, "scenario": "uav_encounter", "variant": "pf",
+                                              "objective": "-path_ratio_mean", "curve": curve, "holdout": hold,
+                                              "keys": ["controllers.avoid.params.boundaries.avoid_enter.dist_m"]}))
+    return d
+
+
+def test_curves_per_method_at_cumulative_runs(tmp_path: Path) -> None:
+    fig = figure([_folder(tmp_path, "blrl", [-1.3, -1.2, -1.1]), _folder(tmp_path, "cma", [-1.25, -1.15])])
+    ax, ax2 = fig.axes
+    lines = [ln for ln in ax.get_lines() if "training" in ln.get_label()]
+    assert [ln.get_label() for ln in lines] == ["blrl (training stages)", "cma (training stages)"]
+    np.testing.assert_array_equal(lines[0].get_xdata(), [8, 16, 24])
+    np.testing.assert_array_equal(lines[1].get_ydata(), [-1.25, -1.15])
+    assert sum("held-out" in ln.get_label() for ln in ax.get_lines()) == 4
+    assert [p.get_height() for p in ax2.patches] == [0, 1, 0, 0, 1]
+
+
+def test_a_folder_without_learn_json_is_exit_2(tmp_path: Path) -> None:
+    assert main([str(tmp_path)]) == 2

@@ -1,0 +1,121 @@
+"""Learning boundaries: row expressions, stochastic switching near a boundary, --learn input checks."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corridor.cli import main
+from corridor.errors import CorridorError
+from corridor.events import EventLog
+from corridor.modes import Boundary, HybridAutomaton, SwitchingParams, Transition
+from corridor.objective import Expression, value, violations
+
+
+def test_row_expressions() -> None:
+    row = {"nmac": 0, "path_ratio_mean": 1.25, "spec.safety.space": -0.5, "collisions": 1}
+    assert value(Expression("-path_ratio_mean"), row) == -1.25
+    assert value(Expression("2 * abs(spec.safety.space) - max(1, nmac)"), row) == 0.0
+    cons = [Expression("nmac == 0"), Expression("collisions == 0"), Expression("spec.safety.space > 0 or nmac < 1")]
+    assert violations(cons, row) == 1
+    assert math.isnan(value(Expression("-missing"), row))
+    with pytest.raises(CorridorError, match="not allowed"):
+        Expression("__import__('os')")
+    with pytest.raises(CorridorError, match="unknown column 'nmc'.*nmac"):
+        Expression("nmc == 0").check_columns(["nmac", "los"])
+
+
+def _automaton(temperature: float | None, seed: int = 0) -> HybridAutomaton:
+    b = Boundary("enter", lambda x, th: (th["dist_m"] - x) / th["dist_m"], {"dist_m": 100.0})
+    return HybridAutomaton("uav", ["mission", "avoid"], "mission", [Transition("mission", "avoid", b, "threat")],
+                           switching=SwitchingParams(temperature=temperature, band=4.0),
+                           rng=np.random.default_rng(seed))
+
+
+def test_stochastic_switch_only_near_the_boundary_with_its_score() -> None:
+    """g = (100 - d) / 100, T = 0.05: at d = 300 (g = -2) the switch is deterministic (no draw); at
+    d = 103 (g = -0.03) it is a draw with p = sigma(-0.6) and score (a - p) / T x dg/d(dist_m)."""
+    ha, ev = _automaton(0.05), EventLog()
+    ha.update(0.0, 300.0, ev)
+    assert ha.mode == "mission" and not ev.of_kind("switch_draw")
+    ha.update(0.1, 103.0, ev)
+    (d,) = ev.of_kind("switch_draw")
+    p = 1.0 / (1.0 + math.exp(0.6))
+    assert d.data["p"] == pytest.approx(p)
+    dg = 103.0 / 100.0**2  # d/d theta of (theta - x) / theta
+    assert d.data["score"]["dist_m"] == pytest.approx((float(d.data["a"]) - p) / 0.05 * dg, rel=1e-5)
+    assert ha.mode == ("avoid" if d.data["a"] else "mission")
+
+
+def test_switch_probability_is_sigma_of_g_over_t() -> None:
+    hits = 0
+    for seed in range(400):
+        ha = _automaton(0.05, seed)
+        ha.update(0.0, 103.0)
+        hits += ha.mode == "avoid"
+    assert hits / 400 == pytest.approx(1.0 / (1.0 + math.exp(0.6)), abs=0.06)
+
+
+def test_deterministic_without_temperature() -> None:
+    ha, ev = _automaton(None), EventLog()
+    ha.update(0.0, 103.0, ev)
+    ha.update(0.1, 99.0, ev)
+    assert ha.mode == "avoid" and not ev.of_kind("switch_draw")
+
+
+LEARN = ["uav_encounter", "--variant", "potential_field", "--method", "blrl", "--quiet"]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--learn", "avoid_entr.dist_m", "--objective", "-path_ratio_mean", "--budget", "16"], "no such boundary"),
+    (["--learn", "avoid_enter.dist_m", "--objective", "-path_ratio_mean +", "--budget", "16"], "not an expression"),
+    (["--learn", "avoid_enter.dist_m", "--objective", "-path_ratio_mea", "--budget", "16"], "unknown column"),
+    (["--learn", "avoid_enter.dist_m", "--objective", "-path_ratio_mean", "--budget", "15"], "at least 16"),
+])
+def test_bad_learn_input_is_one_line_exit_2_before_any_folder(
+        args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    assert main([*LEARN, *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_learn_cma_end_to_end_writes_a_rerunnable_learned_yaml(tmp_path: Path) -> None:
+    """Short runs (the encounter is not reached: the objective is flat), but every piece runs: stages
+    through the batch executor, the held-out comparison, learn.json, learned.yaml that loads with the
+    learned theta, and --resume reading the finished runs back to the same result."""
+    import json
+
+    from corridor.scenario import load
+
+    out = tmp_path / "learn"
+    args = [*LEARN[:3], "--method", "cma", "--quiet", "--learn", "avoid_enter.dist_m", "--objective",
+            "-path_ratio_mean", "--constraint", "nmac == 0", "--budget", "12", "--holdout", "2",
+            "--set", "duration=3", "--workers", "2", "--out", str(out)]
+    assert main(args) == 0
+    data = json.loads((out / "learn.json").read_text())
+    assert data["training_runs"] == 12 and len(data["curve"]) == 2 and data["holdout"]["runs"] == 2
+    key = "controllers.avoid.params.boundaries.avoid_enter.dist_m"
+    assert data["theta0"][key] == 10000.0
+    sc, raw = load(out / "learned.yaml")
+    assert raw["controllers"]["avoid"]["params"]["boundaries"]["avoid_enter"]["dist_m"] == pytest.approx(data["theta"][key])
+    assert main([*args, "--resume"]) == 0
+    assert json.loads((out / "learn.json").read_text())["theta"] == data["theta"]
+
+
+def test_a_stochastic_switch_before_the_crossing_is_logged_at_its_own_time() -> None:
+    """g = -0.5 (deterministic, no switch) then -0.03: a switch drawn there is not a crossing (g has not
+    reached 0), so t_cross is the jump's own time, not an extrapolation past it."""
+    for seed in range(50):
+        ha, ev = _automaton(0.05, seed), EventLog()
+        ha.update(0.0, 150.0, ev)
+        ha.update(0.1, 103.0, ev)
+        if ha.mode == "avoid":
+            (jump,) = ev.of_kind("mode")
+            assert jump.data["t_cross"] == jump.t == 0.1 and jump.data["g"] < 0
+            return
+    raise AssertionError("no seed switched")

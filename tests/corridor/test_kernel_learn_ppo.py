@@ -1,0 +1,68 @@
+"""run_scenario --learn --method ppo: stable-baselines3 PPO through corridor/UavEncounter-v0."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from corridor.cli import main
+
+PPO = ["uav_encounter", "--variant", "potential_field", "--method", "ppo", "--quiet", "--learn", "avoid_enter.dist_m",
+       "--objective", "-path_ratio_mean", "--constraint", "nmac == 0"]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--budget", "7"], "at least 8"),
+    (["--budget", "8", "--resume"], "keeps no per-stage training state"),
+    (["--budget", "8", "--executor", "ray"], "steps its environment in this process"),
+])
+def test_what_ppo_does_not_map_is_one_line_exit_2_before_any_folder(
+        args: list[str], says: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    assert main([*PPO, *args, "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1
+    assert not out.exists()
+
+
+def test_ppo_learns_only_a_switch_the_environment_decides(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    args = ["uav_encounter", "--variant", "potential_field", "--method", "ppo", "--quiet", "--learn",
+            "return_done.heading_deg", "--objective", "-path_ratio_mean", "--budget", "8", "--out", str(out)]
+    assert main(args) == 2
+    assert "decides the avoid_enter/avoid_exit switch" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_ppo_end_to_end_stages_policy_and_paired_holdout(tmp_path: Path) -> None:
+    """Tiny budget (2 stages of 4 runs of 4 s): the stages' rows, learn.json's curve, the policy (no
+    theta, no learned.yaml) and the held-out comparison on seeds the training never used, where the
+    policy's row re-runs identically from the saved files."""
+    from corridor.learn import problem
+    from corridor.learn_ppo import evaluate_policy
+
+    out = tmp_path / "learn"
+    assert main([*PPO, "--budget", "8", "--holdout", "2", "--set", "duration=4", "--out", str(out)]) == 0
+    data = json.loads((out / "learn.json").read_text())
+    assert data["method"] == "ppo" and data["theta"] is None and data["training_runs"] == 8
+    assert [c["runs"] for c in data["curve"]] == [4, 4] and data["switch"] == ["avoid_enter", "avoid_exit"]
+    assert (out / "ppo_policy.zip").is_file() and (out / "ppo_vecnormalize.pkl").is_file()
+    assert not (out / "learned.yaml").exists()
+    for stage in ("000", "001"):
+        rows = pd.read_parquet(out / "stages" / stage / "rows.parquet")
+        assert len(rows) == 4 and (rows["status"] == "ok").all() and rows["path_ratio_mean"].notna().all()
+    h = data["holdout"]
+    assert h["runs"] == 2 and h["overlap_training_seeds"] == 0
+    assert h["learned"]["runs"] == h["hand_tuned"]["runs"] == 2 and h["paired_diff_mean"] is not None
+    runs = pd.read_parquet(out / "runs.parquet")
+    assert sorted(runs["learn.stage"].unique()) == ["000", "001", "hold0", "hold1"]
+    hold1 = runs[runs["learn.stage"] == "hold1"].iloc[0]
+    pb = problem("uav_encounter", "avoid_enter.dist_m", "-path_ratio_mean", ["nmac == 0"], 8, "ppo",
+                 "potential_field", ["duration=4"])
+    hold0 = runs[runs["learn.stage"] == "hold0"].set_index("run_id")
+    draws = {k: hold0.loc[hold1["run_id"].replace("hold1", "hold0"), f"draw.{k}"] for k in pb.sc.randomize}
+    again = evaluate_policy(out, pb, ["duration=4"], ("avoid_enter", "avoid_exit"), int(hold1["seed"]), draws)
+    assert again["path_ratio_mean"] == hold1["path_ratio_mean"] and again["seed"] == hold1["seed"]
