@@ -291,4 +291,4 @@ def _load_entry(entry: Path, digest: str) -> BuiltNetwork:
 
 
 # Builders register themselves on import; imported last because they use the helpers above.
-from corridor.traffic import net_beltway, net_highway, net_parking_street, net_rural  # noqa: E402, F401, I001
+from corridor.traffic import net_beltway, net_flow_merge, net_highway, net_parking_street, net_rural  # noqa: E402, F401, I001
