@@ -185,6 +185,7 @@ class FlowMergeLandmarks(Landmarks):
     merge_x: float  # [m] the junction where the ramp joins (end of the highway's pre-merge edge)
     past_merge_x: float  # [m] start of the post-merge edge (past the junction)
     mainline_end_x: float  # [m]
+    ramp_angle_deg: float  # [deg] between ramp and highway
 
     def is_ramp_lane(self, lane: str) -> bool:
         """A lane of one of the ramp's edges."""

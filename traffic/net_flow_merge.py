@@ -78,6 +78,7 @@ def _landmarks(p: FlowMergeParams, net_file: Path) -> FlowMergeLandmarks:
         merge_x=float(net.getLane("left_0").getShape()[-1][0]),  # [m]
         past_merge_x=float(net.getLane("center_0").getShape()[0][0]),  # [m]
         mainline_end_x=float(net.getLane("center_0").getShape()[-1][0]),  # [m]
+        ramp_angle_deg=p.ramp_angle_deg,
     )
 
 
