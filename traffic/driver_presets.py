@@ -48,6 +48,8 @@ KRAUSS_HUMAN: dict[str, Any] = {  # Krauss with human acceleration, headway and 
 
 PRESETS: dict[str, dict[str, Any]] = {
     "sumo_default": SUMO_DEFAULT,
+    "human_merge": EIDM_HUMAN,  # the calibrated humans: chosen 2026-11-26 16:57 UTC from the published
+    #   targets alone (capacity drop 11.5 % [7.4, 15.6] over 7 seeds; docs/guide/merging-calibration.md)
     "flow_human": FLOW_HUMAN,
     "idm_tk": IDM_TK,
     "eidm_human": EIDM_HUMAN,
