@@ -10,7 +10,10 @@ lane), the edge names Flow uses::
 
 I = 100 m inflow edges, P = 500 m of highway before the merge (``pre_merge_length``), M = 100 m merge
 edge, Q = 100 m after the merge; 30 m/s everywhere.  Flow gives the junction a 10 m radius and leaves
-the edge priorities equal (netconvert then gives the straight highway the right of way).
+the edge priorities equal; netconvert then makes the *ramp* the major road at the junction (link state
+"M", the highway "m"), which Flow's humans never notice: they drive speed mode 1 ("obey_safe_speed"),
+without right-of-way checks.  Here the highway has the higher priority (3 against 1), so drivers who
+respect the right of way (the calibrated humans) yield on the ramp, as at a real on-ramp.
 """
 
 from __future__ import annotations
@@ -58,12 +61,13 @@ def _plain(p: FlowMergeParams) -> PlainNet:
         {"id": "bottom", "x": cx - m * c, "y": -m * s, "type": "priority"},
     ]
     lane = {"numLanes": 1, "speed": p.speed_limit_mps, "width": p.lane_width_m}
+    highway, ramp = {**lane, "priority": 3}, {**lane, "priority": 1}
     plain.edges = [
-        {"id": "inflow_highway", "from": "inflow_highway", "to": "left", **lane},
-        {"id": "left", "from": "left", "to": "center", **lane},
-        {"id": "center", "from": "center", "to": "right", **lane},
-        {"id": "inflow_merge", "from": "inflow_merge", "to": "bottom", **lane},
-        {"id": "bottom", "from": "bottom", "to": "center", **lane},
+        {"id": "inflow_highway", "from": "inflow_highway", "to": "left", **highway},
+        {"id": "left", "from": "left", "to": "center", **highway},
+        {"id": "center", "from": "center", "to": "right", **highway},
+        {"id": "inflow_merge", "from": "inflow_merge", "to": "bottom", **ramp},
+        {"id": "bottom", "from": "bottom", "to": "center", **ramp},
     ]
     return plain
 

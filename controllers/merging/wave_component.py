@@ -62,10 +62,12 @@ class WaveDamping(Controller):
         channel: str = "v2x"  # a key of the scenario's `channels` (defaults if absent)
         rsu_period_s: float = Field(0.5, gt=0)  # [s] between RSU broadcasts
         cell_m: float = Field(50.0, gt=0)  # [m]
-        zone_before_m: float = Field(600.0, gt=0)  # [m] RSU coverage before the merge
-        horizon_m: float = Field(250.0, gt=0)  # [m] the road ahead a vehicle takes its speed from
+        zone_before_m: float = Field(300.0, gt=0)  # [m] RSU coverage (and control) before the merge
+        horizon_m: float = Field(150.0, gt=0)  # [m] the road ahead a vehicle takes its speed from
         u_min_mps: float = Field(5.0, ge=0)  # [m/s] lowest reference speed
         u_max_mps: float = Field(30.0, gt=0)  # [m/s] highest (the speed limit)
+        free_above_mps: float | None = Field(18.0, gt=0)  # [m/s] cells at least this fast count as free
+        #   (u_max): the vehicle reacts to waves only, not to the ordinary spread of speeds (None: off)
         a_max_mps2: float = Field(1.5, gt=0)  # [m/s²]
         b_comfort_mps2: float = Field(1.5, gt=0)  # [m/s²] the law's own braking (the layer may brake harder)
         gap_headway_s: float = Field(1.5, ge=0)  # [s] gap created behind a merging vehicle (0: none)
@@ -182,7 +184,10 @@ class WaveDamping(Controller):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float) -> float:
         """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
         p = self.p
-        u = downstream_speed(x, msg.cell_x_m, msg.cell_speed_mps, p.horizon_m, p.u_max_mps)
+        cells = msg.cell_speed_mps
+        if p.free_above_mps is not None:
+            cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
+        u = downstream_speed(x, msg.cell_x_m, cells, p.horizon_m, p.u_max_mps)
         dist = self.merge_x - x
         if p.gap_headway_s > 0 and dist < p.gap_zone_m:
             u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))

@@ -37,7 +37,7 @@ class StopperParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     dx0_m: tuple[float, float, float] = (4.5, 5.25, 6.0)  # [m]
     d_mps2: tuple[float, float, float] = (1.5, 1.0, 0.5)  # [m/s²]
-    time_gap_s: float = Field(1.0, ge=0)  # [s] added to every band x own speed (highway speeds)
+    time_gap_s: float = Field(0.5, ge=0)  # [s] added to every band x own speed (highway speeds)
 
 
 def follower_stopper(gap_m: float, v_mps: float, v_lead_mps: float, u_mps: float, p: StopperParams) -> float:

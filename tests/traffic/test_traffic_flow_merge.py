@@ -37,6 +37,9 @@ def test_flow_merge_network_has_flows_lengths_and_junction(tmp_path: Path) -> No
     assert net.routes == {"main": ("inflow_highway", "left", "center"), "ramp": ("inflow_merge", "bottom", "center")}
     assert lm.mainline_start_x == 0.0 and lm.mainline_end_x == pytest.approx(700.0)
     assert lm.merge_x < 600.0 < lm.past_merge_x
+    # the highway has the right of way at the junction (netconvert gives it to the ramp when equal)
+    assert sn.getEdge("left").getConnections(sn.getEdge("center"))[0].getState() == "M"
+    assert sn.getEdge("bottom").getConnections(sn.getEdge("center"))[0].getState() == "m"
     assert lm.is_ramp_lane("inflow_merge_0") and lm.is_ramp_lane("bottom_0") and not lm.is_ramp_lane("left_0")
 
 
