@@ -4,6 +4,7 @@ message lost it commands nothing."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
@@ -73,3 +74,23 @@ def test_controller_commands_connected_vehicles_and_nothing_without_messages() -
         ok, lost = pool.submit(_run, 0.0).result(), pool.submit(_run, 1.0).result()
     assert ok["v2x_commands"] > 50 and ok["collisions"] == 0
     assert lost["v2x_commands"] == 0 and lost["v2x_fallbacks"] == 0
+
+
+def _collisions_with_calibrated_humans() -> int:
+    from corridor.batch import expand
+    from corridor.run import execute
+    from corridor.scenario import load
+
+    sc, raw = load(str(SCENARIO), ["duration=300"])
+    spec = next(s for s in expand(sc, raw, str(SCENARIO), 1, seed=5) if s.variant == "cal_merge2")
+    wave = {"type": "v2x_wave_damping", "params": {"gap_headway_s": 1.5}}  # gap creation on: it brakes hard
+    row = execute(dataclasses.replace(spec, overrides={**spec.overrides, "controllers.wave": wave}))
+    assert row["status"] == "ok", row["error"]
+    return int(row["collisions"])
+
+
+def test_the_safety_layer_counts_on_the_braking_the_vehicle_delivers() -> None:
+    # EIDM humans brake at 2 m/s²: with the layer's own 6 m/s² a commanded vehicle ran into its leader
+    # at t = 254 s on this seed (SUMO executes a commanded speed within the type's decel)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        assert pool.submit(_collisions_with_calibrated_humans).result() == 0
