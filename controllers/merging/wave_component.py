@@ -81,6 +81,7 @@ class WaveDamping(Controller):
         #   the connected vehicle to a crawl, and the humans behind it break down)
         gap_zone_m: float = Field(200.0, ge=0)  # [m] gap creation only this close to the merge
         stale_after_s: float = Field(1.0, gt=0)  # [s]
+        release_after_m: float = Field(0.0, ge=0)  # [m] past the merge point a vehicle is handed back
         sensor_noise_mps: float = Field(0.5, ge=0)  # [m/s] RSU speed sensing
         stopper: StopperParams = Field(default_factory=StopperParams)
         safety: SafetyParams = Field(default_factory=SafetyParams)
@@ -141,7 +142,7 @@ class WaveDamping(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
-        zone = s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m) & (s["front"] < self.merge_x)
+        zone = s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m) & (s["front"] < self.merge_x + self.p.release_after_m)
         members = {s["ids"][k] for k in np.flatnonzero(zone)}
         for vid in members - set(self.channel.receivers):
             self.channel.attach(vid)
@@ -181,7 +182,7 @@ class WaveDamping(Controller):
             vid = ids[k]
             if not s["connected"][k] or s["ramp"][k]:
                 continue
-            if front[k] >= self.merge_x:
+            if front[k] >= self.merge_x + self.p.release_after_m:
                 self._release(vid, cmds)
                 continue
             msg = self.latest.get(vid)
