@@ -12,9 +12,10 @@ Per road step, in pipeline order:
    otherwise meet there (gap creation); the speed change per step is bounded (``a_max_mps2``,
    ``b_comfort_mps2``: Flow's RL vehicles' 1.5 m/s²) and passes the safety layer
    (``safety_layer.safe_accel``: the Gipps / RSS bound to its physical leader, sensed on board).  The
-   layer counts on the braking the vehicle can deliver: SUMO executes a commanded speed within the
-   vehicle type's ``decel``, so ``b_ego`` is at most the smallest ``decel`` of the connected flows' types,
-   and the reaction time at least the period a command is held (a 6 m/s² bound with 2 m/s² brakes let
+   layer counts on the braking the vehicle can deliver: commanded in speed mode 27 SUMO executes a
+   commanded braking up to the type's ``emergencyDecel`` (in mode 31 only up to its ``decel``), so
+   ``b_ego`` is at most the smallest of those of the connected flows' types, and the reaction time at
+   least the period a command is held (a 6 m/s² bound with 2 m/s² brakes let
    commanded vehicles run into their leaders: 5.9 collisions a run at 33 % with the calibrated humans).
    Without a fresh message (older than ``stale_after_s``) the vehicle is handed back to its driver
    model (``Release``, counted as a fallback); past the merge it is released for good.
@@ -82,6 +83,9 @@ class WaveDamping(Controller):
         gap_zone_m: float = Field(200.0, ge=0)  # [m] gap creation only this close to the merge
         stale_after_s: float = Field(1.0, gt=0)  # [s]
         release_after_m: float = Field(0.0, ge=0)  # [m] past the merge point a vehicle is handed back
+        command_speed_mode: int = Field(27, ge=0, le=31)  # SUMO speed mode of commanded vehicles: 27 =
+        #   all checks but the type's comfortable decel (bit 2), so a commanded braking is executed up to
+        #   the type's emergency decel; 31 keeps the decel limit (the layer then counts on decel only)
         sensor_noise_mps: float = Field(0.5, ge=0)  # [m/s] RSU speed sensing
         stopper: StopperParams = Field(default_factory=StopperParams)
         safety: SafetyParams = Field(default_factory=SafetyParams)
@@ -113,8 +117,10 @@ class WaveDamping(Controller):
     def _deliverable_safety(self, scenario: Any) -> SafetyParams:
         """The safety layer's params limited to what the commanded vehicles can do (see the module doc)."""
         road = road_spec(scenario) if scenario is not None else None
-        decels = [road.demand.vehicle_types[f.vtype].decel for f in road.demand.flows.values()
-                  if f.connected_share > 0] if road is not None else []
+        capped = bool(self.p.command_speed_mode & 4)  # SUMO keeps a commanded speed within `decel`
+        decels = [(vt.decel if capped else vt.emergency_decel)
+                  for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
+                             if f.connected_share > 0)] if road is not None else []
         b_ego = min([self.p.safety.b_ego_mps2, *decels])
         return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
                                                 "reaction_s": max(self.p.safety.reaction_s, self.period)})
@@ -195,7 +201,8 @@ class WaveDamping(Controller):
             lead = order[j + 1] if j + 1 < len(order) else None
             gap = float(front[lead] - length[lead] - front[k]) if lead is not None else math.inf
             v_lead = float(speed[lead]) if lead is not None else self.p.u_max_mps
-            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead)))
+            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead),
+                                 self.p.command_speed_mode))
             self.controlled.add(vid)
             self.commands_sent += 1
         return cmds
