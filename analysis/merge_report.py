@@ -21,9 +21,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from corridor.analysis.plots import heatmap, line_chart, scatter_chart
 from corridor.analysis.report_series import load_npz, representative_runs
 from corridor.analysis.stats import mean_ci
-from corridor.analysis.svgplot import heatmap, line_chart, scatter_chart
 
 PAIRED = (("avg_speed_mps", "average speed [m/s]"), ("outflow_vph", "outflow [veh/h]"),
           ("delay_mean_s", "mean delay [s]"), ("hard_brakes", "hard brakes"), ("min_ttc_s", "min TTC [s]"),

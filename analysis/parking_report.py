@@ -7,18 +7,19 @@ and repeatability).  Scenarios without the ``parking`` monitor's columns get not
 from __future__ import annotations
 
 import html
+import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from corridor.analysis.svgplot import bar_chart
+from corridor.analysis.plots import histogram, lot_chart
 from corridor.stats import clopper_pearson
 
 HISTOGRAMS = (  # column, scale, label, bin width
     ("pos_err_m", 1.0, "final position error [m]", 0.02),
-    ("heading_err_rad", 180.0 / np.pi, "final heading error [deg]", 0.25),
+    ("heading_err_rad", 1.0, "final heading error [rad]", 0.005),
     ("manoeuvre_time_s", 1.0, "manoeuvre time [s]", 2.0),
 )
 
@@ -56,12 +57,28 @@ def _histogram(ok: pd.DataFrame, variants: list[str], col: str, scale: float, la
         return ""
     hi = max(float(np.percentile(allv, 99)), width)
     edges = np.arange(0.0, hi + width, width)
-    counts = np.array([np.histogram(np.clip(data[v], 0.0, edges[-1] - 1e-9), edges)[0] for v in variants]).T
-    groups = [f"{a:.3g}" for a in edges[:-1]]
     stats = "; ".join(f"{html.escape(v)}: p50 {np.median(x):.3g}, p95 {np.percentile(x, 95):.3g}, "
                       f"max {np.max(x):.3g} (n={len(x)})" for v, x in data.items() if len(x))
     return (f"<h3>{html.escape(label)}</h3><p>{stats}</p>"
-            f"<div>{bar_chart(groups, variants, counts, label, 'runs')}</div>")
+            f"{histogram(data, edges, label, label + ' (the last bin holds everything above)')}")
+
+
+def lot_section(out_dir: Path, ok: pd.DataFrame, variants: list[str]) -> str:
+    """The lot seen from above with the planned and the driven path, for the first run of each
+    variant that left ``parking/lot-<run_id>.json`` (the parking monitor writes it)."""
+    charts = []
+    for v in variants:
+        for rid in ok[ok["variant"].astype(str) == v]["run_id"].astype(str):
+            path = Path(out_dir) / "parking" / f"lot-{rid}.json"
+            if path.is_file():
+                charts.append(lot_chart(json.loads(path.read_text()), f"{v}: {rid}"))
+                break
+    if not charts:
+        return ""
+    return ("<h3>The lot, the plan and the path driven</h3><p>Bays and walls (grey), parked cars (dark), the "
+            "goal bay (green), every plan the controller announced (its planner's reference point; dashed, the last one "
+            "solid) and the path "
+            "the ego's centre drove (blue), one run per variant.</p>" + "".join(charts))
 
 
 def report_sections(out_dir: Path, df: pd.DataFrame, scenario: Any, scenario_path: Path | str | None) -> list[str]:
@@ -75,5 +92,6 @@ def report_sections(out_dir: Path, df: pd.DataFrame, scenario: Any, scenario_pat
              "at the end of the run) and by corridor's pose tolerance (the <code>parking</code> monitor), with "
              "exact (Clopper–Pearson) 95 % intervals; how the runs ended: the manoeuvre automaton's final mode "
              "and why it aborted.</p>", _summary(ok, variants)]
+    parts.append(lot_section(out_dir, ok, variants))
     parts += [h for h in (_histogram(ok, variants, *spec) for spec in HISTOGRAMS if spec[0] in ok) if h]
     return ["".join(parts)]

@@ -1,4 +1,5 @@
-"""The HTML report of a batch: self-contained (plots embedded as PNG), read from the results table.
+"""The HTML report of a batch: self-contained (matplotlib charts as inline SVG, ``corridor.analysis.plots``),
+read from the results table.  Its contents are described in docs/guide/reports.md.
 
 The report shows only what applies to the scenario and to each variant:
 
@@ -21,19 +22,21 @@ The report shows only what applies to the scenario and to each variant:
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import math
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.stats import linregress
+from scipy.stats import t as student_t
 
+from corridor.analysis.glossary import glossary_section, safety_event_columns, units_of
+from corridor.analysis.plots import box_or_points, figure, svg
 from corridor.analysis.stats import clopper_pearson, mean_ci
-from corridor.traffic.road_spec import road_spec
+from corridor.reports import report_sections
+from corridor.traffic.sumo.road_spec import road_spec
 from corridor.variants import collisions_apply, has_entities, variant_scenarios
 from corridor.variants import component_class as _component_class
 from corridor.variants import registries as _registries
@@ -45,6 +48,7 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:
 th{background:#f3f3f3}td:first-child,th:first-child{text-align:left}.bad{color:#b00}.good{color:#070}
 img{max-width:100%}code{background:#f3f3f3;padding:1px 3px}.res{font-weight:bold}"""
 
+MIN_BOX = 5  # runs of a variant below which its distribution is drawn as points, not a box
 NON_METRICS = {"run_id", "scenario", "variant", "seed", "status", "error", "traceback"}
 
 
@@ -130,8 +134,22 @@ def not_applicable_draws(ok: pd.DataFrame, scenario: Any) -> dict[str, dict[str,
     return out
 
 
-def _num(x: float, digits: int = 3) -> str:
-    return "–" if x is None or not math.isfinite(float(x)) else f"{float(x):.{digits}g}"
+def _num(x: float | None, digits: int = 3) -> str:
+    """A value for a table cell: "—" when it is missing or not finite (never "nan")."""
+    try:
+        ok = x is not None and math.isfinite(float(x))
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        return "—"
+    v = float(x)
+    if v == 0 or 1e-3 <= abs(v) < 1e6:  # plain digits (2320, not 2.32e+03)
+        return np.format_float_positional(v, precision=digits, unique=False, fractional=False, trim="-")
+    return f"{v:.{digits}g}"
+
+
+def _interval(lo: float, hi: float) -> str:
+    return f"[{_num(lo)}, {_num(hi)}]" if math.isfinite(lo) and math.isfinite(hi) else ""
 
 
 def metric_columns(df: pd.DataFrame) -> list[str]:
@@ -144,57 +162,50 @@ def metric_columns(df: pd.DataFrame) -> list[str]:
     return cols
 
 
-def _png(fig: Any) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-
-    plt.close(fig)
-    return f'<img src="data:image/png;base64,{base64.b64encode(buf.getvalue()).decode()}">'
-
-
-def distribution_plot(ok: pd.DataFrame, column: str, title: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.5, 3.2))
-    groups = [(v, pd.to_numeric(g[column], errors="coerce").dropna().to_numpy(dtype=float))
+def distribution_plot(ok: pd.DataFrame, column: str, title: str, unit: str = "") -> str:
+    """Per variant: a box plot with its points, or the points alone below ``MIN_BOX`` runs."""
+    groups = [(str(v), pd.to_numeric(g[column], errors="coerce").dropna().to_numpy(dtype=float))
               for v, g in ok.groupby("variant", sort=False)]
+    groups = [(v, x[np.isfinite(x)]) for v, x in groups]
     groups = [(v, x) for v, x in groups if len(x)]
     if not groups:
-        plt.close(fig)
         return ""
-    ax.boxplot([x for _, x in groups], vert=False, showmeans=True)
-    for i, (_, x) in enumerate(groups, start=1):
-        jitter = np.linspace(-0.15, 0.15, len(x)) if len(x) > 1 else np.zeros(1)
-        ax.plot(x, i + jitter, ".", alpha=0.5, color="C0")
-    ax.set_yticks(range(1, len(groups) + 1), [v for v, _ in groups])
-    ax.set_title(title)
-    ax.set_xlabel(column)
-    ax.grid(alpha=0.3)
-    return _png(fig)
+    return box_or_points(groups, title, f"{column} [{unit}]" if unit else column, MIN_BOX)
 
 
-def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str) -> str:
+def _cell(x: np.ndarray, base_mean: float, is_base: bool) -> str:
+    """Mean [95 % CI] of the finite values, their count when some are missing, % vs the baseline."""
+    finite = np.isfinite(x)
+    n, k = len(x), int(finite.sum())
+    if not k:
+        return f"<td>— <small>(no value in {n} run{'s' if n != 1 else ''})</small></td>"
+    m, lo, hi = mean_ci(x)
+    sd = float(np.std(x[finite], ddof=1)) if k > 1 else math.nan
+    rel = ""
+    if not is_base and math.isfinite(base_mean) and base_mean != 0:
+        rel = f" <small>({(m - base_mean) / abs(base_mean) * 100:+.1f} %)</small>"
+    ci = _interval(lo, hi)
+    count = f" <small>n={k}</small>" if k == n else f" <small>n={k} of {n}</small>"
+    return (f"<td title='sd {_num(sd, 2)}'>{_num(m)}{rel}"
+            f"{f' <small>{ci}</small>' if ci else ''}{count}</td>")
+
+
+def kpi_table(ok: pd.DataFrame, cols: list[str], baseline: str, units: dict[str, str] | None = None) -> str:
+    """Per metric and variant: the mean, its 95 % Student-t interval and the number of runs with a
+    value (missing values, e.g. no closing pair for a TTC, are counted, never averaged)."""
+    units = units or {}
     variants = list(dict.fromkeys(ok["variant"]))
-    head = "".join(f"<th>{html.escape(v)}</th>" for v in variants)
-    rows = []
+    head = "".join(f"<th>{html.escape(str(v))}</th>" for v in variants)
     base = ok[ok["variant"] == baseline]
+    rows = []
     for c in cols:
-        cells = []
         b = mean_ci(pd.to_numeric(base[c], errors="coerce").to_numpy(dtype=float))[0] if len(base) else math.nan
-        for v in variants:
-            x = pd.to_numeric(ok[ok["variant"] == v][c], errors="coerce").to_numpy(dtype=float)
-            m, lo, hi = mean_ci(x)
-            sd = np.nanstd(x, ddof=1) if np.isfinite(x).sum() > 1 else math.nan
-            rel = ""
-            if v != baseline and math.isfinite(m) and math.isfinite(b) and b != 0:
-                rel = f" <small>({(m - b) / abs(b) * 100:+.1f} %)</small>"
-            cells.append(f"<td title='95% CI [{_num(lo)}, {_num(hi)}]'>{_num(m)} ± {_num(sd, 2)}{rel}</td>")
-        rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
-    return f"<table><tr><th>metric (mean ± sd; % vs {html.escape(baseline)})</th>{head}</tr>{''.join(rows)}</table>"
+        cells = [_cell(pd.to_numeric(ok[ok["variant"] == v][c], errors="coerce").to_numpy(dtype=float), b,
+                       v == baseline) for v in variants]
+        unit = f" [{html.escape(units[c])}]" if units.get(c) else ""
+        rows.append(f"<tr><td>{html.escape(c)}{unit}</td>{''.join(cells)}</tr>")
+    return (f"<table><tr><th>metric [unit] (mean, % vs {html.escape(str(baseline))}, [95 % CI], runs with a value)"
+            f"</th>{head}</tr>{''.join(rows)}</table>")
 
 
 def _paired(ok: pd.DataFrame, column: str, a: str, b: str) -> tuple[np.ndarray, np.ndarray]:
@@ -233,56 +244,71 @@ def paired_table(ok: pd.DataFrame, cols: list[str]) -> str:
             cls = "" if not (math.isfinite(lo) and math.isfinite(hi)) or lo <= 0 <= hi else " class=res"
             ref = float(np.mean(y[np.isfinite(d)])) if n else math.nan
             rel = f" ({m / abs(ref) * 100:+.1f} %)" if math.isfinite(m) and math.isfinite(ref) and ref != 0 else ""
-            cells.append(f"<td{cls}>{_num(m)}{rel} <small>[{_num(lo)}, {_num(hi)}], n={n}</small></td>")
+            if not n:
+                cells.append("<td>— <small>(no seed with a value in both)</small></td>")
+                continue
+            ci = _interval(lo, hi)
+            cells.append(f"<td{cls}>{_num(m)}{rel} <small>{ci + ', ' if ci else ''}n={n}</small></td>")
         rows.append(f"<tr><td>{html.escape(c)}</td>{''.join(cells)}</tr>")
     return ("<p>Mean paired difference per seed (in % of the second variant's mean over the same seeds),"
             " [95 % CI]; <b>bold</b>: the interval excludes 0.</p>"
             f"<table><tr><th>metric</th>{head}</tr>{''.join(rows)}</table>")
 
 
-def draw_sensitivity(ok: pd.DataFrame, column: str, not_applicable: dict[str, dict[str, str]] | None = None) -> str:
-    """The metric against each randomized field, per variant, with a least-squares line: how the
-    result moves with demand, penetration, message loss ... over the batch's draws.  A (variant,
-    field) pair in ``not_applicable`` (variant -> {draw column -> reason}) is neither drawn nor
-    fitted; it is listed under the table with its reason."""
+def _slope_ci(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
+    """Least-squares slope of y on x and its 95 % Student-t interval."""
+    res = linregress(x, y)
+    if len(x) < 3 or not math.isfinite(res.stderr):
+        return float(res.slope), math.nan, math.nan
+    h = float(student_t.ppf(0.975, len(x) - 2) * res.stderr)
+    return float(res.slope), float(res.slope) - h, float(res.slope) + h
+
+
+def draw_sensitivity(ok: pd.DataFrame, column: str, not_applicable: dict[str, dict[str, str]] | None = None,
+                     unit: str = "") -> str:
+    """The metric against each randomized field, per variant, with a least-squares line and its
+    slope's 95 % interval: how the result moves with demand, penetration, message loss ... over the
+    batch's draws.  A (variant, field) pair in ``not_applicable`` (variant -> {draw column -> reason})
+    is neither drawn nor fitted; it is listed under the table with its reason."""
     skip = not_applicable or {}
     variants = list(dict.fromkeys(ok["variant"].astype(str))) if "variant" in ok else []
     draws = [c for c in ok.columns if c.startswith("draw.") and pd.api.types.is_numeric_dtype(ok[c])]
     draws = [c for c in draws if ok[c].nunique() > 2 and any(c not in skip.get(v, {}) for v in variants)]
     if not draws or column not in ok:
         return ""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, len(draws), figsize=(3.4 * len(draws), 3.0), squeeze=False, sharey=True)
-    rows, handles = [], {}
-    for ax, dc in zip(axes[0], draws, strict=True):
+    fig, axes = figure((min(3.2 * len(draws), 10.0) + 1.2, 3.0), ncols=len(draws), sharey=True)
+    rows = []
+    for ax, dc in zip(axes, draws, strict=True):
         for i, (v, g) in enumerate(ok.groupby("variant", sort=False)):
             if dc in skip.get(str(v), {}):
                 continue
             x = g[dc].to_numpy(dtype=float)
             y = pd.to_numeric(g[column], errors="coerce").to_numpy(dtype=float)
             keep = np.isfinite(x) & np.isfinite(y)
-            handles.setdefault(str(v), ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=v)[0])
+            ax.plot(x[keep], y[keep], ".", color=f"C{i}", alpha=0.6, label=str(v) if dc == draws[0] else None,
+                    gid=f"points:{v}:{dc}")
             if keep.sum() >= 3 and np.ptp(x[keep]) > 0:
-                slope, icpt = np.polyfit(x[keep], y[keep], 1)
+                slope, lo, hi = _slope_ci(x[keep], y[keep])
+                icpt = float(np.mean(y[keep]) - slope * np.mean(x[keep]))
                 xs = np.array([x[keep].min(), x[keep].max()])
                 ax.plot(xs, icpt + slope * xs, "-", color=f"C{i}", lw=1)
-                rows.append(f"<tr><td>{html.escape(v)}</td><td>{html.escape(dc[5:])}</td>"
-                            f"<td>{_num(slope)}</td><td>{_num(slope * np.ptp(x[keep]))}</td></tr>")
+                span = float(np.ptp(x[keep]))
+                rows.append(f"<tr><td>{html.escape(str(v))}</td><td>{html.escape(dc[5:])}</td>"
+                            f"<td>{_num(slope)} <small>{_interval(lo, hi)}</small></td>"
+                            f"<td>{_num(slope * span)} <small>{_interval(lo * span, hi * span)}</small></td>"
+                            f"<td>{int(keep.sum())}</td></tr>")
         ax.set_xlabel(dc[5:], fontsize=8)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel(column)
-    axes[0][0].legend(list(handles.values()), list(handles), fontsize=7)
-    table = ("<table><tr><th>variant</th><th>randomized field</th><th>slope</th>"
-             "<th>change over the drawn range</th></tr>" + "".join(rows) + "</table>")
+    axes[0].set_ylabel(f"{column} [{unit}]" if unit else column)
+    axes[0].legend(fontsize=7)
+    u = html.escape(unit) if unit else "its unit"
+    table = (f"<table><tr><th>variant</th><th>randomized field</th><th>slope of {html.escape(column)} "
+             f"[{u} per unit of the field] [95 % CI]</th><th>change of {html.escape(column)} over the drawn "
+             f"range [{u}] [95 % CI]</th><th>runs</th></tr>" + "".join(rows) + "</table>")
     left_out = [f"<li>{html.escape(v)} &times; <code>{html.escape(dc[5:])}</code>: {html.escape(why)}</li>"
                 for v in variants for dc, why in skip.get(v, {}).items() if dc in ok.columns]
     note = ("<p>Not fitted (the field cannot affect that variant):</p><ul>" + "".join(left_out) + "</ul>"
             if left_out else "")
-    return _png(fig) + table + note
+    return svg(fig, "sensitivity") + table + note
 
 
 def collision_table(df: pd.DataFrame) -> str:
@@ -300,26 +326,50 @@ def collision_table(df: pd.DataFrame) -> str:
             "<th>runs with a collision</th><th>P(collision) 95 % exact CI</th></tr>" + "".join(rows) + "</table>")
 
 
-def problem_runs(df: pd.DataFrame, with_collisions: bool = True) -> str:
+def _events_of(r: pd.Series, event_cols: list[str], spec_cols: list[str]) -> list[str]:
+    """What went wrong in one ok run: its safety events (``2 nmac``) and the specs it violated."""
+    out = [f"{int(v)} {c}" for c in event_cols if (v := pd.to_numeric(r.get(c), errors="coerce")) > 0]
+    violated = [c.split(".")[1] for c in spec_cols if r.get(c) is False or r.get(c) == 0]
+    return out + ([f"violates {', '.join(violated)}"] if violated else [])
+
+
+def safety_verdict(df: pd.DataFrame, event_cols: list[str]) -> str:
+    """Per variant: runs with each safety event (``k/n``, total count), runs violating a spec, errors.
+    Green only where every count is 0."""
     spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
-    coll = (df["collisions"].fillna(0) if "collisions" in df and with_collisions
-            else pd.Series(0, index=df.index))
-    bad = df[(df["status"] != "ok") | (coll > 0)]
-    for c in spec_cols:
-        bad = pd.concat([bad, df[df[c] == False]])  # noqa: E712 (pandas comparison)
-    bad = bad.drop_duplicates("run_id")
-    if bad.empty:
-        return ("<p class=good>No run " + ("collided, failed, " if with_collisions else "failed ")
-                + "or violated a specification.</p>")
+    head = "".join(f"<th>runs with {html.escape(c)} (total)</th>" for c in event_cols)
     rows = []
-    for _, r in bad.iterrows():
-        violated = [c.split(".")[1] for c in spec_cols if r.get(c) is False or r.get(c) == 0]
-        why = (r["error"] if r["status"] != "ok" else
-               "; ".join(([f"{int(r.get('collisions', 0) or 0)} collision(s)"] if with_collisions else [])
-                         + ([f"violates {', '.join(violated)}"] if violated else [])))
-        rows.append(f"<tr><td>{html.escape(r['run_id'])}</td><td>{html.escape(str(r['status']))}</td>"
-                    f"<td style='text-align:left'>{html.escape(str(why))}</td></tr>")
-    return "<table><tr><th>run</th><th>status</th><th>why</th></tr>" + "".join(rows) + "</table>"
+    for v, g in df.groupby("variant", sort=False):
+        ok = g[g["status"] == "ok"]
+        cells = []
+        for c in event_cols:
+            x = pd.to_numeric(ok[c], errors="coerce").fillna(0)
+            k = int((x > 0).sum())
+            cells.append(f"<td class={'bad' if k else 'good'}>{k}/{len(ok)} ({int(x.sum())})</td>")
+        sv = int(sum(((ok[c] == False) | (ok[c] == 0)).sum() for c in spec_cols))  # noqa: E712
+        spec = f"<td class={'bad' if sv else 'good'}>{sv}</td>" if spec_cols else ""
+        err = len(g) - len(ok)
+        rows.append(f"<tr><td>{html.escape(str(v))}</td><td>{len(g)}</td><td class={'bad' if err else 'good'}>{err}</td>"
+                    f"{''.join(cells)}{spec}</tr>")
+    spec_head = "<th>spec violations</th>" if spec_cols else ""
+    return (f"<table><tr><th>variant</th><th>runs</th><th>errors</th>{head}{spec_head}</tr>"
+            + "".join(rows) + "</table>")
+
+
+def problem_runs(df: pd.DataFrame, event_cols: list[str]) -> str:
+    """The runs that failed, had a safety event (any column of ``event_cols`` above 0) or violated a
+    spec, with why; a green line only when there is none."""
+    spec_cols = [c for c in df.columns if c.startswith("spec.") and c.endswith(".satisfied")]
+    whys = {r["run_id"]: (r["error"] if r["status"] != "ok" else "; ".join(_events_of(r, event_cols, spec_cols)))
+            for _, r in df.iterrows()}
+    bad = df[[(r["status"] != "ok") or bool(whys[r["run_id"]]) for _, r in df.iterrows()]]
+    if bad.empty:
+        what = ", ".join(event_cols) if event_cols else "no safety event measured"
+        return f"<p class=good>No run failed, had a safety event ({html.escape(what)}) or violated a specification.</p>"
+    rows = [f"<tr><td>{html.escape(r['run_id'])}</td><td>{html.escape(str(r['status']))}</td>"
+            f"<td style='text-align:left'>{html.escape(str(whys[r['run_id']]))}</td></tr>" for _, r in bad.iterrows()]
+    return (f"<p class=bad>{len(bad)} of {len(df)} runs failed, had a safety event or violated a specification.</p>"
+            "<table><tr><th>run</th><th>status</th><th>why</th></tr>" + "".join(rows) + "</table>")
 
 
 SENSITIVITY_NOTE = (
@@ -337,11 +387,13 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     baseline = variants[0] if variants else ""
     cols = metric_columns(ok) if len(ok) else []
     key = [m for m in scenario.metrics if m in cols] or cols[:6]
-    plots = "".join(distribution_plot(ok, c, c) for c in key if len(ok))
+    units = units_of(cols, scenario)
+    plots = "".join(distribution_plot(ok, c, c, units.get(c, "")) for c in key if len(ok))
     spec_cols = [c for c in cols if c.startswith("spec.") and c.endswith(".space")]
-    spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}") for c in spec_cols)
+    spec_plots = "".join(distribution_plot(ok, c, f"STL robustness {c}", units.get(c, "")) for c in spec_cols)
     with_coll = collisions_apply(df, scenario)
     skip = not_applicable_draws(ok, scenario) if len(ok) else {}
+    events = [c for c in safety_event_columns(df.columns, scenario) if with_coll or c != "collisions"]
     body = [
         f"<h1>{html.escape(scenario.name)}</h1><p>{html.escape(scenario.description)}</p>",
         f"<p>{len(df)} runs ({len(ok)} ok), variants: {', '.join(map(html.escape, variants))}; "
@@ -349,16 +401,17 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
         *(["<h2>Safety: collisions</h2>", collision_table(df)] if with_coll else
           [f"<p>No collision probability: {ENTITY_FREE_REASON} (a macroscopic model), so a count of 0 "
            "collisions would say nothing about safety.</p>"]),
-        "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline) if len(ok) else "",
+        "<h2>Verdict: safety events, errors and violated specifications per variant</h2>",
+        safety_verdict(df, events), problem_runs(df, events),
+        "<h2>Key metrics per variant</h2>", kpi_table(ok, key, baseline, units) if len(ok) else "",
         *(["<h2>Paired differences between variants</h2>", paired_table(ok, key)]
           if len(ok) and ok["variant"].nunique() > 1 else []),
         "<h2>Distributions</h2>", plots, spec_plots,
         *(["<h2>Sensitivity to the randomized fields</h2>", SENSITIVITY_NOTE, sensitivity] if (sensitivity := (
-            draw_sensitivity(ok, key[0], skip) if len(ok) and key else "")) else []),
+            draw_sensitivity(ok, key[0], skip, units.get(key[0], "")) if len(ok) and key else "")) else []),
         *(extra_sections or []),
-        f"<h2>Runs with {'collisions, ' if with_coll else ''}errors or violated specifications</h2>",
-        problem_runs(df, with_coll),
-        "<h2>All metrics</h2>", kpi_table(ok, cols, baseline) if len(ok) else "",
+        "<h2>All metrics</h2>", kpi_table(ok, cols, baseline, units) if len(ok) else "",
+        glossary_section([c for c in df.columns if c not in NON_METRICS], scenario),
     ]
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(f"<!doctype html><html><head><meta charset=utf-8><title>{html.escape(scenario.name)}"
@@ -366,13 +419,8 @@ def write_report(df: pd.DataFrame, scenario: Any, path: Path, extra_sections: li
     return path
 
 
-SECTIONS_GROUP = "corridor.report_sections"  # entry points: fn(out_dir, df, scenario, scenario_path) -> [html]
-
-
 def write_batch_report(df: pd.DataFrame, scenario: Any, out_dir: Path, scenario_path: Path | str | None) -> Path:
     """The ``html`` entry of ``corridor.reports``: ``report.html`` with the sections of every
     ``corridor.report_sections`` entry point (in the order of their names) after the distributions."""
-    sections: list[str] = []
-    for ep in sorted(entry_points(group=SECTIONS_GROUP), key=lambda e: e.name):
-        sections += ep.load()(out_dir, df, scenario, scenario_path)
+    sections = report_sections(out_dir, df, scenario, scenario_path)
     return write_report(df, scenario, Path(out_dir) / "report.html", extra_sections=sections)

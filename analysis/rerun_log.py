@@ -13,6 +13,7 @@ frame, e.g. the UAV cameras' footprints on the road, the ramp meters' rates).
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -27,6 +28,9 @@ ROLE_COLORS = {  # RGBA
     int(Role.CONTROLLED): (40, 190, 90, 255),
     int(Role.OTHER): (160, 160, 160, 255),
 }
+GRID_STEP_M = 100.0  # [m] ground grid spacing
+GRID_MIN_HALF_M = 1000.0  # [m] the grid reaches at least this far from the origin
+MARKER_UI_PT = 6.0  # [UI points] radius of the aircraft / UAV markers on screen
 KIND_COLORS = {int(Kind.UAV): (200, 60, 200, 255), int(Kind.AIRCRAFT): (220, 40, 40, 255)}
 
 
@@ -56,11 +60,13 @@ class RerunRecorder(Component):
         self._events_seen = 0
         self._signals_seen: dict[str, int] = {}
         self._trails: dict[str, list[np.ndarray]] = {}
+        self._ctx: RunContext | None = None
 
     def setup(self, ctx: RunContext) -> None:
         import rerun as rr
 
         self.rr = rr
+        self._ctx = ctx  # read again in close(), after the other components' finish()
         self.rec = rr.RecordingStream("corridor", recording_id=f"{ctx.scenario.name}-{ctx.run_seed}")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.rec.save(self.path, default_blueprint=blueprint())
@@ -72,12 +78,41 @@ class RerunRecorder(Component):
                 self.rec.log("world/road/lanes", rr.LineStrips3D(strips, colors=(120, 120, 120, 255), radii=0.08),
                              static=True)
 
+        self._log_ground(ctx)
         marks = ctx.snapshot.road.tables.landmarks if ctx.snapshot.road is not None else None
         outlines = getattr(marks, "outlines", None)
         if callable(outlines):
             for name, polys in outlines().items():
                 strips = [np.column_stack([np.vstack([q, q[:1]]), np.zeros(len(q) + 1)]) for q in polys]
                 self.rec.log(f"world/landmarks/{name}", rr.LineStrips3D(strips, radii=0.06), static=True)
+
+    def _log_ground(self, ctx: RunContext) -> None:
+        """A grid on the ground (z = 0) centred on the scenario's origin: GRID_STEP_M lines over the
+        road's extent (at least GRID_MIN_HALF_M either way), so a scene is never afloat in black."""
+        half = GRID_MIN_HALF_M
+        for b in ctx.backends():
+            shapes = getattr(getattr(b, "net", None), "lane_shapes", None)
+            if shapes:
+                pts = np.vstack([np.asarray(q, float)[:, :2] for q in shapes.values()])
+                half = max(half, float(np.abs(pts).max()))
+        half = GRID_STEP_M * np.ceil(half / GRID_STEP_M)
+        ticks = np.arange(-half, half + GRID_STEP_M / 2, GRID_STEP_M)
+        strips = [np.array([[x, -half, 0.0], [x, half, 0.0]]) for x in ticks]
+        strips += [np.array([[-half, y, 0.0], [half, y, 0.0]]) for y in ticks]
+        self.rec.log("world/ground", self.rr.LineStrips3D(strips, colors=(70, 70, 70, 255), radii=0.3), static=True)
+        self.rec.log("world/origin", self.rr.Arrows3D(origins=np.zeros((3, 3)), vectors=np.eye(3) * GRID_STEP_M,
+                                                      colors=[(220, 60, 60), (60, 200, 60), (60, 60, 220)],
+                                                      labels=["east", "north", "up"]), static=True)
+
+    def _log_air_markers(self, s: Any, centers: np.ndarray, colors: np.ndarray) -> None:
+        """Aircraft and UAVs as points of a fixed size on screen (MARKER_UI_PT), beside their true-size
+        boxes, so that a 1 m UAV stays visible in a km-wide scene."""
+        air = np.flatnonzero((s.kind == Kind.UAV) | (s.kind == Kind.AIRCRAFT))
+        if len(air):
+            rr = self.rr
+            self.rec.log("world/air_markers", rr.Points3D(centers[air], colors=colors[air],
+                                                          radii=rr.components.Radius.ui_points(MARKER_UI_PT),
+                                                          labels=[str(i) for i in s.ids[air]]))
 
     def _log_overlays(self, ctx: RunContext) -> None:
         rr = self.rr
@@ -108,19 +143,32 @@ class RerunRecorder(Component):
             rec.log("world/entities", rr.Boxes3D(centers=centers, half_sizes=half, quaternions=quats,
                                                  colors=colors, labels=[str(i) for i in s.ids],
                                                  show_labels=False))
+            self._log_air_markers(s, centers, colors)
             self._log_trails(s)
         self._log_overlays(ctx)
         for c in ctx.components.values():
             hook = getattr(c, "rerun_log", None)
             if hook is not None and c is not self:
                 hook(rec, rr, ctx)
+        self._log_new_signals(ctx)
+        self._log_new_events(ctx)
+
+    def _log_new_signals(self, ctx: RunContext) -> None:
+        """Every signal sample recorded since the last call (monitors that work in blocks of ticks
+        record a block's samples at once, with their own times)."""
+        rr, rec = self.rr, self.rec
         for name in ctx.signals.names():
             t, v = ctx.signals.get(name)
             k = self._signals_seen.get(name, 0)
             for ti, vi in zip(t[k:], v[k:]):
+                if not math.isfinite(vi):  # no value at this tick (min_ttc: no closing pair, +inf)
+                    continue
                 rec.set_time("sim_time", duration=float(ti))
                 rec.log(f"metrics/{name}", rr.Scalars(float(vi)))
             self._signals_seen[name] = len(t)
+
+    def _log_new_events(self, ctx: RunContext) -> None:
+        rr, rec = self.rr, self.rec
         for ev in ctx.events.events[self._events_seen:]:
             rec.set_time("sim_time", duration=ev.t)
             level = "ERROR" if ev.kind == "collision" else ("WARN" if ev.kind in ("fallback", "teleport") else "INFO")
@@ -145,6 +193,11 @@ class RerunRecorder(Component):
             self.rec.log("world/trails", self.rr.LineStrips3D(strips, radii=0.15))
 
     def close(self) -> None:
+        """After every component's ``finish`` (the engine closes last): log what they recorded since
+        the last frame (a block monitor's last partial block, the specs' signals), then flush."""
         if hasattr(self, "rec"):
+            if self._ctx is not None:
+                self._log_new_signals(self._ctx)
+                self._log_new_events(self._ctx)
             self.rec.flush()
             self.rec.disconnect()

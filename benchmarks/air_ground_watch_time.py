@@ -13,6 +13,7 @@ absolute figures.
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
@@ -26,7 +27,8 @@ def measure(variant: str, duration_s: float) -> tuple[float, float, dict[str, fl
     """(wall s, CPU s, CPU s per component) of the ticks of one run."""
     _, raw = load(SCENARIO, [f"duration={duration_s}", "outputs.signals=false"])
     sc = validate(apply_overrides(raw, raw["sweep"][variant]), str(SCENARIO))
-    sim = build(sc, 0, Path("."))
+    scratch = tempfile.TemporaryDirectory(prefix="corridor-bench-")  # SUMO writes routes.rou.xml there
+    sim = build(sc, 0, Path(scratch.name))
     for c in sim.setup_order:
         c.setup(sim.ctx)
     cpu: dict[str, float] = {}
@@ -51,6 +53,7 @@ def measure(variant: str, duration_s: float) -> tuple[float, float, dict[str, fl
     for c in sim.ctx.components.values():
         c.finish(sim.ctx)
         c.close()
+    scratch.cleanup()
     backends = sum(v for k, v in cpu.items() if k in ("road", "air"))
     cpu["(integrate + snapshot)"] -= backends  # the backends' own ticks are listed by name
     return wall, total, cpu

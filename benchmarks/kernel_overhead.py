@@ -19,8 +19,8 @@ from pathlib import Path
 from corridor.engine import RunContext
 from corridor.run import build
 from corridor.scenario import load
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.sumo_backend import SumoBackend, sumo_seed
+from corridor.traffic.sumo.backend import SumoBackend, sumo_seed
+from corridor.traffic.sumo.road_spec import road_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -27,7 +27,7 @@ from corridor.controllers.ramp_metering.mpc_structure import (
     kkt_patterns,
     ordering_fill,
 )
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
 
 def analyse(n: int, horizon: int, orderings: tuple[str, ...]) -> dict[str, object]:

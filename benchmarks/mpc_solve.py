@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC, closed_loop, mpc_policy
-from corridor.traffic.metanet import steady_state
-from corridor.traffic.metanet_networks import (
+from corridor.traffic.macro.metanet import steady_state
+from corridor.traffic.macro.metanet_networks import (
     BeltwayLayout,
     beltway,
     beltway_demand_for_load,

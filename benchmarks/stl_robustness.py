@@ -1,4 +1,4 @@
-"""Offline space robustness: corridor.analysis.stl vs RTAMT 0.4.10 on the same data, same process.
+"""Offline space robustness: corridor.stl vs RTAMT 0.4.10 on the same data, same process.
 
     python benchmarks/stl_robustness.py [--dt 0.1] [--sizes 100000 1000000] [--rtamt-budget 60]
 
@@ -16,7 +16,7 @@ import time
 import numpy as np
 import rtamt
 
-from corridor.analysis.stl import space_robustness, time_robustness
+from corridor.stl import space_robustness, time_robustness
 
 FORMULA = "G[0,10]((x > 0) -> F[0,5](y > 0.5)) & G[0,100](z < 3)"
 RTAMT_FORMULA = "out = (always[0:10]((x > 0) implies (eventually[0:5](y > 0.5)))) and (always[0:100](z < 3))"

@@ -14,8 +14,8 @@ import time
 
 import numpy as np
 
-from corridor.vehicles.autopilot import PositionCommand
-from corridor.vehicles.jsbsim_fleet import JSBSimFleet
+from corridor.vehicles.air.autopilot import PositionCommand
+from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
 
 
 def build(n: int, radius_m: float) -> tuple[JSBSimFleet, np.ndarray]:

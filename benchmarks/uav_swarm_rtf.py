@@ -19,6 +19,7 @@ caches and the sibling hyper-thread. Not run by CI; ``make bench`` runs ``--quic
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -28,7 +29,7 @@ import jsbsim
 from corridor.engine import Phase
 from corridor.run import build
 from corridor.scenario import apply_overrides, load, validate
-from corridor.vehicles.jsbsim_fleet import JSBSimLogSink, quiet_fds
+from corridor.vehicles.air.jsbsim_fleet import JSBSimLogSink, quiet_fds
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "uav_swarm.yaml"
 VARIANTS = ("none", "potential_field", "control_tube")
@@ -39,7 +40,8 @@ def measure(variant: str, n: int, duration_s: float) -> dict[str, float]:
     """Build and run one variant; returns RTFs, set-up time and CPU seconds per phase."""
     sc, raw = load(SCENARIO, [f"backends.air.params.swarm.n={n}", f"duration={duration_s}"])
     sc = validate(apply_overrides(raw, sc.sweep[variant]), str(SCENARIO))
-    sim = build(sc, 0, Path("."))
+    scratch = tempfile.TemporaryDirectory(prefix="corridor-bench-")  # SUMO writes routes.rou.xml there
+    sim = build(sc, 0, Path(scratch.name))
     c0 = time.process_time()
     for c in sim.ctx.components.values():
         c.setup(sim.ctx)
@@ -61,6 +63,7 @@ def measure(variant: str, n: int, duration_s: float) -> dict[str, float]:
     for c in sim.ctx.components.values():
         metrics.update(c.finish(sim.ctx))
         c.close()
+    scratch.cleanup()
     return {"rtf_wall": sc.duration / wall, "rtf_cpu": sc.duration / cpu, "setup_cpu_s": setup_cpu,
             "nmac": metrics.get("nmac", float("nan")),
             "fused_per_s": metrics.get("link_fused_reports", 0.0) / sc.duration,

@@ -16,6 +16,7 @@ imported, so a typo fails in a fraction of a second.
 
 from __future__ import annotations
 
+import importlib.util
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,8 @@ if TYPE_CHECKING:  # pragma: no cover
 
 @dataclass(frozen=True)
 class BatchResult:
+    """A finished batch: its rows, its folder and the scenario it ran."""
+
     rows: pd.DataFrame  # one row per run of the batch (the content of runs.parquet)
     out: Path  # the batch folder
     scenario: Scenario  # the validated base scenario (--set applied; variants and draws are per run)
@@ -49,6 +52,7 @@ class BatchResult:
 
     @property
     def failed(self) -> pd.DataFrame:
+        """The rows whose run did not end ``ok`` (``status`` error), with their ``error`` message."""
         return self.rows[self.rows["status"] != "ok"]
 
 
@@ -60,36 +64,76 @@ def run(scenario: str | Path = "merging", *, runs: int = 1, seed: int | None = N
     """Run a scenario (a file, or a packaged scenario's name) as a batch; see ``run_scenario --help``.
 
     ``out`` defaults to ``results/<scenario name>``.  A folder that already holds a batch is refused
-    unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given."""
-    from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, load
+    unless ``resume`` (continue the same batch) or ``overwrite`` (replace it) is given.  Every input is
+    checked (one-line ``CorridorError``) before the folder is created or touched.
+    """
+    from corridor import batch
+    from corridor.scenario import MAX_SEED, file_stamps, load_with_files, resolve_scenario, set_overrides
 
-    if runs < 1:
-        raise CorridorError(f"runs must be >= 1, got {runs}")
+    check_options(runs=runs, seed=seed, sets=sets, variants=variants, executor=executor, workers=workers)
     path = resolve_scenario(str(scenario))
-    sc, raw = load(path, list(sets))
+    sc, raw, named = load_with_files(path, list(sets))
     first = sc.seed if seed is None else seed
     if first < 0 or first + runs - 1 > MAX_SEED:
         raise CorridorError(f"{path}: seeds {first}..{first + runs - 1} (--seed, --runs) must lie in 0..{MAX_SEED}")
     out_dir = Path(out) if out is not None else Path("results") / sc.name
-    bdir = open_batch_dir(out_dir, manifest_for(sc.name, str(path), raw, list(sets)), resume, overwrite)
+    plan = batch.expand(sc, raw, str(path), runs, seed, str(out_dir), list(variants), set_overrides(sets))
+    if rerun:
+        plan.record(rerun_run or plan[0].run_id, str(Path(rerun).resolve()))
+    elif rerun_run is not None:
+        raise CorridorError("--rerun-run names the run to record: give --rerun FILE.rrd too")
+    bdir = open_batch_dir(out_dir, manifest_for(sc.name, str(path), raw, list(sets), file_stamps(named)), resume,
+                          overwrite)
     try:
-        return _run_locked(sc, raw, path, bdir.path, runs, seed, list(variants), executor, workers, address,
-                           progress, report, rerun, rerun_run)
+        return _run_locked(sc, path, bdir.path, plan, executor, workers, address, progress, report, rerun)
     finally:
         bdir.close()
 
 
-def _run_locked(sc: Scenario, raw: dict[str, Any], path: Path, out: Path, runs: int, seed: int | None,
-                variants: list[str], executor: str, workers: int, address: str | None, progress: bool,
-                report: bool, rerun: str | Path | None, rerun_run: str | None) -> BatchResult:
+def _int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise CorridorError(f"{name} must be a whole number, got {type(value).__name__} {value!r:.40}")
+    return value
+
+
+def check_options(*, runs: int | None = None, seed: int | None = None, sets: Sequence[str] = (),
+                  variants: Sequence[str] = (), executor: str = "local", workers: int = 2) -> None:
+    """Check the options of a batch as the command line checks them.
+
+    ``run_scenario`` parses them into these types; a wrong type or value is a one-line
+    ``CorridorError``.
+    """
+    from corridor.scenario import MAX_SEED
+
+    if runs is not None and _int("runs", runs) < 1:
+        raise CorridorError(f"runs must be >= 1, got {runs}")
+    if seed is not None and not 0 <= _int("seed", seed) <= MAX_SEED:
+        raise CorridorError(f"seed must lie in 0..{MAX_SEED}, got {seed}")
+    for name, seq in (("sets", sets), ("variants", variants)):
+        if isinstance(seq, str | bytes) or not isinstance(seq, Sequence):
+            example = "sets=['duration=60']" if name == "sets" else "variants=['default']"
+            raise CorridorError(f"{name} must be a list of strings (e.g. {example}), got {type(seq).__name__} "
+                                f"{seq!r:.40}")
+        bad = [v for v in seq if not isinstance(v, str)]
+        if bad:
+            raise CorridorError(f"{name} must be a list of strings, got the item {bad[0]!r:.40}")
+    if executor not in EXECUTORS:
+        raise CorridorError(f"executor {executor!r:.40}: must be one of {', '.join(EXECUTORS)}")
+    if executor == "ray" and importlib.util.find_spec("ray") is None:  # before the folder, not in run_batch
+        raise CorridorError("--executor ray needs Ray: pip install -e '.[ray]' in the corridor clone")
+    if _int("workers", workers) < 1:
+        raise CorridorError(f"workers must be >= 1, got {workers}")
+
+
+EXECUTORS = ("local", "ray")
+
+
+def _run_locked(sc: Scenario, path: Path, out: Path, plan: Any, executor: str, workers: int,
+                address: str | None, progress: bool, report: bool, rerun: str | Path | None) -> BatchResult:
     from corridor import batch  # heavy imports only once the input is known to be good
     from corridor.results import ResultStore
 
-    plan = batch.expand(sc, raw, str(path), runs, seed, str(out), variants)
-    if rerun:
-        target = rerun_run or plan[0].run_id
-        plan.record(target, str(Path(rerun).resolve()))
+    for target in plan.recorded():
         (out / "parts" / f"{target}.parquet").unlink(missing_ok=True)  # a resumed batch records it again
     store = ResultStore(out)
     batch.run_batch(plan, store, executor, workers, address, progress=progress)

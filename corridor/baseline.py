@@ -42,7 +42,8 @@ def run_short(path: Path, seeds: int, duration_s: float, workers: int = 2) -> li
         store = ResultStore(tmp)
         run_batch(specs, store, workers=workers, progress=False)
         df = store.compact([s.run_id for s in specs])
-    return df.to_dict("records")
+    rows: list[dict[str, Any]] = df.to_dict("records")
+    return rows
 
 
 def summarise(rows: list[dict[str, Any]], key_metrics: list[str]) -> dict[str, Any]:

@@ -14,10 +14,11 @@ import pickle
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import wait as mp_wait
-from typing import Any
+from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -47,8 +48,10 @@ class RunPlan(Sequence[RunSpec]):
     front).  Run ids are ``<variant>-s<seed>``; ``rank(run_id)`` gives a run's place in the batch."""
 
     def __init__(self, sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
-                 out_dir: str | None = None, variants: list[str] | None = None) -> None:
+                 out_dir: str | None = None, variants: list[str] | None = None,
+                 after: dict[str, Any] | None = None) -> None:
         self.sc, self.raw, self.source, self.runs, self.out_dir = sc, raw, source, runs, out_dir
+        self.after = after or {}  # the --set values, applied again after the variant (the command line wins)
         self.base_seed = sc.seed if seed is None else seed
         if self.base_seed < 0 or self.base_seed + runs - 1 > MAX_SEED:
             raise CorridorError(f"{source}: seeds {self.base_seed}..{self.base_seed + runs - 1} (--seed, --runs) "
@@ -61,6 +64,7 @@ class RunPlan(Sequence[RunSpec]):
             names = [v for v in names if v in variants]
         self.variants = names
         self._rerun: dict[str, str] = {}
+        self.base_dir = str(Path(source).resolve().parent)  # files the scenario names are relative to it
 
     def __len__(self) -> int:
         return self.runs * len(self.variants)
@@ -73,8 +77,8 @@ class RunPlan(Sequence[RunSpec]):
         draws = draws_for(self.sc, s)
         run_id = f"{v}-s{s}"
         return RunSpec(run_id=run_id, scenario=self.sc.name, source=self.source, variant=v, seed=s,
-                       base=self.raw, overrides={**self.sc.sweep[v], **draws}, draws=draws,
-                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id))
+                       base=self.raw, overrides={**self.sc.sweep[v], **draws, **self.after}, draws=draws,
+                       out_dir=self.out_dir, rerun_path=self._rerun.get(run_id), base_dir=self.base_dir)
 
     def __iter__(self) -> Iterator[RunSpec]:
         return (self[i] for i in range(len(self)))
@@ -98,10 +102,15 @@ class RunPlan(Sequence[RunSpec]):
             raise CorridorError(f"--rerun-run {clip(run_id)}: no such run; runs are {first}, ...")
         self._rerun[run_id] = rerun_path
 
+    def recorded(self) -> list[str]:
+        """The run ids to record for the Rerun viewer."""
+        return list(self._rerun)
+
 
 def expand(sc: Scenario, raw: dict[str, Any], source: str, runs: int, seed: int | None = None,
-           out_dir: str | None = None, variants: list[str] | None = None) -> RunPlan:
-    return RunPlan(sc, raw, source, runs, seed, out_dir, variants)
+           out_dir: str | None = None, variants: list[str] | None = None,
+           after: dict[str, Any] | None = None) -> RunPlan:
+    return RunPlan(sc, raw, source, runs, seed, out_dir, variants, after)
 
 
 # Math-library thread pools in every worker process: one thread.  A run is single-threaded work
@@ -112,56 +121,86 @@ WORKER_THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS
 
 
 @dataclass
-class _Worker:
+class Worker:
     """A ``python -m corridor.worker`` process: one run (``serve=False``), or a fork server that runs
-    spec after spec, each in a forked child (``serve=True``).  Rows arrive on ``fd``."""
+    spec after spec, each in a forked child (``serve=True``).  Rows arrive on ``fd``.
 
-    proc: subprocess.Popen
+    The local executor (:func:`run_local`) drives workers without blocking; :meth:`wait_row` is the
+    blocking way for a caller that drives one server by hand."""
+
+    proc: subprocess.Popen[bytes]
     spec: RunSpec | None  # the run in progress (None: a server waiting for work)
     fd: int
     serve: bool = False
     data: bytearray = field(default_factory=bytearray)
     retiring: bool = False  # a server that said it will exit after its last frame: give it no work
 
+    @classmethod
+    def spawn(cls, serve: bool) -> Worker:
+        """Start a worker process (a fork server if ``serve``) with no run yet."""
+        r, w = os.pipe()
+        args = [sys.executable, "-m", "corridor.worker", *(["--serve"] if serve else []), str(w), str(os.getpid())]
+        try:
+            proc = subprocess.Popen(args, stdin=subprocess.PIPE, pass_fds=(w,),
+                                    start_new_session=True)  # own session: no terminal SIGINT
+        except BaseException:
+            os.close(r)
+            raise
+        finally:
+            os.close(w)
+        os.set_blocking(r, False)
+        return cls(proc, None, r, serve)
 
-def _spawn(serve: bool) -> _Worker:
-    r, w = os.pipe()
-    args = [sys.executable, "-m", "corridor.worker", *(["--serve"] if serve else []), str(w), str(os.getpid())]
-    try:
-        proc = subprocess.Popen(args, stdin=subprocess.PIPE, pass_fds=(w,),
-                                start_new_session=True)  # own session: no terminal SIGINT
-    except BaseException:
-        os.close(r)
-        raise
-    finally:
-        os.close(w)
-    os.set_blocking(r, False)
-    return _Worker(proc, None, r, serve)
+    def send(self, spec: RunSpec) -> None:
+        """Hand ``spec`` to the worker (to a server as a length-prefixed frame, which keeps stdin open)."""
+        self.spec = spec
+        assert self.proc.stdin is not None
+        body = pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL)
+        try:
+            self.proc.stdin.write(SPEC_LEN.pack(len(body)) + body if self.serve else body)
+            self.proc.stdin.flush()
+            if not self.serve:
+                self.proc.stdin.close()
+        except OSError:  # the worker died at once; its row says so
+            pass
+
+    def wait_row(self) -> tuple[int | None, dict[str, Any]]:
+        """Block until a server's run ends: the exit code of the forked run and its row (an
+        ``error`` row if the run died)."""
+        if not self.serve or self.spec is None:
+            raise ValueError("wait_row: a fork server with a run in progress only")
+        os.set_blocking(self.fd, True)
+        try:
+            while len(self.data) < FRAME.size or len(self.data) < FRAME.size + FRAME.unpack_from(self.data)[0]:
+                chunk = os.read(self.fd, 1 << 20)
+                if not chunk:
+                    raise RuntimeError("the fork server closed its pipe")
+                self.data += chunk
+        finally:
+            os.set_blocking(self.fd, False)
+        code = FRAME.unpack_from(self.data)[1]
+        row = _take_frame(self)
+        assert row is not None
+        return code, row
+
+    def kill(self) -> None:
+        """Kill the worker process at once and release its pipe."""
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait()
+        _close_stdin(self)
+        os.close(self.fd)
 
 
-def _send(w: _Worker, spec: RunSpec) -> None:
-    """Hand ``spec`` to the worker (to a server as a length-prefixed frame, which keeps stdin open)."""
-    w.spec = spec
-    assert w.proc.stdin is not None
-    body = pickle.dumps(spec, protocol=pickle.HIGHEST_PROTOCOL)
-    try:
-        w.proc.stdin.write(SPEC_LEN.pack(len(body)) + body if w.serve else body)
-        w.proc.stdin.flush()
-        if not w.serve:
-            w.proc.stdin.close()
-    except OSError:  # the worker died at once; its row says so
-        pass
-
-
-def _start(spec: RunSpec, serve: bool = False, w: _Worker | None = None) -> _Worker:
+def _start(spec: RunSpec, serve: bool = False, w: Worker | None = None) -> Worker:
     """Give ``spec`` to the idle server ``w`` (which the caller already tracks and stops), or to a new
     worker process."""
     if w is not None:
-        _send(w, spec)
+        w.send(spec)
         return w
-    w = _spawn(serve)
+    w = Worker.spawn(serve)
     try:
-        _send(w, spec)
+        w.send(spec)
     except BaseException:  # e.g. Ctrl-C right now: a worker in its own session must not outlive us
         w.proc.kill()
         w.proc.wait()
@@ -185,7 +224,7 @@ def _row(spec: RunSpec, data: bytes, code: int | None) -> dict[str, Any]:
     return row if isinstance(row, dict) else _died_row(spec, code)
 
 
-def _finish(w: _Worker) -> dict[str, Any] | None:
+def _finish(w: Worker) -> dict[str, Any] | None:
     """The worker closed its end: reap it; the row of the run it still had (None if it had none)."""
     os.close(w.fd)
     code = w.proc.wait()
@@ -197,7 +236,7 @@ def _finish(w: _Worker) -> dict[str, Any] | None:
     return _row(w.spec, data, code)
 
 
-def _take_frame(w: _Worker) -> dict[str, Any] | None:
+def _take_frame(w: Worker) -> dict[str, Any] | None:
     """A server's finished row, once its whole frame has arrived."""
     if len(w.data) < FRAME.size:
         return None
@@ -214,8 +253,8 @@ def _take_frame(w: _Worker) -> dict[str, Any] | None:
     return row
 
 
-def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
-           said: list[bool] | None = None) -> Iterator[dict[str, Any]]:
+def run_local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
+           said: list[bool] | None = None) -> Generator[dict[str, Any], None, None]:
     """At most ``workers`` runs at once, each in a process of its own (libsumo allows one simulation
     per process): forked from a pre-imported server per worker slot (``fork_server``), or a fresh
     ``python -m corridor.worker`` per run.  A worker that dies (segfault, kill -9) costs its own row
@@ -224,7 +263,7 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
     for var in WORKER_THREAD_ENV:  # workers inherit the environment and read it at import
         os.environ.setdefault(var, "1")
     queue = iter(specs)
-    running: dict[int, _Worker] = {}
+    running: dict[int, Worker] = {}
 
     def fill() -> int:
         """Hand queued specs to idle slots; the number of busy slots."""
@@ -244,7 +283,7 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
             if not running:
                 return
             done: list[dict[str, Any]] = []
-            for fd in mp_wait(list(running)):
+            for fd in cast(list[int], mp_wait(list(running))):  # file descriptors in, the ready ones out
                 w = running[fd]
                 chunk = os.read(fd, 1 << 20)
                 if chunk:
@@ -269,7 +308,7 @@ def _local(specs: Iterable[RunSpec], workers: int, fork_server: bool = True,
         _stop(running)
 
 
-def _close_stdin(w: _Worker) -> None:
+def _close_stdin(w: Worker) -> None:
     if w.proc.stdin is not None and not w.proc.stdin.closed:
         try:
             w.proc.stdin.close()
@@ -283,7 +322,7 @@ def _say_stopping(n_running: int | None) -> None:
           file=sys.stderr, flush=True)
 
 
-def _stop(running: dict[int, _Worker]) -> None:
+def _stop(running: dict[int, Worker]) -> None:
     """Terminate runs still in progress (interrupt, write failure): SIGTERM, then SIGKILL."""
     for w in running.values():
         if w.proc.poll() is None:
@@ -307,7 +346,7 @@ class _RayRunner:
         return execute(spec)
 
 
-def _ray(specs: Iterable[RunSpec], address: str | None) -> Iterator[dict[str, Any]]:
+def _ray(specs: Iterable[RunSpec], address: str | None) -> Generator[dict[str, Any], None, None]:
     """One actor per CPU of the cluster, each running one spec at a time (libsumo: one simulation at
     a time per process), spec after spec, so a run pays no worker start-up and imports (Ray used to
     start a process per run: ``max_calls=1``).  As with the local runner, a failed run, a dead
@@ -387,7 +426,7 @@ def run_batch(specs: RunPlan | list[RunSpec], store: ResultStore, executor: str 
         n_todo = sum(1 for s in specs if s.run_id not in finished)
     bar = _progress(total, total - n_todo, progress)
     said: list[bool] = []  # the local executor said it is stopping (the interrupt reached it)
-    rows = _ray(todo, address) if executor == "ray" else _local(todo, max(1, workers), fork_server, said)
+    rows = _ray(todo, address) if executor == "ray" else run_local(todo, max(1, workers), fork_server, said)
     written = 0
     try:
         for row in rows:

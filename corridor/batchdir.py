@@ -28,13 +28,14 @@ from pathlib import Path
 from typing import Any
 
 from corridor import __version__
-from corridor.errors import CorridorError
+from corridor.errors import CorridorError, clip_path
 
 MANIFEST = "batch.json"
 LOCK = ".corridor.lock"
 # What a batch writes, and so what --overwrite may delete (nothing else in the folder is touched).
 OWNED = ("parts", "signals", "runs.parquet", "report.html", MANIFEST, ".runs.parquet.tmp",
-         "stages", "estimate.json", "falsify.json", "counterexample.yaml")  # the last four: --estimate/--falsify
+         "stages", "estimate.json", "falsify.json", "counterexample.yaml",  # these four: --estimate/--falsify
+         ".tmp")  # the runs' scratch folders (corridor.run.SCRATCH)
 
 
 def scenario_hash(raw: dict[str, Any]) -> str:
@@ -43,11 +44,17 @@ def scenario_hash(raw: dict[str, Any]) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def manifest_for(name: str, source: str, raw: dict[str, Any], sets: list[str]) -> dict[str, Any]:
-    return {"corridor_batch": 1, "scenario": name, "source": source, "scenario_sha256": scenario_hash(raw),
-            "sets": list(sets), "version": __version__,
-            "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-            "raw": json.loads(json.dumps(raw, default=str))}
+def manifest_for(name: str, source: str, raw: dict[str, Any], sets: list[str],
+                 files: dict[str, list[int]] | None = None) -> dict[str, Any]:
+    """What defines a batch; ``files``: path -> [size, mtime ns] of the files the scenario names (a
+    user's own SUMO network, say), recorded only when there are some."""
+    out = {"corridor_batch": 1, "scenario": name, "source": source, "scenario_sha256": scenario_hash(raw),
+           "sets": list(sets), "version": __version__,
+           "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+           "raw": json.loads(json.dumps(raw, default=str))}
+    if files:
+        out["files"] = files
+    return out
 
 
 def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:
@@ -85,8 +92,31 @@ class BatchDir:
     resumed: bool = False
     _lock_fd: int | None = field(default=None, repr=False)
 
+    def discard(self) -> None:
+        """Undo a fresh batch whose input was refused after the folder was opened (a column only a row
+        could show missing): delete what this batch wrote and the lock, and the folder if then empty, so
+        that the corrected command starts afresh.  Never for a resumed batch (its runs are kept)."""
+        if self.resumed:
+            return
+        for name in OWNED:
+            p = self.path / name
+            if p.is_dir():
+                shutil.rmtree(p)
+            else:
+                p.unlink(missing_ok=True)
+        (self.path / LOCK).unlink(missing_ok=True)
+        self.close()
+        try:
+            self.path.rmdir()
+        except OSError:  # not empty: something else is there, keep it
+            pass
+
     def close(self) -> None:
         if self._lock_fd is not None:
+            try:
+                (self.path / ".tmp").rmdir()  # the runs' scratch root, once empty
+            except OSError:
+                pass
             os.close(self._lock_fd)  # releases the flock
             self._lock_fd = None
 
@@ -137,6 +167,7 @@ def open_batch_dir(out: Path, manifest: dict[str, Any], resume: bool = False,
     fd = _lock(out)
     try:
         resumed = _check(out, manifest, resume, overwrite)
+        shutil.rmtree(out / ".tmp", ignore_errors=True)  # scratch of runs killed mid-way (we hold the lock)
         if not resumed:
             tmp = out / f".{MANIFEST}.tmp"
             tmp.write_text(json.dumps(manifest, indent=1))
@@ -181,4 +212,9 @@ def _check(out: Path, manifest: dict[str, Any], resume: bool, overwrite: bool) -
         diff = differences(old.get("raw", {}), manifest["raw"]) or "scenario content"
         raise CorridorError(f"--resume {out}: settings differ from the stored batch ({diff}); "
                             "resume with the same scenario and --set, or use --overwrite or another --out")
+    old_files, new_files = old.get("files", {}), manifest.get("files", {})
+    if old_files != new_files:
+        changed = sorted(f for f in old_files.keys() | new_files.keys() if old_files.get(f) != new_files.get(f))
+        raise CorridorError(f"--resume {out}: {clip_path(changed[0], 80)} changed since the batch started "
+                            "(size or modification time); rows would mix versions: use --overwrite or another --out")
     return True

@@ -52,7 +52,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Annotated, Any, Literal, NamedTuple
+from typing import Annotated, Any, Literal, NamedTuple, TypeGuard, cast
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
@@ -131,8 +131,10 @@ class DeliveredBatch(NamedTuple):
 
 
 class IndexedBatch(NamedTuple):
-    """A :class:`DeliveredBatch` with its receivers as node indices (``node_names``) in arrays: no
-    per-copy Python object (a swarm's broadcasts are N^2 copies per tick)."""
+    """A :class:`DeliveredBatch` with its receivers as node indices (``node_names``) in arrays.
+
+    No per-copy Python object: a swarm's broadcasts are N^2 copies per tick.
+    """
 
     src: str
     src_idx: int  # node index of the sender
@@ -294,23 +296,26 @@ class Channel:
     def send_many(
         self, t_s: float, messages: Iterable[tuple[str, Any, np.ndarray | None, str | Sequence[str] | None]]
     ) -> list[int]:
-        """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order,
-        with the same random draws, statistics and result; under Bernoulli loss the messages
+        """``send(t_s, src, payload, src_pos, dst)`` for each ``(src, payload, src_pos, dst)`` in order.
+
+        The same random draws, statistics and result as one ``send`` each; under Bernoulli loss the messages
         (broadcasts of a fleet's periodic reports, unicasts, or both mixed) are handled in one
         vectorised pass instead of message by message.
 
         ``dst`` may also be a sequence of receivers (a multicast): the same as one unicast ``send``
         per listed receiver, in order (the same draws and statistics), but the copies put in flight
         form one sent message (one batch of ``deliver_batches``, one send order) and the result is
-        their total."""
+        their total.
+        """
         orig = list(messages)
         # per entry, the receivers of its messages (None: a broadcast); a multicast is one message per receiver
-        dsts = [m[3] if _is_multi(m[3]) else (m[3],) for m in orig]
+        dsts = [_receivers(m[3]) for m in orig]
         group = np.repeat(np.arange(len(orig)), [len(d) for d in dsts])  # the entry of each message
         if not isinstance(self.cfg.loss, BernoulliLoss):
             sent = [self.send(t_s, src, payload, src_pos=pos, dst=d)
                     for (src, payload, pos, _), ds in zip(orig, dsts, strict=True) for d in ds]
-            return np.bincount(group, weights=sent, minlength=len(orig)).astype(int).tolist()
+            totals: list[int] = np.bincount(group, weights=sent, minlength=len(orig)).astype(int).tolist()
+            return totals
         if not group.size:
             return [0] * len(orig)
         self._refresh_receivers()
@@ -322,7 +327,7 @@ class Channel:
         if None in flat:
             msg, counts, dst_idx, in_range = self._copies_mixed(src_idx, p_src, flat)
         else:
-            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, flat)
+            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
         n = len(msg)
         # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
         u = self._rng.random(2 * n)
@@ -354,8 +359,11 @@ class Channel:
 
     def _copies_mixed(self, src_idx: np.ndarray, p_src: np.ndarray, dst: list[str | None]
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The copies of messages sent from nodes ``src_idx`` at ``p_src`` (M, 3) to ``dst`` (None: a
-        broadcast), message-major: their message, copies per message, receiver node and range flag."""
+        """The copies of messages sent from nodes ``src_idx`` at ``p_src`` (M, 3) [m] to ``dst``.
+
+        ``dst`` None is a broadcast. Message-major: their message, copies per message, receiver node
+        and range flag.
+        """
         recv = self._recv_idx[None, :]
         mask = recv != src_idx[:, None]  # (M, R): every receiver but the sender
         if any(d is not None for d in dst):  # a unicast goes to its receiver, if attached (send's
@@ -370,8 +378,10 @@ class Channel:
 
     def _copies_unicast(self, src_idx: np.ndarray, p_src: np.ndarray, dst: list[str]
                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`_copies_mixed` when every message is a unicast: at most one copy each, found
-        without the (messages x receivers) matrices."""
+        """:meth:`_copies_mixed` when every message is a unicast.
+
+        At most one copy each, found without the (messages x receivers) matrices.
+        """
         to = np.array([self._index.get(d, -1) for d in dst])
         ok = (to >= 0) & (to != src_idx)  # a known receiver other than the sender ...
         ok[ok] = self._attached[to[ok]]  # ... that is attached (send's ``_targets``)
@@ -381,8 +391,11 @@ class Channel:
         return msg, ok.astype(np.int64), dst_idx, np.isnan(d2) | (d2 <= self.cfg.range_m**2)
 
     def _admit(self, keep: np.ndarray, t_recv: np.ndarray) -> np.ndarray:
-        """The copies of ``keep`` that go in flight: those arriving after the run's end are dropped,
-        and beyond ``max_in_flight`` copies in flight the newest are (both counted)."""
+        """The copies of ``keep`` that go in flight.
+
+        Those arriving after the run's end are dropped, and beyond ``max_in_flight`` copies in flight
+        the newest are (both counted).
+        """
         late = keep & (t_recv > self._t_end_s + _T_EPS_S)
         if late.any():
             self._n_late += int(late.sum())
@@ -413,7 +426,8 @@ class Channel:
         if p_src is None:
             return np.ones(len(dst_pos), dtype=bool)
         d2 = np.sum((dst_pos - p_src) ** 2, axis=1)
-        return np.isnan(d2) | (d2 <= self.cfg.range_m**2)
+        near: np.ndarray = np.isnan(d2) | (d2 <= self.cfg.range_m**2)
+        return near
 
     def _draw_loss(
         self, src_idx: int, dst_idx: np.ndarray, in_range: np.ndarray, u: np.ndarray
@@ -444,8 +458,10 @@ class Channel:
         return out
 
     def deliver_batches(self, t_s: float) -> list[DeliveredBatch]:
-        """The copies ``deliver(t_s)`` would return, grouped by sent message in send order (see the
-        module docstring); the same statistics, age of information and inboxes."""
+        """The copies ``deliver(t_s)`` would return, grouped by sent message in send order.
+
+        See the module docstring; the same statistics, age of information and inboxes.
+        """
         names = self._names
         return [DeliveredBatch(b.src, b.t_sent_s, b.payload, [names[i] for i in b.dst_idx.tolist()],
                                b.t_recv_s.tolist(), b.seq) for b in self.deliver_indexed(t_s)]
@@ -473,7 +489,8 @@ class Channel:
         """Remove and return the due copies (batches in send order, with their due receivers/times).
 
         The due / still-live flags of every copy in flight are computed in one pass; a batch is only
-        cut into new arrays when part of it is due (or part of it went to a detached receiver)."""
+        cut into new arrays when part of it is due (or part of it went to a detached receiver).
+        """
         pending = self._pending
         if not pending:
             self._n_in_flight = 0
@@ -484,7 +501,7 @@ class Channel:
         live = self._attached[dst]
         due = (t_recv <= t_s + _T_EPS_S) & live
         rest = ~due & live
-        starts = np.cumsum(sizes) - sizes
+        starts: np.ndarray = np.cumsum(sizes) - sizes
         n_due = np.add.reduceat(due, starts).tolist()
         n_rest = np.add.reduceat(rest, starts).tolist()
         due_batches: list[_Batch] = []
@@ -621,9 +638,14 @@ class Channel:
         self._recv_dirty = False
 
 
-def _is_multi(dst: object) -> bool:
+def _is_multi(dst: object) -> TypeGuard[Sequence[str]]:
     """A multicast destination: a sequence of receiver names (a plain name is a unicast)."""
     return isinstance(dst, list | tuple)
+
+
+def _receivers(dst: str | Sequence[str] | None) -> Sequence[str | None]:
+    """The receivers of one ``send_many`` entry: a multicast's names, else the one (``None``: broadcast)."""
+    return dst if _is_multi(dst) else (cast(str | None, dst),)
 
 
 def _rows3(points: list[Any]) -> np.ndarray:

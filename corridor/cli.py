@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-from pathlib import Path
 
 from corridor.errors import CorridorError
 
@@ -24,7 +23,7 @@ examples:
   run_scenario scenarios/merging.yaml --rerun out.rrd --out results/rec
                                                            also record the first run for the Rerun viewer
   run_scenario scenarios/merging.yaml --executor ray --out results/ray      a private local Ray
-  run_scenario uav_encounter --estimate 'nmac > 0' --level min_sep_h_m --method ce --budget 1000
+  run_scenario uav_encounter --estimate 'nmac > 0' --level sep_min_h_m --method ce --budget 1000
                                                            P(NMAC) by importance sampling (see "Safety statistics")
   run_scenario overtaking --falsify safety_space --budget 200
                                                            search for a violation; writes DIR/counterexample.yaml
@@ -37,8 +36,10 @@ Ctrl-C stops the batch at once and keeps every finished run (exit 130; continue 
 
 --set takes any field path of the scenario (see the YAML file): a.b.c=VALUE, VALUE in YAML syntax
 (3, 0.5, true, [1, 2], {a: 1}).  Randomized fields draw from their own stream per seed, so fixing one
-with --set leaves the draws of the others unchanged.  Errors in the scenario or the options print one
-line and exit 2; a batch in which some runs failed exits 1 (the failed runs are rows with status=error).
+with --set leaves the draws of the others unchanged.  A --set wins over a sweep variant that sets the
+same field (--set sweep.VARIANT.a.b=VALUE changes one variant only).  Errors in the scenario or the
+options print one line and exit 2; a batch in which some runs failed exits 1 (the failed runs are rows
+with status=error).
 
 Python: corridor.api.run(...) takes the same options and returns the rows and signals.
 """
@@ -83,13 +84,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     r = p.add_argument_group("safety statistics (a batch of adaptive stages instead of --runs)")
     r.add_argument("--estimate", default=None, metavar="EVENT",
-                   help="estimate P(EVENT): an expression over a run's row ('collisions > 0', 'nmac > 0 or "
-                        "min_sep_h_m < 10') or spec:NAME (robustness < 0); default DIR results/<name>-<method>")
-    r.add_argument("--method", default="ce", metavar="METHOD",
+                   help="estimate P(EVENT): an expression over the columns of a run's row ('collisions > 0', "
+                        "'nmac > 0 or sep_min_h_m < 10'; an unknown column is an error), or spec:NAME "
+                        "(robustness < 0); default DIR results/<name>-<method>")
+    r.add_argument("--method", default=None, metavar="METHOD",
                    help="naive: plain Monte Carlo (Clopper-Pearson); ce: cross-entropy importance sampling "
                         "(default); splitting: subset simulation; splitting_is: subset simulation, then importance "
                         "sampling with a Gaussian mixture (several failure modes); or an installed "
-                        "corridor.estimators plug-in")
+                        "corridor.estimators plug-in.  Least --budget: ce and splitting 100, splitting_is 200")
     r.add_argument("--budget", type=int, default=None, metavar="N", help="runs the estimate or search may use")
     r.add_argument("--level", default=None, metavar="COLUMN",
                    help="level function of ce/splitting: a row column, smaller = closer to failure ('-COL': "
@@ -102,6 +104,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--runs must be >= 1")
     if args.workers < 1:
         p.error("--workers must be >= 1")
+    if args.method is not None and args.estimate is None:
+        p.error("--method goes with --estimate EVENT (--falsify has its own search)")
+    if args.level is not None and args.estimate is None:
+        p.error("--level goes with --estimate EVENT")
     if args.estimate is not None and args.falsify is not None:
         p.error("--estimate and --falsify exclude each other")
     if (args.estimate is not None or args.falsify is not None) != (args.budget is not None):
@@ -111,32 +117,6 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if args.budget is not None and args.budget < 1:
         p.error("--budget must be >= 1")
     return args
-
-
-def resolve_scenario(name: str) -> Path:
-    path = Path(name)
-    try:
-        exists = path.exists()
-    except OSError:  # e.g. a name too long for the file system
-        exists = False
-    if exists or path.suffix in (".yaml", ".yml"):
-        return path
-    dirs = [Path(__file__).resolve().parent.parent / "scenarios"]
-    try:
-        import corridor.scenarios as pkg  # installed wheel: scenarios ship as package data
-
-        dirs += [Path(p) for p in pkg.__path__]
-    except ImportError:
-        pass
-    if len(name) <= 64 and name.replace("_", "").replace("-", "").isalnum():  # a bare name, not a path
-        for d in dirs:
-            if (d / f"{name}.yaml").is_file():
-                return d / f"{name}.yaml"
-    from corridor.errors import ScenarioError, clip
-
-    names = sorted({p.stem for d in dirs if d.is_dir() for p in d.glob("*.yaml")})
-    raise ScenarioError(f"{clip(name)}: no such file, and no packaged scenario of that name "
-                        f"(packaged: {', '.join(names)})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -193,7 +173,7 @@ def _rare(args: argparse.Namespace) -> int:
         if args.falsify is not None:
             data = rare_api.falsify(args.scenario, args.falsify, budget=args.budget, **common)
         else:
-            data = rare_api.estimate(args.scenario, args.estimate, method=args.method, budget=args.budget,
+            data = rare_api.estimate(args.scenario, args.estimate, method=args.method or "ce", budget=args.budget,
                                      level=args.level, **common)
     except EstimateRunError as exc:
         print(f"run_scenario: {exc}", file=sys.stderr)

@@ -14,31 +14,17 @@ by ``scipy.stats``.  The nominal sampler stays ``Distribution.draw`` (a run's nu
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
-from scipy import special, stats
+from scipy import special
 
-if TYPE_CHECKING:  # pragma: no cover
-    from corridor.scenario import Distribution
+from corridor.scenario import Distribution
 
 
 def frozen(d: Distribution) -> Any:
-    """The scipy.stats distribution of a continuous kind."""
-    if d.uniform is not None:
-        lo, hi = d.uniform
-        return stats.uniform(loc=lo, scale=hi - lo)
-    if d.normal is not None:
-        return stats.norm(loc=d.normal[0], scale=d.normal[1])
-    if d.truncnormal is not None:
-        mean, std, lo, hi = d.truncnormal
-        return stats.truncnorm((lo - mean) / std, (hi - mean) / std, loc=mean, scale=std)
-    if d.lognormal is not None:
-        return stats.lognorm(s=d.lognormal[1], scale=math.exp(d.lognormal[0]))
-    if d.beta is not None:
-        a, b, lo, hi = d.beta
-        return stats.beta(a, b, loc=lo, scale=hi - lo)
-    raise ValueError(f"{d.kind} is discrete: it has no scipy frozen continuous distribution")
+    """The scipy.stats distribution of a continuous kind (``Distribution.frozen``)."""
+    return d.frozen()
 
 
 def _ppf(dist: Any, z: float) -> float:
@@ -54,10 +40,12 @@ def from_normal(d: Distribution, z: float) -> Any:
     if d.uniform is not None:
         lo, hi = d.uniform
         return float(lo + (hi - lo) * special.ndtr(z))
-    if d.integers is not None or d.choice is not None:
-        n = (d.integers[1] - d.integers[0] + 1) if d.integers is not None else len(d.choice)
-        k = min(n - 1, int(math.floor(special.ndtr(z) * n)))
-        return int(d.integers[0] + k) if d.integers is not None else d.choice[k]
+    if d.integers is not None:
+        n = d.integers[1] - d.integers[0] + 1
+        return int(d.integers[0] + min(n - 1, int(math.floor(special.ndtr(z) * n))))
+    if d.choice is not None:
+        n = len(d.choice)
+        return d.choice[min(n - 1, int(math.floor(special.ndtr(z) * n)))]
     return _ppf(frozen(d), z)
 
 
@@ -65,10 +53,10 @@ def to_normal(d: Distribution, x: Any) -> float:
     """The standard-normal coordinate of value ``x`` (the middle of its cell for discrete kinds)."""
     if d.normal is not None:
         return (float(x) - d.normal[0]) / d.normal[1] if d.normal[1] > 0 else 0.0
-    if d.integers is not None or d.choice is not None:
-        n = (d.integers[1] - d.integers[0] + 1) if d.integers is not None else len(d.choice)
-        k = int(x) - d.integers[0] if d.integers is not None else d.choice.index(x)
-        return float(special.ndtri((k + 0.5) / n))
+    if d.integers is not None:
+        return float(special.ndtri((int(x) - d.integers[0] + 0.5) / (d.integers[1] - d.integers[0] + 1)))
+    if d.choice is not None:
+        return float(special.ndtri((d.choice.index(x) + 0.5) / len(d.choice)))
     dist = frozen(d)
     u = float(dist.cdf(x))
     return float(special.ndtri(u)) if u <= 0.5 else -float(special.ndtri(float(dist.sf(x))))
@@ -97,5 +85,6 @@ def draws_from_normal(randomize: dict[str, Distribution], z: np.ndarray) -> dict
 def log_ratio_normal(z: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
     """``log phi(z) - log q(z)`` for a diagonal Gaussian proposal ``q = N(mean, std^2)``, rows of ``z``."""
     z = np.atleast_2d(z)
-    return (-0.5 * np.sum(z**2, axis=1)
-            + 0.5 * np.sum(((z - mean) / std) ** 2, axis=1) + np.sum(np.log(std)))
+    log_ratio: np.ndarray = (-0.5 * np.sum(z**2, axis=1)
+                             + 0.5 * np.sum(((z - mean) / std) ** 2, axis=1) + np.sum(np.log(std)))
+    return log_ratio

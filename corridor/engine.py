@@ -25,6 +25,8 @@ from corridor.snapshot import WorldSnapshot
 
 
 class Phase(IntEnum):
+    """The stages of a tick, in the order they run (a component declares one as its ``phase``)."""
+
     SENSE = 0
     COMMUNICATE = 1
     DECIDE = 2
@@ -35,8 +37,16 @@ class Phase(IntEnum):
 
 
 def relative_output_path(text: str) -> str:
-    """Check an output file name of a scenario: relative, no ``..`` component, not empty (the run
-    resolves it under its output folder); returns it unchanged or raises ValueError (one line)."""
+    """Check an output file name of a scenario: relative, no ``..`` component, not empty.
+
+    The run resolves it under its output folder.
+
+    Returns:
+        ``text`` unchanged.
+
+    Raises:
+        ValueError: one line saying what is wrong with the path.
+    """
     p = PurePath(text)
     if not text.strip() or not p.parts:
         raise ValueError("must be a file name relative to the run's output folder, got an empty path")
@@ -47,7 +57,7 @@ def relative_output_path(text: str) -> str:
     return text
 
 
-def path_inside(root: str | Path, rel: str | Path) -> Path:
+def path_inside(root: str | Path, rel: str | PurePath) -> Path:
     """``root / rel`` resolved (symlinks followed), refused unless it lies inside ``root``."""
     base = Path(root).resolve()
     out = (base / rel).resolve()
@@ -69,6 +79,7 @@ class Signals:
         self._v: dict[str, list[float]] = {}
 
     def record(self, name: str, t: float, value: float) -> None:
+        """Append one point ``(t [s], value)`` to the series ``name``."""
         self._t.setdefault(name, []).append(t)
         self._v.setdefault(name, []).append(float(value))
 
@@ -78,12 +89,15 @@ class Signals:
         self._v.setdefault(name, []).extend(map(float, values))
 
     def names(self) -> list[str]:
+        """The names of the recorded series, in the order they were first recorded."""
         return list(self._v)
 
     def get(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """One series as ``(times [s], values)``."""
         return np.asarray(self._t[name]), np.asarray(self._v[name])
 
     def as_arrays(self) -> dict[str, np.ndarray]:
+        """Every series as ``{name: values, name.t: times [s]}`` (the layout of ``signals/<run_id>.npz``)."""
         out: dict[str, np.ndarray] = {}
         for n in self._v:
             out[f"{n}.t"] = np.asarray(self._t[n])
@@ -111,31 +125,55 @@ class RunContext:
     run_id: str = "run"  # e.g. "none-s0"; part of every per-run file name
 
     def output_path(self, rel: str | Path, per_run: bool = True) -> Path:
-        """Where a component writes the file ``rel`` (relative, checked by ``relative_output_path``):
-        under the batch's output folder (the scratch workdir when there is none), with the run id
-        added to the file name (``mavlink/link.tlog`` -> ``mavlink/link-none-s0.tlog``) so the runs
-        of a batch never overwrite each other. The parent folders are created; a path that would
-        leave the folder (``..``, an absolute path, a symlink pointing out) raises ValueError."""
-        rel = PurePath(relative_output_path(str(rel)))
+        """Where a component writes the file ``rel`` (relative, checked by ``relative_output_path``).
+
+        The file lies under the batch's output folder (the scratch workdir when there is none), with
+        the run id added to the file name (``mavlink/link.tlog`` -> ``mavlink/link-none-s0.tlog``) so
+        the runs of a batch never overwrite each other. The parent folders are created.
+
+        Raises:
+            ValueError: the path would leave the folder (``..``, an absolute path, a symlink pointing out).
+        """
+        target = PurePath(relative_output_path(str(rel)))
         if per_run:
-            rel = rel.with_name(f"{rel.stem}-{self.run_id}{rel.suffix}")
+            target = target.with_name(f"{target.stem}-{self.run_id}{target.suffix}")
         root = self.out_dir if self.out_dir is not None else self.workdir
         if root is None:
-            raise ValueError(f"no output folder for {str(rel)!r}")
-        out = path_inside(root, rel)
+            raise ValueError(f"no output folder for {str(target)!r}")
+        out = path_inside(root, target)
         out.parent.mkdir(parents=True, exist_ok=True)
-        return path_inside(root, rel)  # again after mkdir: a symlinked folder cannot lead out
+        return path_inside(root, target)  # again after mkdir: a symlinked folder cannot lead out
 
     def rng(self, name: str) -> np.random.Generator:
-        """An independent generator per subsystem, derived from the run seed and the name only,
-        so adding a component never changes another one's random stream."""
+        """An independent generator per subsystem, derived from the run seed and the name only.
+
+        Adding a component therefore never changes another one's random stream.
+        """
         return np.random.default_rng(np.random.SeedSequence(self.run_seed, spawn_key=(stable_key(name),)))
 
     def get(self, name: str) -> Component:
+        """The component called ``name``."""
         return self.components[name]
 
     def backends(self) -> list[Backend]:
+        """The run's backends, in build order."""
         return [c for c in self.components.values() if isinstance(c, Backend)]
+
+
+@dataclass(frozen=True)
+class Metric:
+    """A column a component's ``finish`` writes, as the report's glossary and verdict read it.
+
+    ``name``: the column (``*`` stands for any text: ``nmac_*`` covers ``nmac_uav_uav``, ...);
+    ``unit``: SI with the unit's name (``m``, ``s``, ``m/s``, ``rad``, ``veh``, ``1`` for a count or a
+    ratio); ``meaning``: one sentence; ``safety_event``: the column counts safety events (a collision,
+    an NMAC, a loss of separation): a run with a value > 0 had one, and the report's verdict counts it.
+    """
+
+    name: str
+    unit: str
+    meaning: str
+    safety_event: bool = False
 
 
 @dataclass(frozen=True)
@@ -147,7 +185,8 @@ class Need:
     e.g. ``"p.ego"``, normally one of its params) the peer is the component of that name, and must
     provide the role.  ``optional``: no peer (the attribute is None) when the name is None or names no
     component, or when no component provides the role.  ``hint`` ends the error message of a missing
-    peer (what to add to the scenario)."""
+    peer (what to add to the scenario).
+    """
 
     role: str
     name_at: str | None = None
@@ -174,7 +213,8 @@ class Component:
       per run, at t = 0), ``"peer:<need>"`` (the period of that peer), an attribute path on the
       component (``"p.tick_s"``: a params field), or None (the ``period`` declared on the class).  The
       scenario's ``period:`` (``period_override``) takes precedence; the result must be a whole
-      multiple of ``dt``."""
+      multiple of ``dt``.
+    """
 
     phase: Phase = Phase.DECIDE
     period: float = 0.1  # [s]
@@ -182,6 +222,8 @@ class Component:
     provides: ClassVar[frozenset[str]] = frozenset()
     period_source: ClassVar[str | None] = None
     period_override: float | None = None  # [s] the scenario's ``period:`` of this component
+    # the columns ``finish`` writes (report glossary and verdict); None: not declared, () : none
+    metrics: ClassVar[tuple[Metric, ...] | None] = None
 
     def __init__(self, name: str) -> None:
         self.name = name
@@ -197,9 +239,12 @@ class Component:
         return {}
 
     def metric_columns(self) -> frozenset[str]:
-        """Columns ``finish`` always writes, declared so that two components claiming one column are
-        refused at build (naming both) rather than when the run ends; undeclared columns are still
-        checked when the metrics are merged."""
+        """Columns ``finish`` always writes.
+
+        Declared so that two components claiming one column are refused at build (naming both)
+        rather than when the run ends; undeclared columns are still checked when the metrics are
+        merged.
+        """
         return frozenset()
 
     def close(self) -> None:
@@ -215,11 +260,15 @@ class Backend(Component):
         """Apply the commands addressed to entities of this backend (ignore the others)."""
 
     def snapshot_part(self) -> WorldSnapshot:
+        """This backend's rows of the world snapshot after the step (positions in ENU [m], ...)."""
         return WorldSnapshot()
 
     def static_part(self) -> WorldSnapshot:
-        """What is known before the first step, without rows (a road backend: its road frame with the
-        run's static tables and landmarks); the engine puts it in ``ctx.snapshot`` before ``setup``."""
+        """What is known before the first step, without rows.
+
+        A road backend returns its road frame with the run's static tables and landmarks; the engine
+        puts it in ``ctx.snapshot`` before ``setup``.
+        """
         return WorldSnapshot()
 
 
@@ -233,19 +282,24 @@ class Controller(Component):
     phase = Phase.DECIDE
 
     def setup(self, ctx: RunContext) -> None:
+        """Keep the run's event log and draw the controller's own generator (``ctx.rng(name)``)."""
         self.events = ctx.events
         self.reset(ctx.rng(self.name))
 
     def reset(self, rng: np.random.Generator) -> None:
+        """Start afresh with the generator ``rng`` (kept as ``self.rng``)."""
         self.rng = rng
 
     def observe(self, ctx: RunContext) -> Any:
+        """What ``step`` decides on, read from the context (by default the world snapshot)."""
         return ctx.snapshot
 
     def step(self, obs: Any) -> list[Any]:
+        """The commands for this period, from the observation alone (by default none)."""
         return []
 
     def tick(self, ctx: RunContext) -> None:
+        """Observe, step, and put the commands on the bus (the backends apply them in *act*)."""
         ctx.commands.extend(self.step(self.observe(ctx)))
 
 
@@ -269,8 +323,14 @@ def _column_owners(comps: list[Component]) -> dict[str, str]:
 
 
 def merge_metrics(metrics: dict[str, Any], owner: dict[str, str], new: dict[str, Any], source: str) -> None:
-    """Add ``source``'s metric columns to ``metrics``; a column another component already wrote
-    (``owner``: column -> component) is an error naming both, never silently overwritten."""
+    """Add ``source``'s metric columns to ``metrics``.
+
+    A column another component already wrote (``owner``: column -> component) is never silently
+    overwritten.
+
+    Raises:
+        ValueError: naming the column and both components.
+    """
     for key, value in new.items():
         if key in owner:
             raise ValueError(f"metric column {key!r} is written by both {owner[key]!r} and {source!r} "
@@ -283,7 +343,8 @@ class Simulation:
     """A base tick and a list of components; ``run`` steps until ``duration``.
 
     At build it resolves every component's ``needs`` (peers set as attributes), orders ``setup`` so
-    that providers come first (otherwise the given order), then resolves every period in that order."""
+    that providers come first (otherwise the given order), then resolves every period in that order.
+    """
 
     def __init__(self, ctx: RunContext, components: Iterable[Component]) -> None:
         self.ctx = ctx
@@ -391,7 +452,8 @@ class Simulation:
             peer = getattr(c, attr)
             if peer is None:
                 raise ValueError(f"{c.name}: period_source {src!r}: no such peer in this run")
-            return peer.period
+            period: float = peer.period
+            return period
         return float(attr_path(c, src))
 
     def _ticks_per_period(self, c: Component) -> int:
@@ -419,7 +481,10 @@ class Simulation:
         self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, [b.snapshot_part() for b in self._backends])
 
     def step(self) -> None:
-        """One tick; reads as the pipeline of DESIGN.md."""
+        """One tick: sense, communicate, decide, act, integrate, detect, record.
+
+        The pipeline is described in docs/architecture.md ("The tick").
+        """
         self._run(Phase.SENSE)
         self._run(Phase.COMMUNICATE)
         self._run(Phase.DECIDE)

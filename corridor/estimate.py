@@ -18,17 +18,18 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, field
-from importlib.metadata import entry_points
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from corridor.engine import stable_key
-from corridor.errors import CorridorError, clip
-from corridor.rare_event import Event, Level
+from corridor.entrypoints import Registry
+from corridor.errors import CorridorError
+from corridor.rare_event import Event, Level, check_columns
 
 GROUP = "corridor.estimators"
+ESTIMATORS = Registry("method", GROUP)  # rare-event methods: ask/tell classes (corridor.analysis.rare)
 MAX_BUDGET = 10_000_000
 
 
@@ -55,13 +56,18 @@ class Setup:
     seed: int
     event: Event | None
     level: Level
+    needed: list[tuple[str, str]] = field(default_factory=list)
+    after: dict[str, Any] = field(default_factory=dict)  # --set values, applied after the variant (they win)  # columns to find in the first stage's rows
 
 
 def method_class(name: str) -> Any:
-    eps = {ep.name: ep for ep in entry_points(group=GROUP)}
-    if name not in eps:
-        raise CorridorError(f"--method {clip(name)}: not installed (methods: naive, {', '.join(sorted(eps))})")
-    return eps[name].load()
+    """The estimator (or search) class installed as ``name`` in ``corridor.estimators``.
+
+    An unknown name is one line listing the installed methods (``naive``, the plain batch, too).
+    """
+    if name not in ESTIMATORS:
+        raise ESTIMATORS.unknown(name, ["naive", *ESTIMATORS.names()])
+    return ESTIMATORS.get(name)
 
 
 def stage_seeds(seed: int, stage: int, n: int) -> list[int]:
@@ -80,7 +86,7 @@ def stage_specs(st: Setup, stage: int, z: np.ndarray, tag: str) -> list[Any]:
         draws = draws_from_normal(st.sc.randomize, zi)
         specs.append(RunSpec(run_id=f"{st.variant}-{tag}{stage:03d}-{i:05d}", scenario=st.sc.name,
                              source=str(st.path), variant=st.variant, seed=s, base=st.raw,
-                             overrides={**st.sc.sweep[st.variant], **draws}, draws=draws, out_dir=str(st.out)))
+                             overrides={**st.sc.sweep[st.variant], **draws, **st.after}, draws=draws, out_dir=str(st.out)))
     return specs
 
 
@@ -130,6 +136,8 @@ def drive(st: Setup, method: Any, tag: str, executor: str, workers: int, address
     while (z := method.ask()) is not None:
         stage = run_stage(st, len(stages), np.atleast_2d(z), tag, executor, workers, address, progress)
         stages.append(stage)
+        if len(stages) == 1:  # EVENT and --level columns, judged on the first rows before anything is told
+            check_columns(st.needed, row_columns(stage.rows), True)
         level = np.array([st.level.of(r) for r in stage.rows])
         fail = np.array([st.event.fails(r) if st.event else bool(lv < 0) for r, lv in zip(stage.rows, level)])
         method.tell(level, fail)
@@ -138,6 +146,28 @@ def drive(st: Setup, method: Any, tag: str, executor: str, workers: int, address
         if stop is not None and stop(stage):
             break
     return stages
+
+
+def column_watch(st: Setup, first: int = 50) -> Any:
+    """A batch ``on_row`` callback for the plain batch of ``naive``: EVENT's and ``--level``'s columns
+    are judged on the first ``first`` ok rows (a stage's worth), not after the whole budget."""
+    seen: set[str] = set()
+    count = [0]
+
+    def on_row(row: dict[str, Any]) -> None:
+        if row.get("status") != "ok" or count[0] >= first:
+            return
+        seen.update(row)
+        count[0] += 1
+        if count[0] == first:
+            check_columns(st.needed, seen, True)
+
+    return on_row
+
+
+def row_columns(rows: list[dict[str, Any]]) -> set[str]:
+    """The columns of the ok rows (every column a run of the scenario wrote)."""
+    return {k for r in rows if r.get("status") == "ok" for k in r}
 
 
 def rerun_command(st: Setup, row: dict[str, Any], sets: list[str]) -> str:
@@ -202,6 +232,34 @@ def runs_for_same_precision(p: float, rel_half_width: float) -> float:
     return 1.959963984540054**2 * (1 - p) / (p * rel_half_width**2)
 
 
+def _finite(*values: Any) -> bool:
+    return all(isinstance(v, int | float) and math.isfinite(v) for v in values)
+
+
+def estimate_lines(data: dict[str, Any]) -> list[str]:
+    """The estimate and its comparison with plain Monte Carlo, in words where a number is unknown
+    (no failing run: no interval; an interval of one run: no precision) - never a printed NaN."""
+    res, n = data["result"], data["result"]["runs"]
+    p, (lo, hi) = res["estimate"], res["ci95"]
+    head = f"P({data['event']})"
+    if not _finite(p):
+        return [f"{head}: not estimated ({res['method']}, {n} runs)"]
+    if _finite(lo, hi):
+        lines = [f"{head} ~= {p:.4g}  95 % CI [{lo:.4g}, {hi:.4g}]  ({res['method']}, {n} runs)"]
+    elif p == 0:
+        lines = [f"{head}: no failing run among {n} ({res['method']}): no estimate above 0 and no upper "
+                 "bound from these runs; a larger --budget (or a --level that leads closer to the event) may reach it"]
+    else:
+        lines = [f"{head} ~= {p:.4g}  ({res['method']}, {n} runs; too few failures for an interval)"]
+    mc = res["plain_mc_same_runs"]["ci95"]
+    if p > 0 and _finite(*mc):
+        need, ratio = res["plain_runs_same_precision"], res["runs_ratio"]
+        same = (f"; the same precision needs ~{need:.3g} plain runs ({ratio:.3g} x)" if _finite(need, ratio)
+                else "")
+        lines.append(f"plain Monte Carlo with {n} runs and ~{p * n:.3g} failures: 95 % CI [{mc[0]:.3g}, {mc[1]:.3g}]{same}")
+    return lines
+
+
 def print_rare(data: dict[str, Any]) -> None:
     """The terminal summary of an estimate or a falsification."""
     res = data["result"]
@@ -214,12 +272,8 @@ def print_rare(data: dict[str, Any]) -> None:
             print(f"no violation of spec '{data['falsify']}' found in {res['runs']} runs; lowest robustness "
                   f"{data['best_robustness']:.4g} (run {data['best_run']})")
         return
-    lo, hi = res["ci95"]
-    print(f"P({data['event']}) ~= {res['estimate']:.4g}  95 % CI [{lo:.4g}, {hi:.4g}]  ({res['method']}, "
-          f"{res['runs']} runs)")
-    mc = res["plain_mc_same_runs"]["ci95"]
-    print(f"plain Monte Carlo with {res['runs']} runs: 95 % CI [{mc[0]:.3g}, {mc[1]:.3g}]; the same precision "
-          f"needs ~{res['plain_runs_same_precision']:.3g} plain runs ({res['runs_ratio']:.3g} x)")
+    for line in estimate_lines(data):
+        print(line)
     if res.get("missed_mode_warning"):
         print(f"warning: {res['missed_mode_warning']}")
     for f in data["likely_failures"][:3]:

@@ -25,6 +25,8 @@ Reset = Callable[[Any], Any]
 
 @dataclass(frozen=True)
 class Transition:
+    """A guarded jump ``src`` -> ``dst``, taken when ``guard(state)`` holds; ``reset`` maps the state."""
+
     src: str
     dst: str
     guard: Guard
@@ -54,9 +56,11 @@ class HybridAutomaton:
         self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
 
     def reset(self, t: float = 0.0) -> None:
+        """Back to the initial mode at time ``t`` [s], with an empty history."""
         self.mode, self.entered_t, self.history = self.initial, t, []
 
     def time_in_mode(self, t: float) -> float:
+        """Seconds spent in the current mode at time ``t`` [s]."""
         return t - self.entered_t
 
     def update(self, t: float, x: Any, events: EventLog | None = None) -> tuple[str, Any]:

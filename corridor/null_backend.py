@@ -1,5 +1,7 @@
-"""A tiny backend with no external library: point masses moving at constant velocity unless
-commanded.  Tests drive the engine with it (Scenic keeps a dummy simulator for the same reason)."""
+"""A tiny backend with no external library: point masses moving at constant velocity unless commanded.
+
+Tests drive the engine with it (Scenic keeps a dummy simulator for the same reason).
+"""
 
 from __future__ import annotations
 
@@ -15,11 +17,15 @@ from corridor.snapshot import Kind, Role, WorldSnapshot
 
 @dataclass(frozen=True)
 class SetVelocity:
+    """Command: set the ENU velocity [m/s] of the point mass ``vid``."""
+
     vid: str
     velocity: tuple[float, float, float]  # [m/s] ENU
 
 
 class NullBackend(Backend):
+    """Point masses at constant velocity, stepped every ``period`` [s]; ``SetVelocity`` changes one."""
+
     def __init__(self, name: str, ids: list[str], position: np.ndarray, velocity: np.ndarray,
                  period: float = 0.1, kind: Kind = Kind.CAR) -> None:
         super().__init__(name)
@@ -31,16 +37,19 @@ class NullBackend(Backend):
         self.steps = 0
 
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
+        """Apply the ``SetVelocity`` commands for this backend's point masses."""
         index = {v: k for k, v in enumerate(self.ids)}
         for c in commands:
             if isinstance(c, SetVelocity) and c.vid in index:
                 self.velocity[index[c.vid]] = c.velocity
 
     def tick(self, ctx: RunContext) -> None:
+        """Move every point mass by velocity x period."""
         self.position += self.velocity * self.period
         self.steps += 1
 
     def snapshot_part(self) -> WorldSnapshot:
+        """The point masses as snapshot rows (4.5 x 1.8 x 1.5 m boxes, heading along the velocity)."""
         n = len(self.ids)
         return WorldSnapshot(
             ids=self.ids, kind=np.full(n, self.kind, dtype=np.int8), role=np.full(n, Role.OTHER, dtype=np.int8),
@@ -49,6 +58,8 @@ class NullBackend(Backend):
 
 
 class NullVehicle(BaseModel):
+    """One point mass of a ``point_mass`` backend: start position [m] and velocity [m/s], ENU."""
+
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     x_m: float = 0.0  # [m] ENU start position
@@ -60,13 +71,18 @@ class NullVehicle(BaseModel):
 
 
 class NullFleet(NullBackend):
-    """The null backend as a scenario component (registry name ``point_mass``): point masses at constant
-    velocity, declared in the YAML.  Scenarios whose outcome is known in closed form (the analytic
-    checks of the rare-event estimators) run on it without any simulator library."""
+    """The null backend as a scenario component (registry name ``point_mass``).
+
+    Point masses at constant velocity, declared in the YAML.  Scenarios whose outcome is known in
+    closed form (the analytic checks of the rare-event estimators) run on it without any simulator
+    library.
+    """
 
     period_source: ClassVar[str | None] = "dt"
 
     class Params(BaseModel):
+        """The point masses by name, and the kind of entity they stand for."""
+
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
         vehicles: dict[str, NullVehicle] = Field(min_length=1)

@@ -27,7 +27,8 @@ def planar_geometry(ref_xy: np.ndarray, bearing_deg: np.ndarray, speed_mps: np.n
 
     ``ref_xy`` (N, 2) [m]: a point on each row's heading axis, ``back_m`` (N, 1) [m] ahead of its
     centre (a front bumper: half the length); ``bearing_deg`` (N,): heading in degrees clockwise from
-    north; ``speed_mps`` (N,): speed along the heading.  Yaw is counter-clockwise from east [rad]."""
+    north; ``speed_mps`` (N,): speed along the heading.  Yaw is counter-clockwise from east [rad].
+    """
     n = len(bearing_deg)
     yaw = np.radians(90.0 - bearing_deg)
     cs = np.empty((n, 2))
@@ -42,8 +43,10 @@ def planar_geometry(ref_xy: np.ndarray, bearing_deg: np.ndarray, speed_mps: np.n
 
 
 class PlanarPoses:
-    """The raw pose columns of one tick's rows (see ``planar_geometry``); ``geometry()`` derives and
-    caches the snapshot's position, velocity and heading."""
+    """The raw pose columns of one tick's rows (see ``planar_geometry``).
+
+    ``geometry()`` derives and caches the snapshot's position, velocity and heading.
+    """
 
     __slots__ = ("ref_xy", "bearing_deg", "speed_mps", "back_m", "_geometry")
 
@@ -57,21 +60,26 @@ class PlanarPoses:
 
     @property
     def filled(self) -> bool:
+        """Whether the geometry has been derived already."""
         return self._geometry is not None
 
     def geometry(self) -> Geometry:
+        """Position [m], velocity [m/s] and heading [rad] of the rows, derived on first call."""
         if self._geometry is None:
             self._geometry = planar_geometry(self.ref_xy, self.bearing_deg, self.speed_mps, self.back_m)
         return self._geometry
 
     def pending(self) -> list[PlanarPoses]:
+        """The pose sets still to derive: this one, or none."""
         return [] if self.filled else [self]
 
     @staticmethod
     def fill_many(poses: Sequence[PlanarPoses]) -> Geometry | None:
-        """Derive the geometry of every unfilled one in one numpy pass (identical values: the
-        arithmetic is elementwise); each keeps read-only views of the joint arrays, which are
-        returned when every one of ``poses`` was unfilled (else None)."""
+        """Derive the geometry of every unfilled one in one numpy pass.
+
+        The values are identical (the arithmetic is elementwise); each keeps read-only views of the
+        joint arrays, which are returned when every one of ``poses`` was unfilled (else None).
+        """
         todo = [p for p in poses if p._geometry is None]
         if len(todo) < 2:
             for p in todo:
@@ -90,8 +98,10 @@ class PlanarPoses:
 
 
 class ConcatGeometry:
-    """The geometry of snapshot parts joined row-wise (``WorldSnapshot.from_parts``), derived when
-    first read; ``parts`` are the parts' geometries (arrays, or lazy sources with ``geometry()``)."""
+    """The geometry of snapshot parts joined row-wise (``WorldSnapshot.from_parts``), derived when first read.
+
+    ``parts`` are the parts' geometries (arrays, or lazy sources with ``geometry()``).
+    """
 
     __slots__ = ("parts", "_geometry")
 
@@ -101,14 +111,17 @@ class ConcatGeometry:
 
     @property
     def filled(self) -> bool:
+        """Whether the joined geometry has been derived already."""
         return self._geometry is not None
 
     def pending(self) -> list[PlanarPoses]:
+        """The parts' pose sets still to derive."""
         if self._geometry is not None:
             return []
         return [q for p in self.parts if not isinstance(p, tuple) for q in p.pending()]
 
     def geometry(self) -> Geometry:
+        """Position [m], velocity [m/s] and heading [rad] of all parts' rows, joined on first call."""
         if self._geometry is None:
             geos = [p if isinstance(p, tuple) else p.geometry() for p in self.parts]
             joined = tuple(np.concatenate([g[i] for g in geos]) for i in range(3))

@@ -17,7 +17,9 @@ from corridor.batchdir import manifest_for, open_batch_dir
 from corridor.errors import CorridorError, clip
 from corridor.estimate import (
     MAX_BUDGET,
+    EstimateRunError,
     Setup,
+    column_watch,
     drive,
     likely_failures,
     method_class,
@@ -25,16 +27,27 @@ from corridor.estimate import (
     write_json,
     write_rows,
 )
-from corridor.rare_event import parse_event, parse_level
+from corridor.rare_event import (
+    ColumnError,
+    check_columns,
+    known_columns,
+    needed_columns,
+    parse_event,
+    parse_level,
+)
+from corridor.scenario import set_overrides
 
 
 def _setup(scenario: str | Path, sets: Sequence[str], variant: str | None, seed: int | None, budget: int,
            out: str | Path | None, suffix: str) -> tuple[Any, dict[str, Any], Path, str, int, Path]:
-    from corridor.cli import resolve_scenario
-    from corridor.scenario import MAX_SEED, load
+    from corridor.api import _int, check_options
+    from corridor.scenario import MAX_SEED, load, resolve_scenario
 
-    if not 1 <= budget <= MAX_BUDGET:
+    if not 1 <= _int("budget", budget) <= MAX_BUDGET:
         raise CorridorError(f"--budget must be 1..{MAX_BUDGET} runs, got {budget}")
+    check_options(seed=seed, sets=sets)
+    if variant is not None and not isinstance(variant, str):
+        raise CorridorError(f"variant must be a string (one sweep variant), got {variant!r:.40}")
     path = resolve_scenario(str(scenario))
     sc, raw = load(path, list(sets))
     if variant is not None and variant not in sc.sweep:
@@ -58,23 +71,34 @@ def estimate(scenario: str | Path, event: str, *, method: str = "ce", budget: in
              executor: str = "local", workers: int = 2, address: str | None = None, progress: bool = False,
              report: bool = True) -> dict[str, Any]:
     """Estimate P(EVENT) over the scenario's randomized inputs; returns ``estimate.json``'s content."""
+    from corridor.api import _int, check_options
+
+    _int("budget", budget)
+    parse_event(event)  # its form first (the spec name is checked once the scenario is loaded)
+    check_options(executor=executor if executor != "inline" else "local", workers=workers)
+    if not isinstance(method, str):
+        raise CorridorError(f"method must be a string, got {method!r:.40}")
     sc, raw, path, var, first, out_dir = _setup(scenario, sets, variant, seed, budget, out, method)
     ev = parse_event(event, [s.name for s in sc.specs])
     lvl = parse_level(level) if level else ev.default_level()
+    needed = needed_columns(ev, lvl if level else None) if method == "naive" else needed_columns(ev, lvl)
+    check_columns(needed, known_columns(sc), from_rows=False)
     if method != "naive":
-        cls = method_class(method)
+        method_class(method)
         if not sc.randomize:
             raise CorridorError(f"{path}: --method {method} samples the randomize entries, and the scenario has none")
         if lvl is None:
             raise CorridorError(f"--estimate {clip(event)}: give --level COLUMN (smaller is closer to failure) "
                                 "for the adaptive methods")
+        cls = _estimator(method, budget)
     settings = {"event": ev.text, "method": method, "budget": budget, "level": str(lvl) if lvl else None,
                 "seed": first, "variant": var}
     # naive is the plain batch: like --runs, a larger --budget extends it on --resume
     fixed = {k: v for k, v in settings.items() if not (method == "naive" and k == "budget")}
     bdir = _open(sc, raw, path, out_dir, sets, fixed, resume, overwrite)
     try:
-        st = Setup(sc, raw, path, out_dir, var, first, ev, lvl or parse_level("collisions"))
+        st = Setup(sc, raw, path, out_dir, var, first, ev, lvl or parse_level("collisions"), needed,
+                   set_overrides(sets))
         if method == "naive":
             res, rows = _naive(st, budget, executor, workers, address, progress)
         else:
@@ -95,8 +119,28 @@ def estimate(scenario: str | Path, event: str, *, method: str = "ce", budget: in
 
                 write_reports(df, sc, out_dir, path)
         return data
+    except ColumnError:  # refused input, only a row could show it: as if the folder was never touched
+        bdir.discard()
+        raise
     finally:
         bdir.close()
+
+
+def _estimator(method: str, budget: int) -> Any:
+    """The estimator class of ``--method``.
+
+    A search (``falsify``) or a budget below the method's ``MIN_BUDGET`` is refused in one line
+    naming the minimum.
+    """
+    cls = method_class(method)
+    if getattr(cls, "KIND", "estimator") != "estimator":
+        raise CorridorError(f"--method {clip(method)}: a search, not an estimator of P(EVENT); use --falsify SPEC for it")
+    least = int(getattr(cls, "MIN_BUDGET", 1))
+    if budget < least:
+        raise CorridorError(f"--method {method} --budget {budget}: the method needs at least {least} runs "
+                            f"({getattr(cls, 'MIN_BUDGET_WHY', 'its first stages')}); give --budget {least} "
+                            "or more, or --method naive")
+    return cls
 
 
 def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | None,
@@ -106,12 +150,20 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
     from corridor.results import ResultStore
     from corridor.stats import clopper_pearson
 
-    plan = batch.expand(st.sc, st.raw, str(st.path), budget, st.seed, str(st.out), [st.variant])
+    plan = batch.expand(st.sc, st.raw, str(st.path), budget, st.seed, str(st.out), [st.variant], st.after)
     store = ResultStore(st.out)
-    batch.run_batch(plan, store, executor, workers, address, progress=progress)
+    batch.run_batch(plan, store, executor, workers, address, progress=progress,
+                    on_row=column_watch(st) if st.needed else None)
     df = store.compact(plan.rank)
     ok = df[df["status"] == "ok"]
     rows = ok.to_dict("records")
+    if len(ok):
+        check_columns(st.needed, set(ok.columns), True)
+    if len(ok) < len(df):
+        bad = df[df["status"] != "ok"].iloc[0]
+        raise EstimateRunError(f"{len(df) - len(ok)} of {len(df)} runs failed (run {bad['run_id']}: {bad['error']}); "
+                               "an estimate needs every run: fix the cause and continue with --resume")
+    assert st.event is not None  # the parsed --estimate EVENT (only a stage-driven search has none)
     for r in rows:
         r["estimate.level"], r["estimate.fail"] = st.level.of(r), st.event.fails(r)
     k, n = sum(r["estimate.fail"] for r in rows), len(rows)
@@ -122,8 +174,11 @@ def _naive(st: Setup, budget: int, executor: str, workers: int, address: str | N
 
 
 def _compare(res: dict[str, Any]) -> dict[str, Any]:
-    """Beside the estimate: the plain Monte Carlo interval of as many runs with as many failures as
-    the estimate implies, and the plain runs needed for the estimate's precision."""
+    """Add what plain Monte Carlo would give beside the estimate.
+
+    That is the plain interval of as many runs with as many failures as the estimate implies, and
+    the plain runs needed for the estimate's precision.
+    """
     from corridor.stats import clopper_pearson
 
     n, p = res.get("runs", 0), res.get("estimate", math.nan)
@@ -138,16 +193,28 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
             sets: Sequence[str] = (), variant: str | None = None, out: str | Path | None = None,
             resume: bool = False, overwrite: bool = False, executor: str = "local", workers: int = 2,
             address: str | None = None, progress: bool = False, report: bool = True) -> dict[str, Any]:
-    """Minimise spec ``spec``'s robustness over the randomized inputs; on a violation write
-    ``DIR/counterexample.yaml`` (the scenario with the violating inputs and seed fixed)."""
+    """Minimise spec ``spec``'s robustness over the randomized inputs (CMA-ES).
+
+    On a violation it writes ``DIR/counterexample.yaml`` (the scenario with the violating inputs and
+    seed fixed).
+    """
+    from corridor.api import check_options
+
+    check_options(executor=executor if executor != "inline" else "local", workers=workers)
     sc, raw, path, var, first, out_dir = _setup(scenario, sets, variant, seed, budget, out, "falsify")
-    ev = parse_event(f"spec:{spec}", [s.name for s in sc.specs])
+    names = [s.name for s in sc.specs]
+    if not isinstance(spec, str) or spec.strip() not in names:
+        raise CorridorError(f"--falsify {clip(str(spec))}: no spec of that name in the scenario "
+                            f"(specs: {', '.join(names) or 'none declared'})")
+    ev = parse_event(f"spec:{spec}", names)
     if not sc.randomize:
         raise CorridorError(f"{path}: --falsify searches the randomize entries, and the scenario has none")
     settings = {"falsify": spec, "budget": budget, "seed": first, "variant": var}
     bdir = _open(sc, raw, path, out_dir, sets, settings, resume, overwrite)
     try:
-        st = Setup(sc, raw, path, out_dir, var, first, ev, ev.default_level())
+        level = ev.default_level()
+        assert level is not None  # a spec's event: its robustness is the level
+        st = Setup(sc, raw, path, out_dir, var, first, ev, level, after=set_overrides(sets))
         m = method_class("falsify")(len(sc.randomize), budget, first)
         stages = drive(st, m, "f", executor, workers, address, progress)
         rows = [r for s in stages for r in s.rows]
@@ -173,8 +240,11 @@ def falsify(scenario: str | Path, spec: str, *, budget: int = 200, seed: int | N
 
 def write_counterexample(dest: Path, path: Path, sets: list[str], variant: str, row: dict[str, Any],
                          inputs: list[str], spec: str) -> None:
-    """The scenario (``extends`` and ``--set`` resolved) with the run's seed and every draw fixed in its
-    variant's overrides: ``run_scenario counterexample.yaml`` runs exactly that run again."""
+    """Write the scenario with the run's seed and every draw fixed in its variant's overrides.
+
+    ``extends`` and ``--set`` are resolved, so ``run_scenario counterexample.yaml`` runs exactly that
+    run again.
+    """
     import yaml
 
     from corridor.estimate import _plain

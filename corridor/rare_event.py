@@ -38,7 +38,14 @@ def _number(node: ast.AST) -> float | None:
         inner = _number(node.operand)
         return None if inner is None else -inner
     if isinstance(node, ast.Constant) and isinstance(node.value, int | float) and not isinstance(node.value, bool):
-        return float(node.value)
+        try:
+            value = float(node.value)
+        except OverflowError:  # an integer beyond the float range (a 400-digit literal)
+            value = math.inf
+        if not math.isfinite(value):  # 1e400 parses as inf
+            raise CorridorError(f"--estimate: the number {clip(str(node.value), 20)} is beyond the float range "
+                                "(|x| < 1.8e308)")
+        return value
     return None
 
 
@@ -164,4 +171,48 @@ def parse_event(text: str, spec_names: list[str] | None = None) -> Event:
         raise CorridorError(f"--estimate {clip(text)}: not an expression such as 'collisions > 0'") from None
     cols: set[str] = set()
     _check(tree.body, text, cols)
-    return Event(text, tree, tuple(sorted(cols)))
+    # the canonical spelling ('nmac>0' and 'nmac > 0' are one event: --resume compares this text)
+    return Event(ast.unparse(tree), tree, tuple(sorted(cols)))
+
+
+# the columns of every run's row, whatever the scenario (corridor.run.execute, corridor.run.simulate)
+ROW_COLUMNS = frozenset({"run_id", "scenario", "variant", "seed", "status", "error", "wall_s", "sim_s",
+                         "events_mode", "events_fallback"})
+
+
+class ColumnError(CorridorError):
+    """EVENT or ``--level`` names a column that the scenario's rows do not have (exit 2)."""
+
+
+def known_columns(sc: Any) -> set[str]:
+    """Columns known before any run: the row's own, the draws, the specs' and the scenario's key
+    ``metrics`` (components write more, known only from a row)."""
+    cols = set(ROW_COLUMNS) | {f"draw.{p}" for p in sc.randomize} | set(sc.metrics)
+    for s in sc.specs:
+        cols |= {f"spec.{s.name}.{k}" for k in ("satisfied", "space", "time")}
+    return cols
+
+
+def needed_columns(event: Event | None, level: Level | None) -> list[tuple[str, str]]:
+    """(option text, column) of every column EVENT and the level read."""
+    out = [(f"--estimate {clip(event.text)}", c) for c in event.columns] if event is not None else []
+    if level is not None:
+        out.append((f"--level {clip(level.column)}", level.column))
+    return out
+
+
+def check_columns(needed: list[tuple[str, str]], known: set[str], from_rows: bool) -> None:
+    """A column not in ``known`` is a ``ColumnError`` naming the closest known metric columns;
+    before any run (``from_rows`` False) only the draw and spec columns can be judged."""
+    import difflib
+
+    for what, col in needed:
+        if col in known or not (from_rows or col.startswith(("draw.", "spec."))):
+            continue
+        metrics = sorted(c for c in known if c not in ROW_COLUMNS and not c.startswith(("draw.", "estimate.")))
+        close = difflib.get_close_matches(col, metrics, n=1, cutoff=0.5)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        listed = ", ".join(metrics)
+        listed = listed if len(listed) <= 200 else listed[:listed.rfind(", ", 0, 198)] + ", …"
+        raise ColumnError(f"{what}: no column {clip(col)} in the scenario's rows{hint}; "
+                          f"metric columns: {listed or 'none'}")

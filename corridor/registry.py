@@ -1,5 +1,6 @@
-"""Register components by name through Python entry points (as pytest, Gymnasium and BlueSky
-plug-ins do): a scenario says ``type: alinea`` and the registry finds the class.
+"""Register components by name through Python entry points, as pytest, Gymnasium and BlueSky plug-ins do.
+
+A scenario says ``type: alinea`` and the registry finds the class.
 
 Every component is an entry point of the group ``corridor.components`` named ``<kind>.<type>``
 (``backend.sumo``, ``controller.ramp_alinea``, ``monitor.collisions``, ``recorder.rerun``) whose value
@@ -7,84 +8,49 @@ is ``module:Class``.  corridor declares its own in ``pyproject.toml``; a user's 
 controller, monitor or backend by declaring one in its own metadata, without editing corridor.
 Entries are read from the installed distributions' metadata once, and a class is imported only
 when a scenario uses it, so loading a scenario does not import CasADi or JSBSim unless it needs them.
+The mechanism (duplicate check, lazy import, "unknown X; known: ..." errors) is
+:mod:`corridor.entrypoints`, shared by every entry-point group.
 """
 
 from __future__ import annotations
 
-import importlib
-from collections.abc import Iterator
-from dataclasses import dataclass
 from functools import cache
-from importlib.metadata import entry_points
-from typing import Any
+
+from corridor.entrypoints import DuplicateEntry, Entry, EntryPointError, Registry, UnknownName, declared
 
 GROUP = "corridor.components"
 
-
-@dataclass(frozen=True)
-class Entry:
-    name: str
-    entry_point: str  # "package.module:Attr"
-
-    def load(self) -> Any:
-        module, _, attr = self.entry_point.partition(":")
-        obj: Any = importlib.import_module(module)
-        for part in attr.split("."):
-            obj = getattr(obj, part)
-        return obj
+__all__ = ["BACKENDS", "CONTROLLERS", "GROUP", "MONITORS", "RECORDERS", "ComponentRegistry", "DuplicateEntry",
+           "Entry", "EntryPointError", "Registry", "UnknownName"]
 
 
 @cache
-def _declared() -> dict[str, dict[str, str]]:
-    """kind -> {type name -> "module:Attr"} of every ``corridor.components`` entry point installed.
-    Two distributions declaring one name differently is an error (no silent shadowing)."""
-    out: dict[str, dict[str, str]] = {}
-    for ep in entry_points(group=GROUP):
-        kind, dot, name = ep.name.partition(".")
-        if not dot or not name:
-            raise ValueError(f"{GROUP} entry point {ep.name!r}: expected '<kind>.<name>', e.g. controller.alinea")
-        table = out.setdefault(kind, {})
-        if table.get(name, ep.value) != ep.value:
-            raise ValueError(f"{GROUP}: {kind} {name!r} is declared twice ({table[name]} and {ep.value})")
-        table[name] = ep.value
-    return out
+def _check_names() -> None:
+    """Every ``corridor.components`` entry point is named ``<kind>.<type>`` (read once)."""
+    for name in declared(GROUP):
+        kind, dot, rest = name.partition(".")
+        if not dot or not kind or not rest:
+            raise EntryPointError(f"{GROUP} entry point {name!r}: expected '<kind>.<name>', e.g. controller.alinea")
 
 
-class Registry:
-    """A named table of lazily imported entry points: those declared under ``<kind>.`` in the
-    ``corridor.components`` group, plus any registered in code (tests)."""
+class ComponentRegistry(Registry):
+    """The components of one kind: the ``corridor.components`` entry points named ``<kind>.<type>``.
+
+    Plus any registered in code (tests).  An unknown type is an :class:`UnknownName` (a ``KeyError``)
+    listing the known ones; one type declared twice differently is a :class:`DuplicateEntry`.
+    """
 
     def __init__(self, what: str) -> None:
-        self.what = what  # the kind: backend, controller, monitor, recorder
-        self._entries: dict[str, Entry] = {}
+        super().__init__(what, GROUP, prefix=f"{what}.")
 
     def _all(self) -> dict[str, Entry]:
-        declared = {n: Entry(n, v) for n, v in _declared().get(self.what, {}).items()}
-        return {**declared, **self._entries}
-
-    def register(self, name: str, entry_point: str) -> None:
-        known = self._all().get(name)
-        if known is not None and known.entry_point != entry_point:
-            raise ValueError(f"{self.what} {name!r} is already registered")
-        self._entries[name] = Entry(name, entry_point)
-
-    def get(self, name: str) -> Any:
-        try:
-            entry = self._all()[name]
-        except KeyError:
-            raise KeyError(f"unknown {self.what} {name!r}; known: {', '.join(sorted(self))}") from None
-        return entry.load()
-
-    def __contains__(self, name: object) -> bool:
-        return name in self._all()
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._all())
+        _check_names()
+        return super()._all()
 
 
 # The component tables.  Each entry point is a class with a nested pydantic ``Params`` model
 # (validated at scenario load) and a constructor ``cls(name, params, scenario)``.
-BACKENDS = Registry("backend")
-CONTROLLERS = Registry("controller")
-MONITORS = Registry("monitor")
-RECORDERS = Registry("recorder")  # cls(name, scenario, path): record a run to a file (Rerun)
+BACKENDS = ComponentRegistry("backend")
+CONTROLLERS = ComponentRegistry("controller")
+MONITORS = ComponentRegistry("monitor")
+RECORDERS = ComponentRegistry("recorder")  # cls(name, scenario, path): record a run to a file (Rerun)

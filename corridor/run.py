@@ -19,7 +19,7 @@ import numpy as np
 from corridor.engine import Component, RunContext, Simulation, path_inside
 from corridor.errors import CorridorError
 from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
-from corridor.scenario import ComponentSpec, Scenario, apply_overrides, validate
+from corridor.scenario import ComponentSpec, Scenario, apply_overrides, scenario_dir, validate
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
 # added last when the scenario declares ``specs``: evaluates them on the recorded signals at the end
@@ -38,6 +38,11 @@ class RunSpec:
     draws: dict[str, Any] = field(default_factory=dict)
     out_dir: str | None = None  # where per-run signals go (signals/<run_id>.npz)
     rerun_path: str | None = None  # record this run to a Rerun .rrd file
+    base_dir: str | None = None  # the scenario file's folder (files it names are relative to it);
+    #   None: the folder of ``source``
+
+    def scenario_folder(self) -> Path:
+        return Path(self.base_dir) if self.base_dir else Path(self.source).resolve().parent
 
 
 def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> Component:
@@ -45,7 +50,7 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
     cls = registry.get(spec.type)
     params_model = getattr(cls, "Params", None)
     params = params_model.model_validate(spec.params) if params_model else spec.params
-    comp = cls(name, params, sc)
+    comp: Component = cls(name, params, sc)
     comp.period_override = spec.period  # resolved by the engine at build, before period_source
     return comp
 
@@ -53,7 +58,12 @@ def make_component(table: str, name: str, spec: ComponentSpec, sc: Scenario) -> 
 def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
           out_dir: str | Path | None = None, run_id: str = "run") -> Simulation:
     """Assemble backends, controllers, monitors and recorders for one run; components write their
-    files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None)."""
+    files under ``out_dir`` through ``RunContext.output_path`` (the scratch ``workdir`` if None).
+    ``workdir`` is a run's own scratch folder (a backend writes its input files there, e.g. SUMO's
+    ``routes.rou.xml``): never the current directory."""
+    if Path(workdir).resolve() == Path.cwd().resolve():
+        raise ValueError("build(): the workdir is the current directory; give a scratch folder (e.g. "
+                         "tempfile.TemporaryDirectory()), backends write their input files there")
     comps: list[Component] = []
     for name, spec in sc.backends.items():
         comps.append(make_component("backends", name, spec, sc))
@@ -74,9 +84,22 @@ def build(sc: Scenario, seed: int, workdir: Path, rerun_path: str | None = None,
     return Simulation(ctx, comps)
 
 
+SCRATCH = ".tmp"  # a batch folder's per-run scratch folders (removed when the batch folder is next opened)
+
+
+def scratch_root(out_dir: str | Path | None) -> Path | None:
+    """Where a run's scratch folder goes: under the batch folder (``DIR/.tmp``), so that a run killed
+    mid-way leaves nothing in the system temp folder; the system temp folder without a batch."""
+    if out_dir is None:
+        return None
+    root = Path(out_dir) / SCRATCH
+    root.mkdir(parents=True, exist_ok=True)
+    return root
+
+
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
-    with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
         metrics = sim.run()
     for kind in ("mode", "fallback"):
@@ -87,7 +110,8 @@ def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = 
         path = path_inside(sig_dir, f"{run_id}.npz")  # a run id with a '/' or '..' cannot lead out
         if path.parent != sig_dir.resolve():
             raise ValueError(f"run id {run_id!r} is not a plain file name")
-        np.savez_compressed(path, **sim.ctx.signals.as_arrays())
+        arrays: dict[str, Any] = sim.ctx.signals.as_arrays()
+        np.savez_compressed(path, **arrays)
     return metrics, sim.ctx, sim.wall_s
 
 
@@ -104,8 +128,9 @@ def execute(spec: RunSpec) -> dict[str, Any]:
                            "seed": spec.seed, "status": "ok", "error": ""}
     row.update({f"draw.{k}": v for k, v in spec.draws.items()})
     try:
-        sc = validate(apply_overrides(spec.base, spec.overrides), f"{spec.source} [{spec.variant}]")
-        metrics, _, _ = simulate(sc, spec.seed, spec.out_dir, spec.run_id, spec.rerun_path)
+        with scenario_dir(spec.scenario_folder()):  # the components re-validate their params at build
+            sc = validate(apply_overrides(spec.base, spec.overrides), f"{spec.source} [{spec.variant}]")
+            metrics, _, _ = simulate(sc, spec.seed, spec.out_dir, spec.run_id, spec.rerun_path)
         row["sim_s"] = sc.duration
         row.update(metrics)
     except Exception as exc:  # a failing run is a row, never a lost batch

@@ -78,10 +78,12 @@ class RoadTables:
 
     @property
     def n_uids(self) -> int:
+        """How many vehicles (uids) the run has seen so far."""
         return len(self.vehicle_ids)
 
     @property
     def n_lanes(self) -> int:
+        """How many lane codes the run has assigned so far."""
         return len(self.lane_names)
 
     def add_route(self, name: str, segments: tuple[tuple[float, float], ...] = ()) -> int:
@@ -94,6 +96,7 @@ class RoadTables:
         return code
 
     def add_lane(self, name: str, speed_limit_mps: float) -> int:
+        """Assign the next lane code to lane ``name`` with its speed limit [m/s]; returns the code."""
         code = self.lane_code_of[name] = len(self.lane_names)
         self.lane_names.append(name)
         self.lane_speed_limit = _grow(self.lane_speed_limit, code + 1, np.nan)
@@ -148,6 +151,7 @@ class RoadEvents:
 
     @property
     def backlog(self) -> int:
+        """Vehicles waiting to be inserted at this step."""
         return len(self.pending_ids)
 
 
@@ -174,8 +178,9 @@ class DetectorFrame:
 
 @dataclass
 class RoadFrame:
-    """The lane frame of the road entities of a snapshot, aligned row by row with snapshot rows
-    ``offset .. offset + len(uid)`` (``rows`` / ``sl``).
+    """The lane frame of the road entities of a snapshot.
+
+    It is aligned row by row with the snapshot rows ``offset .. offset + len(uid)`` (``rows`` / ``sl``).
 
     ``t`` is the road backend's own clock [s] (its reports carry it); ``uid`` indexes ``tables``;
     ``lane`` is a lane code; ``lane_pos`` [m] along the lane (front bumper); ``accel`` [m/s²];
@@ -207,16 +212,21 @@ class RoadFrame:
 
     @property
     def rows(self) -> np.ndarray:
-        return np.arange(self.offset, self.offset + len(self))
+        """The snapshot row indices of the road entities."""
+        rows: np.ndarray = np.arange(self.offset, self.offset + len(self))
+        return rows
 
     @property
     def route(self) -> np.ndarray:
         """Route code per row."""
-        return self.tables.route[self.uid]
+        route: np.ndarray = self.tables.route[self.uid]
+        return route
 
     @property
     def connected(self) -> np.ndarray:
-        return self.tables.connected[self.uid]
+        """Whether each row's vehicle is connected (V2X), per row."""
+        connected: np.ndarray = self.tables.connected[self.uid]
+        return connected
 
 
 class WorldSnapshot:
@@ -297,7 +307,8 @@ class WorldSnapshot:
     @property
     def speed(self) -> np.ndarray:
         """Horizontal speed [m/s]."""
-        return np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+        speed: np.ndarray = np.hypot(self.velocity[:, 0], self.velocity[:, 1])
+        return speed
 
     def index(self) -> dict[str, int]:
         """Map id -> row (built on demand; cheap for the sizes of a tick)."""
@@ -312,9 +323,11 @@ class WorldSnapshot:
 
     @staticmethod
     def from_parts(t: float, parts: list[WorldSnapshot]) -> WorldSnapshot:
-        """Concatenate the backends' parts; the road frame (of at most one part) keeps pointing at
-        its own rows (its ``offset`` moves by the rows of the parts before it).  The geometry stays
-        lazy while a part's is."""
+        """Concatenate the backends' parts into the tick's snapshot at time ``t`` [s].
+
+        The road frame (of at most one part) keeps pointing at its own rows (its ``offset`` moves by
+        the rows of the parts before it).  The geometry stays lazy while a part's is.
+        """
         parts = [p for p in parts if len(p) or p.road is not None]
         if not parts:
             return WorldSnapshot(t=t)
@@ -329,7 +342,7 @@ class WorldSnapshot:
                     raise ValueError("at most one road backend per run: two snapshot parts carry a road frame")
                 road = replace(p.road, offset=offset + p.road.offset)
             offset += len(p)
-        common = {"t": t, "ids": np.concatenate([p.ids for p in parts]),
+        common: dict[str, Any] = {"t": t, "ids": np.concatenate([p.ids for p in parts]),
                   "kind": np.concatenate([p.kind for p in parts]), "role": np.concatenate([p.role for p in parts]),
                   "size": np.concatenate([p.size for p in parts]), "road": road}
         if any(p.pending_poses() for p in parts):
@@ -343,10 +356,14 @@ class WorldSnapshot:
 
 
 def fill_geometry(snapshots: Sequence[WorldSnapshot]) -> Geometry | None:
-    """Derive the lazy geometry of many snapshots (a block of ticks) in one numpy pass: the values
-    are those each snapshot would derive on its own (``PlanarPoses.fill_many``).  Returns the joint
-    (position, velocity, heading) of all their rows, in order, when each snapshot was one pending
-    ``PlanarPoses`` part (else None: read each snapshot's arrays)."""
+    """Derive the lazy geometry of many snapshots (a block of ticks) in one numpy pass.
+
+    The values are those each snapshot would derive on its own (``PlanarPoses.fill_many``).
+
+    Returns:
+        The joint (position [m], velocity [m/s], heading [rad]) of all their rows, in order, when each
+        snapshot was one pending ``PlanarPoses`` part; else None (read each snapshot's arrays).
+    """
     pending = [s.pending_poses() for s in snapshots]
     joint = PlanarPoses.fill_many([q for p in pending for q in p])
     if joint is not None and all((len(p) == 1 and len(p[0]) == len(s)) or (not p and not len(s))

@@ -18,7 +18,8 @@ import pandas as pd
 
 from corridor.stats import clopper_pearson
 
-NOTE = "metrics: mean ± standard deviation over the variant's ok runs"
+NOTE = ("metrics: mean ± standard deviation over the variant's ok runs; (k/n): a value in only k of the n ok "
+        "runs (e.g. min_ttc_s: no closing pair in the others)")
 NOTE_COLLISIONS = "; P(collision): ok runs with a collision / ok runs [exact (Clopper-Pearson) 95 % interval]"
 
 
@@ -50,8 +51,9 @@ def summary_rows(df: pd.DataFrame, key_metrics: list[str],
         for m in metrics:
             v = pd.to_numeric(ok[m], errors="coerce").to_numpy(dtype=float)
             v = v[np.isfinite(v)]
-            row.append(f"{_fmt(v.mean())} ± {_fmt(v.std(ddof=1))}" if len(v) > 1 else
-                       (_fmt(v[0]) if len(v) else "-"))
+            some = f" ({len(v)}/{len(ok)})" if len(v) < len(ok) else ""  # runs without a value, counted
+            row.append((f"{_fmt(v.mean())} ± {_fmt(v.std(ddof=1))}" if len(v) > 1 else
+                        (_fmt(v[0]) if len(v) else "-")) + some)
         lines.append(row)
     return head, lines
 

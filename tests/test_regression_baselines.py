@@ -9,8 +9,9 @@ from pathlib import Path
 import pytest
 
 from corridor.baseline import check
+from tests.conftest import SCENARIOS as SCENARIO_DIR
 
-SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.yaml"))
+SCENARIOS = sorted(SCENARIO_DIR.glob("*.yaml"))
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])

@@ -52,6 +52,8 @@ def scores(level: np.ndarray, fail: np.ndarray) -> np.ndarray:
 
 class CrossEntropy:
     TAG = 0xCE
+    MIN_BUDGET = 100  # one adaptive stage (50 runs) and a final stage of at least as many
+    MIN_BUDGET_WHY = "an adaptive stage of 50 runs and a final stage of 50"
 
     def __init__(self, dim: int, budget: int, seed: int, rho: float = 0.1, alpha: float = 0.05,
                  adaptive_share: float = 0.6, inflate: float = 1.5) -> None:

@@ -30,6 +30,7 @@ Z_MAX = 8.0  # [standard deviations] the search box in the standard-normal space
 
 class Falsifier:
     TAG = 0xFA
+    KIND = "search"  # not an estimator of P(EVENT): ``--falsify``, never ``--method``
 
     def __init__(self, dim: int, budget: int, seed: int, sigma0: float = 1.0) -> None:
         import warnings

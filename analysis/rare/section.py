@@ -33,9 +33,18 @@ def _failures(items: list[dict[str, Any]]) -> str:
     return "<h3>Most likely failures (highest nominal density of the inputs)</h3>" + out
 
 
-def estimate_section(data: dict[str, Any]) -> str:
-    res = data["result"]
+def _ci(res: dict[str, Any]) -> str:
+    """The interval, or in words why there is none (never a NaN bound)."""
     lo, hi = res["ci95"]
+    if all(isinstance(v, int | float) and math.isfinite(v) for v in (lo, hi)):
+        return f"[{_n(lo)}, {_n(hi)}]"
+    return "none: no failing run" if res.get("estimate") == 0 else "none: too few failures"
+
+
+def estimate_section(data: dict[str, Any]) -> str:
+    from corridor.estimate import estimate_lines
+
+    res = data["result"]
     mc = res.get("plain_mc_same_runs", {})
     parts = [f"<h2>Rare-event estimate: P({html.escape(data['event'])})</h2>",
              "<p>The runs of this batch were drawn from the method's proposals, not from the nominal "
@@ -43,9 +52,10 @@ def estimate_section(data: dict[str, Any]) -> str:
              "weights them back.</p>",
              _table(["method", "runs", "estimate", "95 % CI", "plain MC, same runs (CI)", "plain runs for same precision",
                      "ratio"],
-                    [[res["method"], res["runs"], res["estimate"], f"[{_n(lo)}, {_n(hi)}]",
+                    [[res["method"], res["runs"], res["estimate"], _ci(res),
                       f"[{_n(mc.get('ci95', [None])[0])}, {_n(mc.get('ci95', [None, None])[1])}]",
                       res.get("plain_runs_same_precision"), res.get("runs_ratio")]])]
+    parts.append("<p>" + "<br>".join(html.escape(line) for line in estimate_lines(data)) + "</p>")
     if res.get("missed_mode_warning"):
         parts.append(f"<p><strong>Warning:</strong> {html.escape(res['missed_mode_warning'])}</p>")
     keys = [k for k in ("ess", "ess_failures", "weight_max", "weight_cv", "max_weight_share_failures", "cv",

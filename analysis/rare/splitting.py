@@ -57,6 +57,8 @@ def level_size(budget: int, p0: float, burn: int, p_min: float = 1e-6) -> int:
 
 class SubsetSimulation:
     TAG = 0x55
+    MIN_BUDGET = 100  # level 0 (50 runs at p0 = 0.1) and one level of chains (5 chains x 10 steps)
+    MIN_BUDGET_WHY = "50 nominal runs and one level of Markov chains, 50 runs"
 
     def __init__(self, dim: int, budget: int, seed: int, p0: float = 0.1, n_level: int | None = None,
                  burn: int = 1, select: Callable[[np.ndarray, np.ndarray, int], np.ndarray] | None = None) -> None:

@@ -49,6 +49,10 @@ from corridor.analysis.rare.splitting import SubsetSimulation
 
 class SplittingImportance:
     TAG = 0x515
+    # an exploration (75 %) of 50 nominal runs and two levels of chains (50 runs each), then the
+    # importance-sampling stage in two parts (refit, final)
+    MIN_BUDGET = 200
+    MIN_BUDGET_WHY = "an exploration of 150 runs (50 nominal, two levels of chains) and 50 importance-sampling runs"
 
     def __init__(self, dim: int, budget: int, seed: int, p0: float = 0.2, alpha: float = 0.1,
                  explore_share: float = 0.75, level_share: float = 0.125, k_max: int = 6, share_min: float = 0.5, inflate: float = 1.5,

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -49,12 +49,14 @@ from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
-from corridor.engine import Controller, RunContext
+from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import RoadTables, Role
-from corridor.traffic.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.trips import road_frame
+from corridor.traffic.networks.landmarks import OnrampLandmarks
+from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
+from corridor.traffic.sumo.road_spec import require_landmarks
+from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
-from corridor.vehicles.track_pool import TrackPool
+from corridor.vehicles.tracks.pool import TrackPool
 
 RSU = "rsu"
 HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, cooperative, speed gain,
@@ -72,6 +74,26 @@ class Assignment:
 
 
 class V2XMerging(Controller):
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('v2x_delivery_ratio', '1',
+               'Share of the V2X messages sent that were delivered.'),
+        Metric('v2x_aoi_mean_s', 's',
+               'Mean age of information of the vehicle states the coordinator used.'),
+        Metric('v2x_aoi_max_s', 's',
+               'Largest age of information of a vehicle state the coordinator used.'),
+        Metric('v2x_sent', '1',
+               'V2X messages sent.'),
+        Metric('v2x_fallbacks', '1',
+               "Slots released because a vehicle's state went stale (the vehicle falls back to SUMO's model)."),
+        Metric('v2x_dropped_after_end', '1',
+               'Messages still in flight when the run ended.'),
+        Metric('v2x_dropped_overflow', '1',
+               'Messages dropped by a full channel queue.'),
+        Metric('v2x_commands', '1',
+               'Speed commands the coordinator sent.'),
+        Metric('min_virtual_gap_m', 'm',
+               'Smallest gap between a ramp vehicle and its virtual (projected) mainline leader.'),
+    )
     period = 0.1  # [s] a constant (period_source None), unless the scenario gives `period:`
 
     class Params(BaseModel):
@@ -107,6 +129,11 @@ class V2XMerging(Controller):
         #   with Krauss drivers it makes no measurable difference (8 seeds: cps 12.80 / 12.82 s)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
+
+    @classmethod
+    def check_scenario(cls, params: Params, scenario: Any) -> None:
+        """At load: the road's network must have an on-ramp (merge point, acceleration lane)."""
+        require_landmarks(scenario, OnrampLandmarks, "V2X merging")
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)

@@ -9,7 +9,7 @@ puts an ``EgoInput`` on the bus for the ego backend.
 
 It records no signal: the ones the STL specs of ``scenarios/overtaking.yaml`` judge (``gap_lead``,
 ``lane_offset``, ``clearance``, ...) and ``min_gap_lead_m`` / ``min_gap_oncoming_m`` are measured by the
-``overtaking_safety`` monitor (``corridor.traffic.overtaking_monitor``), so a baseline controller in its
+``overtaking_safety`` monitor (``corridor.analysis.monitoring.overtaking``), so a baseline controller in its
 place is judged on the same signals.  ``finish`` returns the controller's own metrics (outcome, modes,
 re-plans, solve times).
 """
@@ -29,17 +29,45 @@ from corridor.controllers.overtaking.controller import (
     VehicleObs,
 )
 from corridor.controllers.overtaking.mpc import body_centre
-from corridor.engine import Controller, Need, RunContext
+from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.traffic.landmarks import RuralLandmarks
-from corridor.traffic.trips import road_frame
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
+from corridor.traffic.networks.landmarks import RuralLandmarks
+from corridor.traffic.sumo.trips import road_frame
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
 
 
 class OvertakingSumo(Controller):
     """Drives the ego bicycle of backend ``ego`` with the event-triggered STL overtaking MPC."""
 
     needs: ClassVar[dict[str, Need]] = {"ego": Need(role="ego", name_at="p.ego")}
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('overtake_success', '1',
+               '1 if the ego passed the lead vehicle and returned to its lane.'),
+        Metric('outcome', 'text',
+               'passed, aborted or stayed.'),
+        Metric('final_mode', 'text',
+               "The overtaking automaton's mode at the end."),
+        Metric('completion_time_s', 's',
+               'From the last commit to pass to the end of the return (following again, in front of the lead).'),
+        Metric('aborts', '1',
+               'Aborted passes.'),
+        Metric('replans', '1',
+               'MPC re-plans.'),
+        Metric('replans_every_step', '1',
+               'Steps the controller was active (re-plans if it planned every step).'),
+        Metric('replan_savings', '1',
+               'Share of the active steps that needed no re-plan.'),
+        Metric('solve_p50_ms', 'ms',
+               'Median MPC solve time.'),
+        Metric('solve_p95_ms', 'ms',
+               '95th percentile MPC solve time.'),
+        Metric('solve_max_ms', 'ms',
+               'Longest MPC solve time.'),
+        Metric('fallbacks', '1',
+               'Steps that fell back to the safe command.'),
+        Metric('controller_period_ms', 'ms',
+               "The controller's period."),
+    )
     period_source: ClassVar[str | None] = "p.controller.period_s"
     ego: EgoBicycle
 

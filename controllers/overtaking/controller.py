@@ -27,7 +27,6 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.analysis.stl import as_formula, evaluate_spec
 from corridor.controllers.overtaking.mpc import (
     FAR_M,
     MpcProblem,
@@ -42,8 +41,9 @@ from corridor.controllers.overtaking.mpc import (
 )
 from corridor.events import EventLog
 from corridor.modes import HybridAutomaton, Transition
-from corridor.vehicles.bicycle import BicycleParams, clip_input
-from corridor.vehicles.predictor import PredictorParams, RoadVehiclePredictor
+from corridor.stl import as_formula, evaluate_spec
+from corridor.vehicles.ground.bicycle import BicycleParams, clip_input
+from corridor.vehicles.tracks.predictor import PredictorParams, RoadVehiclePredictor
 
 MODES = ("follow", "decide", "pass", "return", "abort")
 # (plan mode, new mode) pairs whose old plan is a good warm start (same homotopy class)

@@ -36,7 +36,7 @@ import casadi as ca
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.vehicles.bicycle import N_INPUT, N_STATE, BicycleParams, rk4_step
+from corridor.vehicles.ground.bicycle import N_INPUT, N_STATE, BicycleParams, rk4_step
 
 FAR_M = 1.0e4  # [m] position used for absent vehicles (numerically inert in the soft max)
 
@@ -358,7 +358,7 @@ class OvertakingMilp:
         p, ego = mpc.p, mpc.ego
         self.hull_pad_m = 0.5 * ego.length_m * float(np.sin(p.heading_max_rad))
         x, u = ca.SX.sym("x", N_STATE), ca.SX.sym("u", N_INPUT)
-        from corridor.vehicles.bicycle import f as bicycle_f
+        from corridor.vehicles.ground.bicycle import f as bicycle_f
 
         fx = bicycle_f(x, u, ego)
         self._jac = ca.Function("bicycle_linearisation", [x, u], [ca.jacobian(fx, x), ca.jacobian(fx, u), fx])

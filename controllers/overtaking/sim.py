@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.analysis.stl import evaluate_spec
 from corridor.controllers.overtaking.controller import (
     OvertakingController,
     OvertakingObservation,
@@ -25,7 +24,8 @@ from corridor.controllers.overtaking.controller import (
     safety_spec,
 )
 from corridor.events import EventLog
-from corridor.vehicles.bicycle import rk4_step
+from corridor.stl import evaluate_spec
+from corridor.vehicles.ground.bicycle import rk4_step
 
 
 class OvertakingWorldParams(BaseModel):

@@ -11,7 +11,7 @@ length whose rear axle is the rear edge of the box, so the planner gets wheelbas
 overhangs = ``margin_m`` and width + 2 ``margin_m`` (the margin is the clearance the plan keeps).
 
 It records no signal and judges nothing: success, pose error, clearance and manoeuvre time are
-measured by the ``parking`` monitor (``corridor.analysis.parking_monitor``).  ``finish`` returns the
+measured by the ``parking`` monitor (``corridor.analysis.monitoring.parking``).  ``finish`` returns the
 controller's own figures (final mode, re-plans, aborts and why, planning time per call, planned
 direction changes).
 """
@@ -34,15 +34,43 @@ from corridor.controllers.parking.manoeuvre import (
 )
 from corridor.controllers.parking.spot_detection import DetectorParams, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
-from corridor.engine import Controller, RunContext
+from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import WorldSnapshot
-from corridor.vehicles.highway_env_parking import ParkingInput, ParkingLot
-from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
+from corridor.vehicles.ground.highway_env_parking import ParkingInput, ParkingLot
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingLotController(Controller):
     """Parks the ego of a ``highway_env_parking`` lot in its goal bay (plan, then follow)."""
 
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('final_mode', 'text',
+               "The manoeuvre automaton's mode at the end (parked, abort, ...)."),
+        Metric('replans', '1',
+               'Re-plans during the run.'),
+        Metric('aborts', '1',
+               'Transitions to the abort mode.'),
+        Metric('abort_reasons', 'text',
+               "Why the manoeuvre aborted, '; '-separated."),
+        Metric('plan_failures', '1',
+               'Planner calls that found no path.'),
+        Metric('plan_time_p50_s', 's',
+               'Median planning wall time per call.'),
+        Metric('plan_time_p95_s', 's',
+               '95th percentile planning wall time per call.'),
+        Metric('plan_time_max_s', 's',
+               'Longest planning wall time.'),
+        Metric('plan_search_s', 's',
+               'Search (hybrid A*) wall time of the last plan.'),
+        Metric('plan_optimise_s', 's',
+               'Optimisation (IPOPT) wall time of the last plan.'),
+        Metric('planned_direction_changes', '1',
+               'Forward/reverse switches of the last plan (-1: no plan).'),
+        Metric('planned_length_m', 'm',
+               'Length of the last plan.'),
+        Metric('mode_transitions', '1',
+               'Transitions of the manoeuvre automaton.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
 
     class Params(BaseModel):
@@ -56,7 +84,6 @@ class ParkingLotController(Controller):
         max_speed_mps: float = Field(2.0, gt=0.0)  # [m/s] planned
         max_accel_mps2: float = Field(1.0, gt=0.0)  # [m/s^2] planned
         max_steer_rate_rps: float = Field(1.0, gt=0.0)  # [rad/s] planned
-        plan_time_limit_s: float = Field(20.0, gt=0.0)  # [s] wall clock per planner call
         plan_dt_s: float = Field(0.1, gt=0.0, le=0.1)  # [s]
         cruise_mps: float = Field(2.0, gt=0.0)  # [m/s] tracking speed limit
         straighten_m: float = Field(3.0, ge=0.0)  # [m]
@@ -113,7 +140,7 @@ class ParkingLotController(Controller):
                               max_steer_rate_rps=p.max_steer_rate_rps)
         walls = np.vstack(lot.walls)  # the search area: inside the walls
         bounds = (float(walls[:, 0].min()), float(walls[:, 0].max()), float(walls[:, 1].min()), float(walls[:, 1].max()))
-        return plan(start, goal, obstacles, veh, time_limit_s=p.plan_time_limit_s, dt_s=p.plan_dt_s, bounds=bounds)
+        return plan(start, goal, obstacles, veh, dt_s=p.plan_dt_s, bounds=bounds)
 
     # ------------------------------------------------------------------ observe / step
     def goal_pose(self, lot: ParkingLot) -> np.ndarray:

@@ -79,7 +79,6 @@ class Obstacles:
         hi = np.array([p.max(axis=0) for p in self.polygons]) if self.polygons else np.zeros((0, 2))
         self._poly_lo, self._poly_hi = lo, hi
         self._emin, self._emax = np.minimum(self.a, self.b), np.maximum(self.a, self.b)
-        self._onehot = (self.owner[:, None] == np.arange(self.n_polygons)[None]).astype(np.int32)
 
     def _near(self, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         """Indices of edges whose bounding box meets the box [lo, hi]."""
@@ -125,13 +124,18 @@ class Obstacles:
 
     def _contains(self, pts: np.ndarray, idx: np.ndarray) -> np.ndarray:
         """Boolean (n,): is each point inside any polygon owning an edge in ``idx`` (crossing number)?"""
+        if len(idx) == 0:
+            return np.zeros(len(pts), dtype=bool)
         ax, ay, bx, by = self.a[idx, 0], self.a[idx, 1], self.b[idx, 0], self.b[idx, 1]
         px, py = pts[:, 0:1], pts[:, 1:2]
         straddle = (ay[None] > py) != (by[None] > py)
         with np.errstate(divide="ignore", invalid="ignore"):
             xc = ax[None] + (py - ay[None]) * (bx - ax)[None] / (by - ay)[None]
         cross = straddle & (px < xc)
-        counts = cross.astype(np.int32) @ self._onehot[idx]
+        # crossings per polygon: ``idx`` is sorted and each polygon's edges are contiguous
+        own = self.owner[idx]
+        first = np.flatnonzero(np.r_[True, own[1:] != own[:-1]])
+        counts = np.add.reduceat(cross.astype(np.int32), first, axis=1)
         return np.any(counts % 2 == 1, axis=1)
 
 

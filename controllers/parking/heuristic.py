@@ -1,8 +1,9 @@
 """Admissible cost-to-go estimates for the Hybrid A* search, both towards one goal pose.
 
 - `HolonomicGrid`: shortest 8-connected grid distance from each cell to the goal around the obstacles
-  (grown by a fraction of the car's half-width: no rear-axle centre can be closer than that to an
-  obstacle), by Dijkstra over a sparse graph (scipy).
+  for a point of the footprint that keeps a known clearance from every obstacle (the footprint's
+  centre keeps half the car's width), by Dijkstra over a sparse graph (scipy). Cells are blocked
+  from exact point-to-polygon distances, only where no point of the cell has that clearance.
 - `RsTable`: Reeds–Shepp length without obstacles, tabulated once per turning radius over poses
   relative to the goal (the table depends on nothing else, so it is cached per process); poses
   outside the table fall back to the straight-line distance, a lower bound of it.
@@ -14,7 +15,6 @@ from functools import lru_cache
 
 import numpy as np
 from matplotlib.path import Path as MplPath
-from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
 
@@ -22,27 +22,20 @@ from corridor.controllers.parking import reeds_shepp as rs
 
 
 class HolonomicGrid:
+    """Shortest 8-connected grid distance [m] from a point to ``goal_xy`` around the obstacles, for a
+    point that must keep ``clearance_m`` from every obstacle. A node is blocked only when every point
+    of its cell is closer than that (exact point-to-polygon distances at the nodes), so no reachable
+    point is ever cut off; ``goal_xy`` and ``free_xy`` are never blocked."""
+
     def __init__(self, polygons: list[np.ndarray], goal_xy: tuple[float, float],
                  bounds: tuple[float, float, float, float], res_m: float, clearance_m: float,
                  free_xy: tuple[float, float] | None = None) -> None:
         x0, x1, y0, y1 = bounds
         self.res_m, self.origin = res_m, np.array([x0, y0])
         nx, ny = int(np.ceil((x1 - x0) / res_m)) + 1, int(np.ceil((y1 - y0) / res_m)) + 1
-        gx, gy = np.meshgrid(x0 + res_m * np.arange(nx), y0 + res_m * np.arange(ny), indexing="ij")
-        pts = np.column_stack([gx.ravel(), gy.ravel()])
         self.shape = (nx, ny)
-        occ = np.zeros(nx * ny, dtype=bool)
-        for poly in polygons:
-            occ |= MplPath(poly).contains_points(pts)
-        occ = occ.reshape(nx, ny)
-        for poly in polygons:  # edges too, so thin obstacles are not missed between cell centres
-            a, b = poly, np.roll(poly, -1, axis=0)
-            n = max(2, int(np.ceil(np.hypot(*(b - a).T).max() / (0.5 * res_m))) + 1)
-            t = np.linspace(0, 1, n)[None, :, None]
-            ij = self.cell((a[:, None] + t * (b - a)[:, None]).reshape(-1, 2))
-            occ[ij[:, 0], ij[:, 1]] = True
-        dist_m = ndimage.distance_transform_edt(~occ) * res_m
-        blocked = occ | (dist_m < clearance_m)
+        need_m = clearance_m - res_m / np.sqrt(2)  # a node this far away leaves room somewhere in its cell
+        blocked = distance_field(polygons, self.origin, res_m, self.shape, need_m) < need_m
         for xy in (goal_xy, free_xy):
             if xy is not None:
                 ci = self.cell(np.asarray(xy, float)[None])[0]
@@ -73,6 +66,28 @@ class HolonomicGrid:
     def __call__(self, xy: np.ndarray) -> np.ndarray:
         ij = self.cell(xy)
         return self.cost_m[ij[:, 0], ij[:, 1]]
+
+
+def distance_field(polygons: list[np.ndarray], origin: np.ndarray, res_m: float, shape: tuple[int, int],
+                   upto_m: float) -> np.ndarray:
+    """Exact distance [m] from each grid node ``origin + res_m * (i, j)`` to the nearest polygon (0
+    inside one), computed only where it is below ``upto_m`` (elsewhere ``inf``)."""
+    dist = np.full(shape, np.inf)
+    hi_ij = np.array(shape) - 1
+    for poly in polygons:
+        lo = np.clip(np.floor((poly.min(axis=0) - upto_m - origin) / res_m).astype(int), 0, hi_ij)
+        hi = np.clip(np.ceil((poly.max(axis=0) + upto_m - origin) / res_m).astype(int), 0, hi_ij)
+        gi, gj = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij")
+        pts = origin + res_m * np.column_stack([gi.ravel(), gj.ravel()])
+        a, b = poly, np.roll(poly, -1, axis=0)
+        ab = b - a
+        ap = pts[:, None, :] - a[None]
+        t = np.clip(np.einsum("pek,ek->pe", ap, ab) / np.maximum(np.einsum("ek,ek->e", ab, ab), 1e-12), 0.0, 1.0)
+        d = np.hypot(*np.moveaxis(ap - t[..., None] * ab[None], -1, 0)).min(axis=1)
+        d[MplPath(poly).contains_points(pts)] = 0.0
+        view = dist[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1]
+        np.minimum(view, d.reshape(view.shape), out=view)
+    return dist
 
 
 @lru_cache(maxsize=4)

@@ -3,6 +3,10 @@
 Public API (stable; the parking controllers build on it): `plan`, `Trajectory`, `NoSolution`.
 Everything runs in a local frame whose origin is the start position (cases may sit at ~1e9 m: the
 origin is subtracted in float64 before anything else and added back to the output).
+
+Plans do not depend on the machine's speed or load: the search is bounded by expansions and the
+optimisation by IPOPT iterations (`PlanBudget`), never by a clock. The clock is read only to report
+the planning time.
 """
 
 from __future__ import annotations
@@ -15,30 +19,59 @@ import numpy as np
 
 from corridor.controllers.parking import optimise, profile, warm_start
 from corridor.controllers.parking.geometry import TPCAP_VEHICLE, FootprintChecker, Obstacles, VehicleGeometry
-from corridor.controllers.parking.search import HybridAStar, SearchFailed, SearchParams, merge, reverse
+from corridor.controllers.parking.search import (
+    Exhausted,
+    HybridAStar,
+    SearchFailed,
+    SearchParams,
+    merge,
+    reverse,
+)
+from corridor.errors import CorridorError
 
 BOUNDS_PAD_M = 8.0  # default search area: the box around start, goal and obstacles, grown by this
 MIN_RUN_M = 0.01  # shortest run in one direction that counts in direction_changes
-SEARCH_SHARE = 0.6  # of the time limit; the rest is for the optimisation
-# search resolutions, bounded by expansions so that results do not depend on the machine's load
-COARSE = SearchParams(heuristic_weight=3.0, max_expansions=4000)
-FINE = SearchParams(heuristic_weight=3.0, max_expansions=8000, xy_res_m=0.2, n_heading=144, step_m=0.5,
-                    short_step_m=0.15, check_m=0.1)
-SLICE = 100  # expansions per turn
-MIN_CHECK_M = 0.04  # densest collision-check spacing of a repeated search
+MIN_DT_S = 1e-3  # finest output step [s] (rows grow as 1 / dt)
+MAX_GRID_CELLS = 4_000_000  # bound on the search area: 0.1 m cells of the collision grid (400 x 100 m)
+GRID_RES_M = 0.1  # the collision grid's cell (`FootprintChecker`)
+SAME_POSE_M, SAME_POSE_RAD = 1e-9, 1e-9  # a goal this close to the start is the start: one row
+# search resolutions (the expansion budgets are in `PlanBudget`)
+COARSE = SearchParams(heuristic_weight=3.0)
+FINE = SearchParams(heuristic_weight=3.0, xy_res_m=0.2, n_heading=144, step_m=0.5, short_step_m=0.15, check_m=0.1)
+SLICE = 100  # expansions per turn ...
+MICRO_TURNS = 4  # ... times this for a search with micro primitives (the end the other cannot reach)
 CLEARANCE_STEPS_M = (0.1, 0.2, 0.4, 0.8, 1.6)  # to rank how tight the start and the goal are
-MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors
+MARGIN_M = 0.03  # footprint growth inside the optimisation's corridors (a hard constraint of the NLP)
+END_SHARE = 0.5  # margins are at most this share of the start's and the goal's clearance (tight ends)
 # warm starts tried in turn: (builder, node spacing in the warm start's time [s])
 TRIES = ((warm_start.by_runs, 0.25), (warm_start.by_profile, 0.25), (warm_start.by_profile, 0.12))
 MIN_NODES, MAX_NODES = 40, 400
 REFINE_MAX = 2  # re-solves with corridors around the last solution ...
 REFINE_GAIN = 0.02  # ... while each shortens the manoeuvre by more than this share
-REFINE_ITER = 60  # IPOPT iterations of a re-solve (it starts from a solution)
 DENSE_M = 0.02  # spacing of the collision check of the optimised trajectory
+
+
+@dataclass(frozen=True)
+class PlanBudget:
+    """Deterministic work bounds of one plan (the same plan on an idle or a loaded machine)."""
+
+    coarse_expansions: int = 4000  # per search (from the start, from the goal) at 0.4 m cells
+    fine_expansions: int = 8000  # per search at 0.2 m cells (after the coarse one failed)
+    ipopt_iter: int = 150  # IPOPT iterations of a first solve (per warm start tried)
+    refine_iter: int = 60  # IPOPT iterations of a re-solve (it starts from a solution)
+
+    def __post_init__(self) -> None:
+        for name in ("coarse_expansions", "fine_expansions", "ipopt_iter", "refine_iter"):
+            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
+                raise InputError(f"PlanBudget.{name} must be an integer >= 1 (got {getattr(self, name)!r})")
 
 
 class NoSolution(Exception):
     """No trajectory: the message is a one-line reason."""
+
+
+class InputError(CorridorError, ValueError):
+    """A request the planner refuses before any work (bad step, search area over its bound): one line."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,7 +88,8 @@ class Trajectory:
     steer: np.ndarray
     search_time_s: float
     optimise_time_s: float
-    stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback)
+    stage: str = "optimised"  # or "search" (time-parametrised search path, the fallback), "at goal" (one row)
+    expansions: int = 0  # of all the searches that made the path (the deterministic measure of their work)
 
     def direction_changes(self, min_run_m: float = MIN_RUN_M) -> int:
         """Changes between forward and reverse motion, counting only runs in one direction that
@@ -93,22 +127,24 @@ def _default_bounds(start: np.ndarray, goal: np.ndarray, polys: list[np.ndarray]
 
 
 def plan(start: tuple[float, float, float], goal: tuple[float, float, float], obstacles: Sequence[np.ndarray],
-         vehicle: VehicleGeometry = TPCAP_VEHICLE, *, time_limit_s: float = 30.0, dt_s: float = 0.1,
-         bounds: tuple[float, float, float, float] | None = None) -> Trajectory:
+         vehicle: VehicleGeometry = TPCAP_VEHICLE, *, dt_s: float = 0.1,
+         bounds: tuple[float, float, float, float] | None = None, budget: PlanBudget | None = None) -> Trajectory:
     """A collision-free, limit-respecting trajectory from ``start`` to ``goal`` (rear-axle poses x [m],
     y [m], heading [rad]) around ``obstacles`` (polygons, (k, 2) vertices [m]), or raise NoSolution.
 
     ``bounds`` (x_min, x_max, y_min, y_max) [m] is the area the search may use (default: the box
-    around start, goal and obstacles grown by `BOUNDS_PAD_M`). The trajectory starts at rest with
-    straight wheels exactly at ``start`` (theta continuous from ``start[2]``, so it ends at ``goal[2]``
-    modulo 2π) and stops at ``goal``; rows are ≤ ``dt_s`` apart. Planning stops at ``time_limit_s``
-    (60 % of it for the search); the reason then says so. Only the vehicle's geometry and limits
-    come from ``vehicle``."""
+    around start, goal and obstacles grown by `BOUNDS_PAD_M`); more than `MAX_GRID_CELLS` cells of
+    `GRID_RES_M` raise InputError, as does ``dt_s`` below `MIN_DT_S`. The trajectory starts at rest
+    with straight wheels exactly at ``start`` (theta continuous from ``start[2]``, so it ends at
+    ``goal[2]`` modulo 2π) and stops at ``goal``; rows are ≤ ``dt_s`` apart (one row when the goal is
+    the start). The work is bounded by ``budget`` (expansions, IPOPT iterations), not by time. Only
+    the vehicle's geometry and limits come from ``vehicle``."""
     t0 = time.perf_counter()
-    if dt_s <= 0 or time_limit_s <= 0:
-        raise NoSolution(f"dt_s and time_limit_s must be > 0 (got {dt_s}, {time_limit_s})")
+    budget = budget or PlanBudget()
+    if not (dt_s >= MIN_DT_S):
+        raise InputError(f"the output step dt must be >= {MIN_DT_S:g} s (got {dt_s:g})")
     if not np.all(np.isfinite([*start, *goal])):
-        raise NoSolution("start and goal must be finite numbers")
+        raise InputError("start and goal must be finite numbers")
     origin = np.array([start[0], start[1]], dtype=np.float64)
     s = np.array([0.0, 0.0, float(start[2])])
     g = np.array([goal[0] - origin[0], goal[1] - origin[1], float(goal[2])])
@@ -117,24 +153,51 @@ def plan(start: tuple[float, float, float], goal: tuple[float, float, float], ob
         lb = _default_bounds(s, g, polys)
     else:
         lb = (bounds[0] - origin[0], bounds[1] - origin[0], bounds[2] - origin[1], bounds[3] - origin[1])
+    _check_area(lb, bounds is None)
     obs = Obstacles(polys)
     for name, pose in (("start", s), ("goal", g)):
         if obs.collides(pose[None], vehicle)[0]:
             raise NoSolution(f"the {name} pose collides with an obstacle")
         if not (lb[0] <= pose[0] <= lb[1] and lb[2] <= pose[1] <= lb[3]):
             raise NoSolution(f"the {name} pose is outside the bounds")
-    segments = _search(tuple(s), tuple(g), obs, vehicle, lb, t0, time_limit_s)
+    if np.hypot(g[0], g[1]) <= SAME_POSE_M and abs(_wrap(g[2] - s[2])) <= SAME_POSE_RAD:
+        z = np.zeros(1)
+        states = {"t": z, "x": z.copy(), "y": z.copy(), "theta": s[2:3].copy(), "v": z.copy(), "a": z.copy(),
+                  "steer": z.copy()}
+        return _to_world(states, origin, time.perf_counter() - t0, 0.0, stage="at goal")
+    end_clear = min(_exact_clearance(s, obs, vehicle), _exact_clearance(g, obs, vehicle))
+    search_margin = min(COARSE.margin_m, END_SHARE * end_clear)
+    opt_margin = min(MARGIN_M, END_SHARE * end_clear)
+    segments, expansions = _search(tuple(s), tuple(g), obs, vehicle, lb, budget, search_margin, opt_margin)
     t_search = time.perf_counter() - t0
-    states, stage = _optimise(segments, obs, vehicle, dt_s, deadline=t0 + time_limit_s)
+    states, stage = _optimise(segments, obs, vehicle, dt_s, budget, opt_margin)
     t_opt = time.perf_counter() - t0 - t_search
     # a path searched from the goal reaches the start's heading modulo 2π: start from it exactly
     turns = np.round((float(start[2]) - states["theta"][0]) / (2 * np.pi))
     states["theta"] = states["theta"] + 2 * np.pi * turns
-    return _to_world(states, origin, t_search, t_opt, stage=stage)
+    return _to_world(states, origin, t_search, t_opt, stage=stage, expansions=expansions)
+
+
+def _wrap(a: float) -> float:
+    return float((a + np.pi) % (2 * np.pi) - np.pi)
+
+
+def _check_area(lb: tuple[float, ...], default: bool) -> None:
+    """InputError when the search area needs more than `MAX_GRID_CELLS` cells (before any is made)."""
+    w, h = lb[1] - lb[0], lb[3] - lb[2]
+    if not (w >= 0 and h >= 0):
+        raise InputError(f"the bounds are empty ({w:g} x {h:g} m)")
+    cells = (w / GRID_RES_M + 1) * (h / GRID_RES_M + 1)
+    if cells > MAX_GRID_CELLS:
+        what = ("the box around start, goal and obstacles, grown by "
+                f"{BOUNDS_PAD_M:g} m" if default else "the given bounds")
+        raise InputError(f"the search area is {w:.0f} m x {h:.0f} m ({what}): {cells:.3g} cells of {GRID_RES_M:g} m "
+                         f"exceed the bound of {MAX_GRID_CELLS:.0f} (MAX_GRID_CELLS); bring the goal and "
+                         "obstacles closer to the start")
 
 
 def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
-              deadline: float) -> tuple[dict[str, np.ndarray], str]:
+              budget: PlanBudget, margin_m: float) -> tuple[dict[str, np.ndarray], str]:
     """The optimised trajectory, else the stop-and-steer search path (which meets every limit by
     construction). Warm starts are tried in turn (`TRIES`); a solution is accepted when it is
     collision-free sampled densely, then refined while it improves: the corridors re-grown around it,
@@ -142,7 +205,7 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
     best = None
     for build, node_dt in TRIES:
         ws, T0 = build(segments, vehicle, node_dt, MIN_NODES, MAX_NODES)
-        best = _solve_checked(ws, T0, obs, vehicle, dt_s, deadline)
+        best = _solve_checked(ws, T0, obs, vehicle, dt_s, budget.ipopt_iter, margin_m)
         if best is not None:
             break
     if best is None:
@@ -152,10 +215,8 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
         return states, "search"
     for _ in range(REFINE_MAX):
         sol, _ = best
-        if time.perf_counter() > deadline - 0.5:
-            break
-        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, deadline,
-                                REFINE_ITER)
+        better = _solve_checked(sol.states, sol.h_s * len(sol.inputs), obs, vehicle, dt_s, budget.refine_iter,
+                                margin_m)
         if better is None or better[0].h_s > sol.h_s * (1 - REFINE_GAIN):
             if better is not None and better[0].h_s < sol.h_s:
                 best = better
@@ -165,10 +226,9 @@ def _optimise(segments: list, obs: Obstacles, vehicle: VehicleGeometry, dt_s: fl
 
 
 def _solve_checked(ws: np.ndarray, T0: float, obs: Obstacles, vehicle: VehicleGeometry, dt_s: float,
-                   deadline: float, max_iter: int = 150) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
+                   max_iter: int, margin_m: float) -> tuple[optimise.Solution, dict[str, np.ndarray]] | None:
     try:
-        sol = optimise.solve(ws, T0, obs, vehicle, deadline,
-                             optimise.OptimiseParams(margin_m=MARGIN_M, max_iter=max_iter))
+        sol = optimise.solve(ws, T0, obs, vehicle, optimise.OptimiseParams(margin_m=margin_m, max_iter=max_iter))
     except optimise.OptimiseFailed:
         return None
     states = optimise.sample(sol, vehicle, dt_s)
@@ -185,57 +245,84 @@ def _collides_densely(states: dict[str, np.ndarray], obs: Obstacles, vehicle: Ve
 
 
 def _search(s: tuple[float, float, float], g: tuple[float, float, float], obs: Obstacles,
-            vehicle: VehicleGeometry, lb: tuple[float, ...], t0: float, time_limit_s: float) -> list:
+            vehicle: VehicleGeometry, lb: tuple[float, ...], budget: PlanBudget, search_margin_m: float,
+            opt_margin_m: float) -> tuple[list, int]:
     """Searches from both ends take turns (`SLICE` expansions each, the tighter end first: leaving a
     bay is easier than entering it; a path found from the goal is driven backwards) until one finds a
-    path. A search that fails at `COARSE` resolution is replaced by one at `FINE` resolution from the
-    same end; one whose path clips an obstacle between its collision checks, by one with checks twice
-    as dense."""
-    end, reasons = t0 + SEARCH_SHARE * time_limit_s, []
+    path. A path that clips an obstacle between the search's collision checks is dropped and its
+    search goes on without the primitive that clipped (`HybridAStar.prune`). A search that fails at
+    `COARSE` resolution is replaced by one at `FINE` resolution from the same end. Each search stops
+    at its expansion budget. Returns the path and the expansions of all searches."""
+    reasons: list[str] = []
+    made: list[HybridAStar] = []  # every search started (their expansions are the work done)
     goal_first = _clearance(g, obs, vehicle) <= _clearance(s, obs, vehicle)
     checkers: dict[float, FootprintChecker] = {}
 
     def start_search(backwards: bool, params: SearchParams) -> HybridAStar | None:
         checker = checkers.setdefault(params.margin_m, FootprintChecker(obs, vehicle, params.margin_m, lb))
         try:
-            return HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker)
+            made.append(HybridAStar(*((g, s) if backwards else (s, g)), obs, vehicle, lb, params, checker))
+            return made[-1]
         except SearchFailed as exc:
             reasons.append(_reason(backwards, params, exc))
             return None
 
-    searches = {b: start_search(b, COARSE) for b in (goal_first, not goal_first)}
-    while any(searches.values()) and time.perf_counter() < end:
+    coarse = replace(COARSE, max_expansions=budget.coarse_expansions, margin_m=search_margin_m)
+    fine = replace(FINE, max_expansions=budget.fine_expansions, margin_m=search_margin_m)
+    searches = {b: start_search(b, coarse) for b in (goal_first, not goal_first)}
+    while any(searches.values()):
         for backwards, search in list(searches.items()):
             if search is None:
                 continue
             try:
-                path = search.run(SLICE, end)
+                path = search.run(SLICE * (MICRO_TURNS if search.p.micro else 1))
             except SearchFailed as exc:
                 reasons.append(_reason(backwards, search.p, exc))
-                finer = replace(FINE, check_m=min(FINE.check_m, search.p.check_m))
-                searches[backwards] = start_search(backwards, finer) if search.p.xy_res_m > FINE.xy_res_m else None
+                searches[backwards] = start_search(backwards, nxt) if (nxt := _next(search.p, exc, fine)) else None
                 continue
             if path is None:
                 continue
-            if not _path_clips(path, obs, vehicle):
-                return merge(reverse(path) if backwards else path)
-            reasons.append(_reason(backwards, search.p, "the path clipped an obstacle between checks"))
-            dense = replace(search.p, check_m=search.p.check_m / 2)
-            searches[backwards] = start_search(backwards, dense) if dense.check_m >= MIN_CHECK_M else None
-    head = (f"no path within the time limit of {time_limit_s:g} s" if time.perf_counter() >= end
-            else "no path: the search space is exhausted")
-    raise NoSolution(f"{head} ({'; '.join(reasons)})")
+            clip = _first_clip(path, obs, vehicle, opt_margin_m)
+            if clip is None:
+                return merge(reverse(path) if backwards else path), sum(m.expansions for m in made)
+            search.prune(clip)  # and go on without that primitive (or that analytic tail)
+    raise NoSolution(f"no path ({'; '.join(reasons)})")
+
+
+def _next(p: SearchParams, exc: SearchFailed, fine: SearchParams) -> SearchParams | None:
+    """The search that replaces a failed one from the same end: with micro primitives near the end if
+    it was exhausted (a tight start or goal it could not leave), else at `FINE` resolution."""
+    if isinstance(exc, Exhausted) and not p.micro:
+        return replace(p, micro=True)
+    if p.xy_res_m > fine.xy_res_m:
+        return replace(fine, check_m=min(fine.check_m, p.check_m), micro=p.micro)
+    return None
 
 
 def _reason(backwards: bool, p: SearchParams, exc: Exception | str) -> str:
-    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells: {exc}"
+    micro = f", {p.micro_step_m:g} m steps near it" if p.micro else ""
+    return f"from the {'goal' if backwards else 'start'}, {p.xy_res_m:g} m cells{micro}: {exc}"
 
 
-def _path_clips(segments: list, obs: Obstacles, vehicle: VehicleGeometry) -> bool:
-    """Does the footprint, grown by the optimisation's margin, meet an obstacle anywhere along the
-    path (sampled every `DENSE_M`)?"""
-    poses = np.vstack([seg.poses(DENSE_M) for seg in segments])
-    return bool(obs.collides(poses, vehicle, MARGIN_M).any())
+def _first_clip(segments: list, obs: Obstacles, vehicle: VehicleGeometry, margin_m: float) -> int | None:
+    """The first segment along which the footprint, grown by the optimisation's margin, meets an
+    obstacle (sampled every `DENSE_M`), or None."""
+    for k, seg in enumerate(segments):
+        if obs.collides(seg.poses(DENSE_M), vehicle, margin_m).any():
+            return k
+    return None
+
+
+def _exact_clearance(pose: np.ndarray, obs: Obstacles, vehicle: VehicleGeometry, upto_m: float = 0.2) -> float:
+    """The largest footprint growth [m] (to 1e-4 m, at most ``upto_m``) free of obstacles at ``pose``
+    (bisection on the exact collision test): the margins never exceed `END_SHARE` of it."""
+    if not obs.collides(np.asarray(pose)[None], vehicle, upto_m)[0]:
+        return upto_m
+    lo, hi = 0.0, upto_m
+    while hi - lo > 1e-4:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if not obs.collides(np.asarray(pose)[None], vehicle, mid)[0] else (lo, mid)
+    return lo
 
 
 def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: VehicleGeometry) -> float:
@@ -245,7 +332,7 @@ def _clearance(pose: tuple[float, float, float], obs: Obstacles, vehicle: Vehicl
 
 
 def _to_world(states: dict[str, np.ndarray], origin: np.ndarray, t_search: float, t_opt: float,
-              stage: str) -> Trajectory:
+              stage: str, expansions: int = 0) -> Trajectory:
     return Trajectory(t=states["t"], x=states["x"] + origin[0], y=states["y"] + origin[1],
                       theta=states["theta"], v=states["v"], a=states["a"], steer=states["steer"],
-                      search_time_s=t_search, optimise_time_s=t_opt, stage=stage)
+                      search_time_s=t_search, optimise_time_s=t_opt, stage=stage, expansions=expansions)

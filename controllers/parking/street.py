@@ -33,17 +33,39 @@ from corridor.controllers.parking.manoeuvre import (
 )
 from corridor.controllers.parking.spot_detection import DetectorParams, Slot, SlotDetector
 from corridor.controllers.parking.tracking import TrackingParams
-from corridor.engine import Controller, Need, RunContext
-from corridor.traffic.landmarks import StreetParkingLandmarks
-from corridor.traffic.trips import road_frame
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
-from corridor.vehicles.range_sensors import RangeSensorParams, Scan, scan
+from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.traffic.networks.landmarks import StreetParkingLandmarks
+from corridor.traffic.sumo.trips import road_frame
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, Scan, scan
 
 
 class ParkingStreetController(Controller):
     """Searches a street's bay row for a free slot and parks the ``ego_bicycle`` car in it."""
 
     needs: ClassVar[dict[str, Need]] = {"ego": Need(role="ego", name_at="p.ego")}
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('final_mode', 'text',
+               "The manoeuvre automaton's mode at the end (parked, abort, ...)."),
+        Metric('replans', '1',
+               'Re-plans during the run.'),
+        Metric('aborts', '1',
+               'Transitions to the abort mode.'),
+        Metric('abort_reasons', 'text',
+               "Why the manoeuvre aborted, '; '-separated."),
+        Metric('plan_failures', '1',
+               'Planner calls that found no path.'),
+        Metric('plan_time_p50_s', 's',
+               'Median planning wall time per call.'),
+        Metric('plan_time_p95_s', 's',
+               '95th percentile planning wall time per call.'),
+        Metric('planned_direction_changes', '1',
+               'Forward/reverse switches of the last plan (-1: no plan).'),
+        Metric('slot_found_s', 's',
+               'Time the controller chose a slot (NaN: never).'),
+        Metric('mode_transitions', '1',
+               'Transitions of the manoeuvre automaton.'),
+    )
     period_source: ClassVar[str | None] = "p.period_s"
     ego: EgoBicycle
 
@@ -58,7 +80,6 @@ class ParkingStreetController(Controller):
         slot_margin_m: float = Field(0.5, ge=0.0)  # [m] free length/width beyond the car's a slot needs
         max_steer_rad: float = Field(0.6, gt=0.0)  # [rad] planned
         max_speed_mps: float = Field(1.5, gt=0.0)  # [m/s] planned
-        plan_time_limit_s: float = Field(20.0, gt=0.0)  # [s]
         cruise_mps: float = Field(1.5, gt=0.0)  # [m/s] tracking speed limit
         max_replans: int = Field(20, ge=0)  # a follower may stand behind the ego until it changes lanes
         sensors: RangeSensorParams = Field(default_factory=lambda: RangeSensorParams(sides=(-1,)))
@@ -109,7 +130,7 @@ class ParkingStreetController(Controller):
         top = m.east_lane_y + (2.5 if self.perpendicular else 1.5) * m.lane_width_m + 0.25
         walls = box_polygons(np.array([[0.5 * (x0 + x1), far], [0.5 * (x0 + x1), top]]), np.zeros(2),
                              np.full(2, x1 - x0), np.full(2, 0.5))
-        return plan(start, goal, [*obstacles, *walls], veh, time_limit_s=p.plan_time_limit_s, dt_s=0.1,
+        return plan(start, goal, [*obstacles, *walls], veh, dt_s=0.1,
                     bounds=(x0, x1, far, top))
 
     def _choose(self, rear_x: float, t: float) -> None:

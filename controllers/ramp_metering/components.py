@@ -2,7 +2,7 @@
 (and ``ramp_fixed``, every meter at one rate).
 
 All three read the ``ramp_detectors`` peer (loops, ramp queues) and return meter commands of
-``corridor.traffic.meters`` (applied by the SUMO backend).  They tick every ``tick_s`` (a few
+``corridor.traffic.sumo.meters`` (applied by the SUMO backend).  They tick every ``tick_s`` (a few
 seconds, so route guidance catches drivers while they are on their origin arterial) and decide new
 rates every ``control_step_s`` (60 s).
 
@@ -28,8 +28,16 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig
 from corridor.engine import Controller, Need, RunContext
-from corridor.traffic.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
-from corridor.traffic.meters import (
+from corridor.traffic.macro.loop_state import (
+    RHO_FLOOR,
+    SUMO_DIR_OF_MODEL,
+    estimate_state,
+    load_calibration,
+    load_station_map,
+)
+from corridor.traffic.networks.landmarks import BeltwayLandmarks
+from corridor.traffic.sensing.detectors import NEEDS_DETECTORS, RampDetectors, RampMeasurement
+from corridor.traffic.sumo.meters import (
     ChoiceSet,
     MeterOff,
     MeterTiming,
@@ -39,8 +47,8 @@ from corridor.traffic.meters import (
     guidance_assignments,
     parse_od_route,
 )
-from corridor.traffic.road_spec import road_spec
-from corridor.traffic.trips import road_frame
+from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
+from corridor.traffic.sumo.trips import road_frame
 
 
 class RampParams(BaseModel):
@@ -86,6 +94,11 @@ class RampControl(Controller):
     needs: ClassVar[dict[str, Need]] = {"det": NEEDS_DETECTORS}
     period_source: ClassVar[str | None] = "p.tick_s"
     det: RampDetectors
+
+    @classmethod
+    def check_scenario(cls, params: RampParams, scenario: Any) -> None:
+        """At load: the road's network must have metered on-ramps and their detectors."""
+        require_landmarks(scenario, BeltwayLandmarks, "ramp metering")
 
     def __init__(self, name: str, params: RampParams | None = None, scenario: Any = None) -> None:
         super().__init__(name)
@@ -177,10 +190,6 @@ class RampAlinea(RampControl):
 # ---------------------------------------------------------------------------------------------------
 # MPC: coordinated ramp metering + route guidance on METANET
 
-SUMO_DIR_OF_MODEL = ("ccw", "cw")  # METANET direction 0 runs k -> k+1 (SUMO "ccw"), 1 runs k -> k-1
-RHO_FLOOR = 0.1  # [veh/km/lane] lowest density handed to the MPC (empty loops at the start)
-DEFAULT_FD = {"v_free_kmh": 100.0, "rho_crit": 28.0, "a": 1.867, "rho_max": 160.0}  # before calibration
-
 
 class RampMpcParams(RampParams):
     """Settings of ``ramp_mpc`` (besides the shared ones)."""
@@ -208,45 +217,8 @@ class RampMpcParams(RampParams):
     # its density/speed state from; None: the loops by the direct mapping (``estimate_state``)
     estimator: str | None = None
     # with an estimator: the file of the map from segment-mean density (what the estimator estimates) to
-    # the station scale the model is calibrated on (``corridor.traffic.station_map``); None: identity
+    # the station scale the model is calibrated on (``corridor.traffic.macro.station_map``); None: identity
     station_map: str | None = None
-
-
-def load_calibration(name: str | None) -> dict[str, float]:
-    """Fundamental-diagram parameters from a calibration JSON (``corridor.traffic.calibrate``).
-
-    A relative name is looked up in the working directory, its ``scenarios/`` folder and the
-    repository's ``scenarios/`` folder; missing file -> the defaults of ``DEFAULT_FD``.
-    """
-    import json
-
-    out = dict(DEFAULT_FD)
-    if not name:
-        return out
-    cand = scenario_data_file(name)
-    if cand is not None:
-        fit = json.loads(cand.read_text())
-        out.update({k: float(fit[k]) for k in (*DEFAULT_FD, "alinea_setpoint_pct") if k in fit})
-        out["source"] = str(cand)  # type: ignore[assignment]
-    return out
-
-
-def scenario_data_file(name: str) -> Any:
-    """A data file beside the scenarios (calibration, station map): ``name`` as given, under
-    ``scenarios/`` of the working directory or of the repository / installed package; None if absent."""
-    from pathlib import Path
-
-    packaged = [Path(__file__).resolve().parents[2] / "scenarios"]  # a checkout: <repo>/scenarios
-    try:
-        import corridor.scenarios as pkg  # an installed wheel: scenarios ship as package data
-
-        packaged += [Path(p) for p in pkg.__path__]
-    except ImportError:
-        pass
-    for cand in (Path(name), Path("scenarios") / name, *(d / name for d in packaged)):
-        if cand.is_file():
-            return cand
-    return None
 
 
 def setpoint_from_calibration(p: RampParams) -> float:
@@ -324,70 +296,6 @@ class DemandForecast:
         return out
 
 
-RHO_SPACE_MEAN_MIN = 5.0  # [veh/km/lane] below: loop speed (q / rho too noisy in light traffic)
-
-
-def loop_speed_kmh(occ_pct: float, flow_vph: float, speed_mps: float, lanes: int | None,
-                   vehicle_length_m: float) -> float:
-    """Space-mean speed [km/h] of a loop group: q / rho, at most the loops' time-mean speed.
-
-    Loops report time-mean speeds, which in stop-and-go traffic lie far above the space-mean speed
-    that METANET's q = rho v needs (at 70 veh/km/lane ~40 against ~20 km/h on the beltway), so with
-    the flow [veh/h, all lanes] and density from occupancy the identity q / rho is used instead
-    (space-mean <= time-mean speed).  nan when nobody passed; the loop speed in light traffic or
-    without ``lanes``.
-    """
-    v_loop = 3.6 * speed_mps
-    rho = occ_pct * 10.0 / vehicle_length_m
-    if lanes is None or not math.isfinite(v_loop) or flow_vph <= 0.0 or rho < RHO_SPACE_MEAN_MIN:
-        return v_loop
-    return min(v_loop, flow_vph / lanes / rho)
-
-
-def estimate_state(net: Any, ramps: dict[str, RampMeasurement], n: int, m: int,
-                   vehicle_length_m: float, lanes: int | None = None) -> np.ndarray:
-    """METANET state from the detectors by a direct mapping (no filter).
-
-    Density [veh/km/lane] = occupancy [%] x 10 / vehicle length [m] and speed [km/h] of the loops just
-    downstream of merge k and just upstream of the next merge, interpolated linearly over the m
-    segments of the link between them (a missing speed takes the equilibrium speed of the density).
-    With ``lanes`` the speed is the space-mean speed q / rho of each loop group (``loop_speed_kmh``).
-    Queues are the vehicles on each on-ramp storage (E2).  Densities are floored at ``RHO_FLOOR``: at
-    rho = 0 the derivative of (rho/rho_crit)^a is NaN in CasADi and IPOPT stops at once.
-    """
-    from corridor.traffic.metanet import equilibrium_speed
-
-    rho, v = np.zeros(net.n_seg), np.zeros(net.n_seg)
-    for dirn, d in enumerate(SUMO_DIR_OF_MODEL):
-        hop = 1 if dirn == 0 else -1
-        for k in range(n):
-            a, b = ramps[f"{d}{k}"], ramps[f"{d}{(k + hop) % n}"]
-            for s in range(m):
-                f = (s + 0.5) / m
-                i = (dirn * n + k) * m + s
-                rho[i] = ((1 - f) * a.occupancy_down_pct + f * b.occupancy_up_pct) * 10.0 / vehicle_length_m
-                speeds = [x for x in (
-                    loop_speed_kmh(a.occupancy_down_pct, a.flow_down_vph, a.speed_down_mps, lanes, vehicle_length_m),
-                    loop_speed_kmh(b.occupancy_up_pct, b.flow_up_vph, b.speed_up_mps, lanes, vehicle_length_m),
-                ) if math.isfinite(x)]
-                v[i] = float(np.mean(speeds)) if speeds else math.nan
-    rho = np.maximum(rho, RHO_FLOOR)
-    v_eq = equilibrium_speed(rho, net.v_free_kmh, net.rho_crit, net.a)
-    v = np.where(np.isfinite(v), v, v_eq)
-    w = np.array([ramps[f"{SUMO_DIR_OF_MODEL[j % 2]}{j // 2}"].queue_veh for j in range(net.n_orig)])
-    return np.concatenate([rho, v, w])
-
-
-def load_station_map(name: str) -> Any:
-    """The ``StationMap`` in data file ``name`` (see ``scenario_data_file``); a missing file is an error."""
-    from corridor.traffic.station_map import StationMap
-
-    path = scenario_data_file(name)
-    if path is None:
-        raise ValueError(f"station_map: no file {name!r} (looked in ., scenarios/ and the packaged scenarios)")
-    return StationMap.load(path)
-
-
 class RampMpc(RampControl):
     """Coordinated ramp metering + route guidance by METANET MPC, ALINEA fallback on solver failure."""
 
@@ -402,8 +310,8 @@ class RampMpc(RampControl):
 
     def _build(self, ctx: RunContext) -> None:
         from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
-        from corridor.traffic.metanet import MetanetParams
-        from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+        from corridor.traffic.macro.metanet import MetanetParams
+        from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
         p, lm = self.p, road_frame(ctx).tables.landmarks
         self.n = n = len(lm.interchanges)
@@ -486,7 +394,7 @@ class RampMpc(RampControl):
     def fused_state(self, x0: np.ndarray, keys: list[str], t_s: float) -> tuple[np.ndarray, np.ndarray]:
         """The state with the estimator's densities and speeds (queues stay the ramp detectors'), and
         the occupancy [%] downstream of each metered merge from the fused density (ALINEA fallback)."""
-        from corridor.traffic.metanet import equilibrium_speed
+        from corridor.traffic.macro.metanet import equilibrium_speed
 
         self.fusion.refresh(t_s)
         net, ns = self.net, self.net.n_seg

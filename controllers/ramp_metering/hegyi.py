@@ -31,7 +31,7 @@ from corridor.controllers.ramp_metering.mpc import (
     closed_loop,
     mpc_policy,
 )
-from corridor.traffic.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
+from corridor.traffic.macro.metanet_networks import hegyi_demands, hegyi_freeway, hegyi_initial_state
 
 DURATION_H = 2.5
 PUBLISHED_TTS = {"no_control": 1554.0, "mpc": 1521.0}  # [veh h], from memory, unverified

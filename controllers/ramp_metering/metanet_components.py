@@ -1,4 +1,4 @@
-"""Ramp controllers on the pure-METANET backend (``corridor.traffic.metanet_backend``).
+"""Ramp controllers on the pure-METANET backend (``corridor.traffic.macro.metanet_backend``).
 
 Controllers (period = control step, 60 s): ``metanet_none`` (meter open), ``metanet_alinea`` (ALINEA on
 the model density, as ``ramp_mpc.alinea_policy``) and ``metanet_mpc`` (``RampMeteringMPC`` with a
@@ -15,8 +15,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC, alinea_policy
-from corridor.engine import Controller, Need, RunContext
-from corridor.traffic.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
+from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.traffic.macro.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
 
 
 class MetanetControlParams(BaseModel):
@@ -28,11 +28,25 @@ class MetanetControlParams(BaseModel):
     max_cpu_time_s: float = Field(10.0, gt=0, le=600)  # IPOPT limit per solve [s]
 
 
+MPC_METRICS = (
+    Metric("mpc_solve_p50_s", "s", "Median MPC solve time (wall clock)."),
+    Metric("mpc_solve_p95_s", "s", "95th percentile MPC solve time (wall clock)."),
+    Metric("mpc_solves", "1", "MPC solves."),
+    Metric("mpc_fallbacks", "1", "MPC steps that fell back (no usable solution)."),
+)
+
+
 class MetanetNone(Controller):
     """No control: the meters stay at their default (open) input."""
 
     Params = MetanetControlParams
     needs: ClassVar[dict[str, Need]] = {"backend": NEEDS_METANET}
+    metrics: ClassVar[tuple[Metric, ...] | None] = (
+        Metric('tts_published_vh', 'veh*h',
+               'The published total time spent of the benchmark this run reproduces.'),
+        Metric('tts_rel_diff_published', '1',
+               "Relative difference of this run's total time spent to the published one."),
+    )
     period_source: ClassVar[str | None] = "p.control_step_s"
     backend: MetanetBackend
 
@@ -73,6 +87,8 @@ class MetanetAlinea(MetanetNone):
 
 class MetanetMpc(MetanetNone):
     """Ramp-metering MPC on the model itself with a perfect forecast (Hegyi et al. 2005)."""
+
+    metrics: ClassVar[tuple[Metric, ...] | None] = MetanetNone.metrics + MPC_METRICS
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)

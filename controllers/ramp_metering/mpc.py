@@ -36,7 +36,7 @@ import numpy as np
 
 from corridor.controllers.ramp_metering.alinea import Alinea, AlineaConfig, occupancy_from_density
 from corridor.controllers.ramp_metering.casadi_blas import set_casadi_blas_threads
-from corridor.traffic.metanet import MetanetNetwork, SimResult, total_time_spent_step
+from corridor.traffic.macro.metanet import MetanetNetwork, SimResult, total_time_spent_step
 
 _OK_STATUS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 _LIMIT_STATUS = ("Maximum_Iterations_Exceeded", "Maximum_CpuTime_Exceeded", "Maximum_WallTime_Exceeded")

@@ -19,7 +19,7 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.sparse.linalg import splu
 
 from corridor.controllers.ramp_metering.mpc import RampMeteringMPC
-from corridor.traffic.metanet_networks import BeltwayLayout
+from corridor.traffic.macro.metanet_networks import BeltwayLayout
 
 
 @dataclass(frozen=True)

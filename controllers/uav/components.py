@@ -37,10 +37,10 @@ from corridor.controllers.uav.control_tube import ControlTubeParams
 from corridor.controllers.uav.models import AvoidanceObservation
 from corridor.controllers.uav.models import VelocityCommand as MethodCommand
 from corridor.controllers.uav.potential_field import PotentialFieldParams
-from corridor.engine import Controller, Need, RunContext
-from corridor.vehicles.air_backend import AirBackend, AircraftCommand, air_rows
-from corridor.vehicles.air_link import AirLink, Relevance
-from corridor.vehicles.autopilot import VelocityCommand
+from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.vehicles.air.autopilot import VelocityCommand
+from corridor.vehicles.air.backend import AirBackend, AircraftCommand, air_rows
+from corridor.vehicles.mavlink.air_link import AirLink, Relevance
 
 
 class UavAvoidanceParams(BaseModel):
@@ -88,6 +88,12 @@ def patrol_target(angle_rad: float, a0: float, a1: float, direction: float, look
 class _UavController(Controller):
     """Engine glue common to the three methods: observe via the link, step per UAV, emit commands."""
 
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('avoid_share', '1',
+               'Share of the UAV decisions that avoided (not straight to the goal).'),
+        Metric('avoid_fallbacks', '1',
+               'Decisions that fell back to the safe command.'),
+    )
     Params = UavAvoidanceParams
     needs: ClassVar[dict[str, Need]] = {"backend": Need(role="air", name_at="params.backend"),
                                         "link": Need(role="air_link", name_at="params.link")}
@@ -257,9 +263,20 @@ class PotentialFieldController(_UavController):
 class ControlTubeController(_UavController):
     """``controllers.control_tube.ControlTubeAvoidance`` per UAV (one CasADi QP each, warm plans)."""
 
+    metrics: ClassVar[tuple[Metric, ...]] = _UavController.metrics + (
+        Metric('tube_infeasible_steps', '1',
+               'Steps whose QP had no feasible solution.'),
+        Metric('tube_solver_failures', '1',
+               'Steps whose QP solver failed.'),
+        Metric('tube_unconstrained_share', '1',
+               'Share of the steps whose unconstrained optimum was feasible (no solver call).'),
+        Metric('tube_solve_ms_mean', 'ms',
+               'Mean QP solve time (wall clock).'),
+    )
+
     def build_methods(self) -> None:
         from corridor.controllers.uav.control_tube import ControlTubeAvoidance
-        from corridor.vehicles.jsbsim_fleet import quiet_fds
+        from corridor.vehicles.air.jsbsim_fleet import quiet_fds
 
         base = ControlTubeParams(**{"period_s": self.period, **self.params.control_tube.model_dump(exclude_unset=True)})
         self._quiet = quiet_fds

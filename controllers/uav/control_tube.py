@@ -75,10 +75,10 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from corridor.controllers.uav.models import (
     AvoidanceObservation,
     PointMassParams,
-    TrackedAgent,
     VelocityCommand,
     discrete_matrices,
 )
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 _OCT = float(np.cos(np.pi / 8.0))  # inscribed-octagon factor for the horizontal speed disc
 _INF = 1e20

@@ -13,7 +13,8 @@ prediction is exact), and the closed-loop simulator ``run_closed_loop`` integrat
 ``first_order_velocity`` itself, saturation included.
 
 This module also holds the small, frozen interface types of the avoidance controllers
-(``TrackedAgent``, ``AvoidanceObservation``, ``VelocityCommand``) and the separation metrics used by
+(``AvoidanceObservation``, ``VelocityCommand``; the ``TrackedAgent`` they see is the vehicles' own,
+``corridor.vehicles.tracks.agent``) and the separation metrics used by
 their tests, so that both controllers and the harness share one definition.
 """
 
@@ -25,6 +26,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scipy.linalg import expm
+
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 #: Near mid-air collision cylinder for small UAS (Weinert et al. 2018, "Well-Clear Recommendation for
 #: Small Unmanned Aircraft Systems Based on Unmitigated Collision Risk", J. Air Transportation 26(3)):
@@ -41,17 +44,6 @@ class PointMassParams(BaseModel):
     tau_s: float = Field(0.5, gt=0.0)  # [s] velocity response time constant
     max_accel_h_mps2: float = Field(4.0, gt=0.0)  # [m/s^2] horizontal acceleration limit (norm)
     max_accel_v_mps2: float = Field(2.0, gt=0.0)  # [m/s^2] vertical acceleration limit
-
-
-@dataclass(frozen=True)
-class TrackedAgent:
-    """Another aircraft as the ego sees it through its link and tracker."""
-
-    id: str
-    pos: np.ndarray  # [m] ENU position estimate, shape (3,)
-    vel: np.ndarray  # [m/s] ENU velocity estimate, shape (3,)
-    sigma_m: float = 0.0  # [m] position uncertainty radius (e.g. 3 sigma of the track)
-    is_piloted: bool = False  # piloted aircraft: UAVs give way
 
 
 @dataclass(frozen=True)

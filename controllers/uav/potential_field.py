@@ -38,7 +38,8 @@ from __future__ import annotations
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent, VelocityCommand
+from corridor.controllers.uav.models import AvoidanceObservation, VelocityCommand
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 
 class PotentialFieldParams(BaseModel):

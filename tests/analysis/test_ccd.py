@@ -16,8 +16,8 @@ from corridor.analysis.ccd import (
     obb_overlap_pairwise,
     swept_overlaps,
 )
-from corridor.analysis.monitors import CollisionMonitor
-from corridor.analysis.separation import SeparationMonitor
+from corridor.analysis.monitoring.collisions import CollisionMonitor
+from corridor.analysis.monitoring.separation import SeparationMonitor
 from corridor.engine import Backend, RunContext, Simulation
 from corridor.snapshot import Kind, Role, WorldSnapshot
 

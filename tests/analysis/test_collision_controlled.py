@@ -19,7 +19,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from corridor.analysis.monitors import CollisionMonitor
+from corridor.analysis.monitoring.collisions import CollisionMonitor
 from corridor.engine import Backend, RunContext, Simulation
 from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
 
@@ -92,7 +92,7 @@ def _sumo_report_at_diagonal_pose(cache: str) -> tuple[list[tuple[str, str]], fl
 
     import libsumo
 
-    from corridor.traffic.network import build_network
+    from corridor.traffic.networks.registry import build_network
 
     net = build_network("parking_street", {"occupancy": 0.0}, Path(cache))
     libsumo.start(["sumo", "-n", str(net.net_file), "--no-step-log", "--no-warnings", "--step-length", "0.1",

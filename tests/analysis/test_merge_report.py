@@ -32,7 +32,7 @@ def test_sections_show_drop_intervals_and_paired_differences(tmp_path: Path) -> 
     html = "".join(report_sections(tmp_path, pd.DataFrame(rows), None))
     assert "<td>3/3</td>" in html and "11.0 [8.5, 13.5]" in html  # drops 10, 11, 12: t(2) interval
     assert "<td>merge0</td><td>3</td><td>1.00 [1.00, 1.00]</td>" in html  # every seed +1.00 m/s
-    assert html.count('class="heatmap"') == 2 and html.count('class="fd"') == 2
+    assert html.count('class="plot heatmap"') == 2 and html.count('class="plot fd"') == 2
     assert "x=25 m" in html
 
 

@@ -19,12 +19,11 @@ from corridor.analysis.report import (
     write_report,
 )
 from corridor.scenario import load
-
-REPO = Path(__file__).resolve().parents[2]
+from tests.conftest import SCENARIOS
 
 
 def _scenario(name: str, sets: list[str] | None = None):  # noqa: ANN202 - a corridor Scenario
-    return load(REPO / "scenarios" / f"{name}.yaml", sets or [])[0]
+    return load(SCENARIOS / f"{name}.yaml", sets or [])[0]
 
 
 def _rows(variants: list[str], seeds: int, **cols_of_seed) -> pd.DataFrame:  # noqa: ANN003
@@ -43,7 +42,8 @@ def test_metanet_report_has_no_collision_probability(tmp_path: Path) -> None:
     text = write_report(df, sc, tmp_path / "report.html").read_text()
     assert "<h2>Safety: collisions</h2>" not in text and "P(collision)" not in text
     assert "No collision probability" in text
-    assert "Runs with errors or violated specifications" in text and "collided" not in text
+    verdict = text.split("<h2>Verdict")[1].split("<h2>")[0]
+    assert "collisions" not in verdict  # a count of 0 that means nothing is not a verdict
     # a road scenario keeps it, and so does any run that did report a collision
     merging = _scenario("merging")
     assert collisions_apply(_rows(["sumo_default"], 2), merging)
@@ -125,14 +125,18 @@ def _save(out: Path, run_id: str, signals: dict[str, tuple[np.ndarray, np.ndarra
 
 
 def _svgs(text: str, cls: str) -> list[str]:
-    return re.findall(rf'<svg class="{cls}".*?</svg>', text, re.S)
+    return re.findall(rf'<figure class="plot {cls}">.*?</figure>', text, re.S)
+
+
+def _ids(fig: str, kind: str) -> list[str]:
+    return re.findall(rf'id="{kind}:([^"]*)"', fig)
 
 
 def _merging_signals(out: Path, variants: list[str], seeds: range) -> None:
     t = np.arange(0.1, 600.05, 0.1)  # a 600 s run at 10 Hz: 6000 samples, drawn as <= 300 bins
     for s in seeds:
         for k, v in enumerate(variants):
-            _save(out, f"{v}-s{s}", {"min_ttc": (t, np.where(t % 50 < 5, 1.0 + k, 99.0)),
+            _save(out, f"{v}-s{s}", {"min_ttc": (t, np.where(t % 50 < 5, 1.0 + k, np.nan)),  # NaN: no closing pair
                                      "mean_speed": (t, np.full_like(t, 25.0 + k)),
                                      "vehicles": (t, np.minimum(t, 100.0))})
 
@@ -144,28 +148,40 @@ def test_merging_sections_from_signals(tmp_path: Path) -> None:
     variants = ["sumo_default", "v2x_fifo", "v2x_cps"]
     df = _merging_batch(3)
     df["merge_loss_ramp_s"], df["merge_loss_mainline_s"], df["merge_loss_mean_s"] = 6.0, 2.0, 3.0
-    df.loc[df.run_id == "v2x_cps-s0", "status"] = "error"  # seed 1 is the first that every variant finished
+    df.loc[df.run_id == "v2x_cps-s0", "status"] = "error"
     _merging_signals(tmp_path, variants, range(1, 3))
     _save(tmp_path, "sumo_default-s0", {"min_ttc": (np.array([0.0, 1.0]), np.array([5.0, 5.0]))})
-    secs = report_sections(tmp_path, df, sc, REPO / "scenarios" / "merging.yaml")
+    secs = report_sections(tmp_path, df, sc, SCENARIOS / "merging.yaml")
     titles = [re.search(r"<h2>(.*?)</h2>", s).group(1) for s in secs]
     assert titles == ["Minimum time-to-collision", "Mean speed", "Vehicles in the network", "Time lost around the merge"]
     ttc = secs[0]
-    assert "Seed 1 of every variant" in ttc and "sumo_default-s1" in ttc and "sumo_default-s0" not in ttc
-    (chart,) = _svgs(ttc, "lines")
-    assert chart.count("<polyline") == 3 and all(f">{v}</text>" in chart for v in variants)  # legend
-    assert "TTC threshold 1.5 s" in chart and "min TTC [s]" in chart and "t [s]" in chart
-    points = re.findall(r'<polyline points="([^"]*)"', chart)
-    assert all(len(p.split()) <= 300 for p in points)  # binned
-    assert "km/h" in secs[1]
+    (chart,) = _svgs(ttc, "bands")
+    assert _ids(chart, "series") == variants and _ids(chart, "band") == variants  # median and IQR per variant
+    assert "sumo_default (median, n=3)" in chart and "v2x_cps (median, n=2)" in chart  # every ok run, not seed 0
+    assert 'id="warmup"' in chart and "warm-up (120 s)" in chart
+    assert _ids(chart, "ref") == ["TTC threshold 1.5 s"] and "min TTC [s]" in chart and "t [s]" in chart
+    assert "nan" not in chart.lower().replace("nanosecond", "")
+    assert "mean speed [m/s]" in secs[1]  # SI, as recorded
     (bars,) = _svgs(secs[3], "bars")
-    assert bars.count('class="bar"') == 9 and "ramp vehicles" in bars  # 3 variants x (ramp, mainline, all)
+    assert _ids(bars, "bar") == [s for s in ("ramp vehicles", "mainline vehicles", "all vehicles") for _ in variants]
     text = write_report(df, sc, tmp_path / "report.html", secs).read_text()
-    assert text.count("<svg") == 4
+    assert all(s in text for s in secs)
+
+
+def test_overlay_band_is_the_median_and_quartiles_over_seeds(tmp_path: Path) -> None:
+    from corridor.analysis.report_series import OVERLAYS, quartile_series
+
+    t = np.arange(0.0, 100.0, 1.0)
+    for s in range(5):
+        _save(tmp_path, f"a-s{s}", {"mean_speed": (t, np.full_like(t, 20.0 + s))})
+    files = sorted((tmp_path / "signals").glob("a-s*.npz"))
+    ov = next(o for o in OVERLAYS if o.signal == "mean_speed")
+    med, q25, q75, n = quartile_series(ov, files, np.linspace(0.0, 100.0, 11))
+    assert int(n) == 5 and np.allclose(med, 22.0) and np.allclose(q25, 21.0) and np.allclose(q75, 23.0)
 
 
 def test_binned_keeps_the_minimum() -> None:
-    from corridor.analysis.report_series import binned
+    from corridor.analysis.report_series import binned, on_grid
 
     t = np.arange(0.0, 1000.0, 0.1)
     v = np.full_like(t, 9.0)
@@ -173,6 +189,8 @@ def test_binned_keeps_the_minimum() -> None:
     tb, vb = binned(t, v, "min", max_bins=100)
     assert len(tb) == 100 and vb.min() == 0.5 and np.all(np.diff(tb) > 0)
     assert np.allclose(binned(t, t, "mean", max_bins=10)[1], binned(t, t, "mean", max_bins=10)[0], atol=0.06)
+    grid = on_grid(t, v, np.linspace(0.0, 1000.0, 101), "min")
+    assert grid[43] == 0.5 and np.nanmax(grid) == 9.0 and np.isfinite(grid).all()
 
 
 def test_uav_sections_separation_and_tracks(tmp_path: Path) -> None:
@@ -188,29 +206,35 @@ def test_uav_sections_separation_and_tracks(tmp_path: Path) -> None:
             for i, course in enumerate((0.0, np.pi)):
                 sig[f"track_e_uav{i}"] = (t, 6.0 * (t - 25.0) * np.sin(course) + 5.0 * k * i)
                 sig[f"track_n_uav{i}"] = (t, 6.0 * (t - 25.0) * np.cos(course))
+                sig[f"track_u_uav{i}"] = (t, np.full_like(t, 100.0 + 10.0 * i))
             sig["track_e_c172x"] = (t, 50.0 * (t - 25.0))
-            sig["track_n_c172x"] = (t, np.zeros_like(t))
+            sig["track_n_c172x"] = (t, np.full_like(t, 2000.0))
         _save(tmp_path, f"{v}-s0", sig)
     df = _rows(variants, 1, nmac=lambda s, v: int(v == "none"))
     secs = report_sections(tmp_path, df, sc, None)
     titles = [re.search(r"<h2>(.*?)</h2>", s).group(1) for s in secs]
     assert titles == ["Minimum horizontal separation", "Minimum 3-D separation", "Trajectories"]
-    (hchart,) = _svgs(secs[0], "lines")
-    assert hchart.count("<polyline") == 3 and "NMAC 30.5 m" in hchart and "LoS (UAV-UAV) 61.0 m" in hchart
+    (hchart,) = _svgs(secs[0], "bands")
+    assert _ids(hchart, "series") == variants and _ids(hchart, "ref") == ["NMAC 30.5 m", "LoS (UAV-UAV) 61.0 m"]
     assert "min horizontal separation [m]" in hchart
     tracks = _svgs(secs[2], "tracks")
     assert len(tracks) == 2  # control_tube recorded no positions
-    assert all(c.count("<polyline") == 3 and ">c172x</text>" in c and "east [m]" in c and "north [m]" in c
-               for c in tracks)
+    assert all(_ids(c, "track") == ["c172x", "uav0", "uav1"] and "east [m]" in c and "north [m]" in c for c in tracks)
+    assert 'id="closest"' in tracks[0] and "closest approach 0.0 m" in tracks[0]  # uav0 and uav1 meet head-on
+    assert all(f">{i}</text>" in tracks[0] for i in ("c172x", "uav0", "uav1"))  # the legend
+    assert "closest approach 5.0 m" in tracks[1]  # 5 m apart east in potential_field
+    alts = _svgs(secs[2], "altitude")
+    assert len(alts) == 2 and _ids(alts[0], "series") == ["uav0", "uav1"]
 
 
-def test_track_chart_is_to_scale() -> None:
-    from corridor.analysis.svgplot import track_chart
+def test_closest_approach_of_two_tracks() -> None:
+    from corridor.analysis.report_series import closest_approach
 
-    svg = track_chart([("a", np.array([0.0, 1000.0]), np.array([0.0, 10.0]))], "t", "east [m]", "north [m]")
-    (pts,) = re.findall(r'<polyline points="([^"]*)"', svg)
-    (x0, y0), (x1, y1) = (tuple(map(float, p.split(","))) for p in pts.split())
-    assert abs((x1 - x0) / (y0 - y1) - 100.0) < 1.0  # 1000 m east vs 10 m north: same m per pixel
+    t = np.arange(0.0, 10.0, 0.5)
+    a = ("a", t, 10.0 * t, np.zeros_like(t), None)
+    b = ("b", t, 100.0 - 10.0 * t, np.full_like(t, 8.0), None)
+    e, n, d = closest_approach([a, b])
+    assert (e, n, d) == (50.0, 4.0, 8.0)  # they pass at t = 5 s, 8 m apart north
 
 
 def test_real_short_merging_run_has_time_series(tmp_path: Path) -> None:
@@ -218,7 +242,7 @@ def test_real_short_merging_run_has_time_series(tmp_path: Path) -> None:
     from corridor.analysis.report_series import report_sections
     from corridor.run import execute
 
-    path = REPO / "scenarios" / "merging.yaml"
+    path = SCENARIOS / "merging.yaml"
     sc, raw = load(path, ["duration=20", "warmup=0"])
     specs = batch.expand(sc, raw, str(path), 1, out_dir=str(tmp_path), variants=["sumo_default"])
     df = pd.DataFrame([execute(s) for s in specs])
@@ -226,3 +250,5 @@ def test_real_short_merging_run_has_time_series(tmp_path: Path) -> None:
     secs = report_sections(tmp_path, df, sc, path)
     assert any("<h2>Minimum time-to-collision</h2>" in s and "<svg" in s for s in secs)
     assert any("<h2>Mean speed</h2>" in s for s in secs)
+    (ts,) = [s for s in secs if "<h2>Time-space diagram</h2>" in s]  # the time_space monitor's samples
+    assert len(_svgs(ts, "timespace")) == 1 and "<image" in ts and "speed [m/s]" in ts

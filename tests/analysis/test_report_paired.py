@@ -47,7 +47,7 @@ def test_paired_difference_uses_only_seeds_both_variants_ran() -> None:
 
 def test_sensitivity_reports_the_slope_over_the_draws() -> None:
     html = draw_sensitivity(_batch(offset=0.0, spread=0.2), "delay")
-    assert "<img" in html and "road.demand.scale" in html
-    slopes = [float(r.split("<td>")[3].split("<")[0]) for r in html.split("<tr>")[2:]]
+    assert "<svg" in html and "road.demand.scale" in html
+    slopes = [float(r.split("<td>")[3].split(" ")[0]) for r in html.split("<tr>")[2:]]
     assert len(slopes) == 3 and all(abs(s - 20.0) < 4.0 for s in slopes)  # the built-in 20 per unit scale
     assert draw_sensitivity(_batch(0.0).drop(columns="draw.road.demand.scale"), "delay") == ""

@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from corridor.analysis.separation import SeparationMonitor
+from corridor.analysis.monitoring.separation import SeparationMonitor
 from corridor.engine import RunContext, Simulation
 from corridor.null_backend import NullBackend
 from corridor.snapshot import Kind, Role, WorldSnapshot

@@ -19,7 +19,7 @@ import operator
 import numpy as np
 import pytest
 
-from corridor.analysis.stl import (
+from corridor.stl import (
     Always,
     And,
     Const,
@@ -40,7 +40,7 @@ from corridor.analysis.stl import (
     time_robustness,
     var,
 )
-from corridor.analysis.stl.space import interval_indices
+from corridor.stl.space import interval_indices
 
 INF = math.inf
 LENGTHS = (5, 63, 64, 65, 100, 1000)

@@ -1,4 +1,4 @@
-"""corridor.analysis.stl against peers: RTAMT, a naive evaluator of the definitions, and itself offline.
+"""corridor.stl against peers: RTAMT, a naive evaluator of the definitions, and itself offline.
 
 * Space robustness equals RTAMT 0.4.10's offline discrete-time semantics on hundreds of random
   formulas (depth <= 3, 2-3 signals, random intervals) at *every* index: both truncate windows at the
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import rtamt
 
-from corridor.analysis.stl import (
+from corridor.stl import (
     Always,
     And,
     BinOp,
@@ -37,8 +37,8 @@ from corridor.analysis.stl import (
     space_robustness,
     time_robustness,
 )
-from corridor.analysis.stl.online import _Stream, _UnboundedBoolean, _UnboundedTemporal
-from corridor.analysis.stl.space import evaluate_expr, predicate_holds, predicate_robustness
+from corridor.stl.online import _Stream, _UnboundedBoolean, _UnboundedTemporal
+from corridor.stl.space import evaluate_expr, predicate_holds, predicate_robustness
 
 INF = math.inf
 

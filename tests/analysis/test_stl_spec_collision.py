@@ -12,22 +12,22 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from corridor.analysis.spec_monitor import evaluate_specs
-from corridor.analysis.stl import STLSignalError
+from corridor.analysis.monitoring.stl_specs import evaluate_specs
 from corridor.controllers.overtaking.controller import box_clearance
 from corridor.controllers.overtaking.mpc import OvertakingMpc
 from corridor.engine import Signals
 from corridor.run import simulate
 from corridor.scenario import load
-from corridor.vehicles.bicycle import BicycleParams
+from corridor.stl import STLSignalError
+from corridor.vehicles.ground.bicycle import BicycleParams
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "overtaking.yaml"
+SCENARIO = SCENARIOS / "overtaking.yaml"
 CLEARANCE_SPEC = "G(clearance > 0)"
 
 

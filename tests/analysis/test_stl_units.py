@@ -1,4 +1,4 @@
-"""Hand-computed values, parser, kernels and API of corridor.analysis.stl."""
+"""Hand-computed values, parser, kernels and API of corridor.stl."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from corridor.analysis.stl import (
+from corridor.stl import (
     Always,
     And,
     BinOp,

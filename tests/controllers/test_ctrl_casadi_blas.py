@@ -10,8 +10,8 @@ import pytest
 
 from corridor.controllers.ramp_metering.casadi_blas import blas_threads, set_casadi_blas_threads
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
-from corridor.traffic.metanet import steady_state
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.macro.metanet import steady_state
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
 
 def _case() -> tuple:

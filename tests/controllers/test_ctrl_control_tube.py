@@ -14,7 +14,6 @@ from corridor.controllers.uav.models import (
     NMAC_HORIZONTAL_M,
     AvoidanceObservation,
     PointMassParams,
-    TrackedAgent,
     encounter,
     fly,
     min_separation_m,
@@ -23,6 +22,7 @@ from corridor.controllers.uav.models import (
     straight_to_goal,
     time_to_goal_s,
 )
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 MODEL = PointMassParams()
 PARAMS = ControlTubeParams()

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from corridor.controllers.ramp_metering.hegyi import SYM_METANET_NO_CONTROL_TTS, format_table, run_benchmark
-from corridor.traffic.metanet import simulate
-from corridor.traffic.metanet_networks import (
+from corridor.traffic.macro.metanet import simulate
+from corridor.traffic.macro.metanet_networks import (
     HEGYI_RAMP_STORAGE_VEH,
     hegyi_demands,
     hegyi_freeway,

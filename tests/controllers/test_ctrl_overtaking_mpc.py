@@ -19,7 +19,7 @@ from corridor.controllers.overtaking.mpc import (
     rollout_guess,
     spec_margins,
 )
-from corridor.vehicles.bicycle import rk4_step
+from corridor.vehicles.ground.bicycle import rk4_step
 
 P = OvertakingParams()
 MPC = cached_mpc(P.mpc, P.ego, P.road)

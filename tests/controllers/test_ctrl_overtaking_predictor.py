@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.vehicles.predictor import PredictorParams, RoadVehiclePredictor
+from corridor.vehicles.tracks.predictor import PredictorParams, RoadVehiclePredictor
 
 
 def _track(pred: RoadVehiclePredictor, rng: np.random.Generator, x0: float, v: float, n: int,

@@ -20,8 +20,8 @@ from corridor.engine import Simulation
 from corridor.run import build
 from corridor.scenario import validate
 from corridor.snapshot import Role
-from corridor.traffic.sumo_backend import SumoBackend
-from corridor.vehicles.ego_bicycle import EgoBicycle, EgoInput
+from corridor.traffic.sumo.backend import SumoBackend
+from corridor.vehicles.ground.ego_bicycle import EgoBicycle, EgoInput
 
 CAR = {"car_following": "Krauss", "sigma": 0.0, "length": 4.5, "width": 1.8, "max_speed": 30,
        "speed_dev": 0.0, "decel": 4.5}

@@ -21,7 +21,7 @@ from corridor.controllers.parking.manoeuvre import (
 from corridor.controllers.parking.tracking import TrackingParams, split_segments
 from corridor.engine import RunContext
 from corridor.events import EventLog
-from corridor.vehicles.highway_env_parking import EGO_ID, HighwayEnvParking, ParkingInput
+from corridor.vehicles.ground.highway_env_parking import EGO_ID, HighwayEnvParking, ParkingInput
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from corridor.controllers.parking.spot_detection import (
     match_slots,
     true_slots,
 )
-from corridor.vehicles.range_sensors import RangeSensorParams, scan
+from corridor.vehicles.sensors.range_sensors import RangeSensorParams, scan
 
 # a kerb row on the right of a street along +x: parked cars 4.5 m x 1.8 m, centred 2.6 m right of the
 # driving line; gaps: 3 m (too short), 7.0 m (a parallel slot), 2 m, 8.5 m (a slot), the rest closed

@@ -13,7 +13,6 @@ from corridor.controllers.uav.models import (
     NMAC_HORIZONTAL_M,
     AvoidanceObservation,
     PointMassParams,
-    TrackedAgent,
     encounter,
     fly,
     min_separation_m,
@@ -26,6 +25,7 @@ from corridor.controllers.uav.potential_field import (
     potential,
     saturate,
 )
+from corridor.vehicles.tracks.agent import TrackedAgent
 
 MODEL = PointMassParams()
 

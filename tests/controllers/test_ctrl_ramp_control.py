@@ -14,19 +14,22 @@ from corridor.controllers.ramp_metering.components import (
     RampAlinea,
     RampObservation,
     RampParams,
-    estimate_state,
-    load_calibration,
-    loop_speed_kmh,
     od_matrix,
     setpoint_from_calibration,
 )
 from corridor.scenario import load
-from corridor.traffic.detectors import RampMeasurement
-from corridor.traffic.metanet import MetanetParams
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.macro.loop_state import (
+    estimate_state,
+    load_calibration,
+    loop_speed_kmh,
+)
+from corridor.traffic.macro.metanet import MetanetParams
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.sensing.detectors import RampMeasurement
+from corridor.traffic.sumo.road_spec import road_spec
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
+SCENARIO = SCENARIOS / "ramp_metering.yaml"
 
 
 def _ramps(n: int, occ: float = 10.0, speed_mps: float = 20.0, queue: float = 0.0) -> dict[str, RampMeasurement]:
@@ -157,7 +160,7 @@ def test_mpc_solver_failure_falls_back_to_alinea_and_is_logged() -> None:
 
 
 def test_calibration_is_found_from_any_working_directory(tmp_path, monkeypatch) -> None:
-    from corridor.controllers.ramp_metering.components import load_calibration
+    from corridor.traffic.macro.loop_state import load_calibration
 
     monkeypatch.chdir(tmp_path)  # not the repository: the packaged scenarios folder must still be found
     fd = load_calibration("ramp_metering.calibration.json")

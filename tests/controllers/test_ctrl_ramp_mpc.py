@@ -7,8 +7,8 @@ import pytest
 
 from corridor.controllers.ramp_metering.alinea import occupancy_from_density
 from corridor.controllers.ramp_metering.mpc import MPCConfig, RampMeteringMPC
-from corridor.traffic.metanet import steady_state
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.macro.metanet import steady_state
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
 LAYOUT = BeltwayLayout(n_interchanges=3, lanes=2, ramp_storage_veh=40.0)
 

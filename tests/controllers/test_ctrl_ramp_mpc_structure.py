@@ -16,7 +16,7 @@ from corridor.controllers.ramp_metering.mpc_structure import (
     kkt_patterns,
     ordering_fill,
 )
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
 
 def _structure(n: int) -> tuple[RampMeteringMPC, sp.csr_matrix, sp.csr_matrix, dict, dict]:

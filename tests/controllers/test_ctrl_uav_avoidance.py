@@ -97,7 +97,7 @@ def test_vertical_geofence_clamps_descent_near_the_floor() -> None:
 def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_piloted(tmp_path: Path) -> None:
     """A UAV beyond the receiver's relevance range is neither fused nor tracked (its messages still
     arrive and are counted); a near one and the piloted aircraft are tracked."""
-    from corridor.vehicles.air_link import Relevance
+    from corridor.vehicles.mavlink.air_link import Relevance
 
     sc = scenario("uav_none", 0.0, duration=3.0).model_dump()
     sc["backends"]["air"]["params"]["aircraft"].append(
@@ -128,7 +128,8 @@ def test_relevance_range_leaves_far_uavs_untracked_but_keeps_near_ones_and_pilot
 def _at_relevance_edge(ctrl: Any, speed_mps: float, extra_m: float) -> Any:
     """An observation with one UAV head-on (closing at the worst case) just outside / inside the
     controller's relevance range, its track uncertainty within the margin."""
-    from corridor.controllers.uav.models import AvoidanceObservation, TrackedAgent
+    from corridor.controllers.uav.models import AvoidanceObservation
+    from corridor.vehicles.tracks.agent import TrackedAgent
 
     own_v = np.array([ctrl.cruise["a"], 0.0, 0.0])
     rel = ctrl.relevance("a", own_v)

@@ -8,13 +8,13 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pandas as pd
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-MERGING = ROOT / "scenarios" / "merging.yaml"
+from tests.conftest import REPO, SCENARIOS
+
+MERGING = SCENARIOS / "merging.yaml"
 SHORT = ["--set", "duration=40", "--set", "warmup=5", "--variant", "sumo_default"]  # the V2X variants: tests/scenarios
 METRICS = ["collisions", "vehicles_departed", "vehicles_arrived", "min_ttc_s", "hard_brakes",
            "throughput_vph", "delay_mean_s"]
@@ -22,7 +22,7 @@ METRICS = ["collisions", "vehicles_departed", "vehicles_arrived", "min_ttc_s", "
 
 def cli(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     exe = [sys.executable, "-m", "corridor.cli", *args]
-    res = subprocess.run(exe, capture_output=True, text=True, cwd=ROOT, timeout=600)
+    res = subprocess.run(exe, capture_output=True, text=True, cwd=REPO, timeout=600)
     if check and res.returncode != 0:
         raise AssertionError(f"exit {res.returncode}: {res.stderr[-2000:]}")
     return res
@@ -45,16 +45,18 @@ def test_batch_rows_summary_report_and_determinism(tmp_path):
 
 
 def test_failing_variant_is_an_error_row_and_others_complete(tmp_path):
+    # valid at load (every variant is validated there: an invalid one is exit 2, see
+    # test_kernel_cli_probes), failing at run time: a second SSM monitor writes the same columns
     sc = tmp_path / "broken.yaml"
     sc.write_text(f"extends: {MERGING}\nsweep:\n  sumo_default: {{}}\n"
-                  "  broken: {road.network.params.accel_lane_length_m: 5000}\n")
+                  "  broken: {monitors.ssm2: {type: surrogate_safety}}\n")
     res = cli(str(sc), "--runs", "1", "--out", str(tmp_path / "o"), "--quiet", *SHORT, "--variant", "broken",
               check=False)
     assert res.returncode == 1
     df = pd.read_parquet(tmp_path / "o" / "runs.parquet").set_index("variant")
     assert df.loc["sumo_default", "status"] == "ok"
     assert df.loc["broken", "status"] == "error"
-    assert "accel_lane_length_m" in df.loc["broken", "error"]
+    assert "written by both" in df.loc["broken", "error"]
     assert "broken-s0 failed" in res.stderr
 
 
@@ -62,7 +64,7 @@ def test_killed_batch_resumes_without_duplicates(tmp_path):
     out = tmp_path / "k"
     args = [sys.executable, "-m", "corridor.cli", str(MERGING), "--runs", "4", "--workers", "1",
             "--out", str(out), "--quiet", "--no-report", *SHORT]
-    proc = subprocess.Popen(args, cwd=ROOT, start_new_session=True, stdout=subprocess.DEVNULL,
+    proc = subprocess.Popen(args, cwd=REPO, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     deadline = time.time() + 300
     while time.time() < deadline and len(list((out / "parts").glob("*.parquet"))) < 1:
@@ -118,7 +120,7 @@ def test_ray_actors_run_spec_after_spec_and_a_failed_run_is_one_error_row(tmp_pa
     from corridor.results import ResultStore
     from corridor.scenario import load
 
-    hegyi = str(ROOT / "scenarios" / "hegyi_benchmark.yaml")
+    hegyi = str(SCENARIOS / "hegyi_benchmark.yaml")
     sc, raw = load(hegyi, ["duration=300"])
     plan = list(expand(sc, raw, hegyi, runs=3, variants=["none", "alinea"]))
     plan[1] = dataclasses.replace(plan[1], overrides={"controllers": {"x": {"type": "no_such_controller"}}})
@@ -136,11 +138,11 @@ def test_ray_actors_run_spec_after_spec_and_a_failed_run_is_one_error_row(tmp_pa
 
 
 def test_local_workers_get_single_threaded_math_unless_the_user_chose(monkeypatch) -> None:
-    from corridor.batch import WORKER_THREAD_ENV, _local
+    from corridor.batch import WORKER_THREAD_ENV, run_local
 
     for var in WORKER_THREAD_ENV:
         monkeypatch.delenv(var, raising=False)
     monkeypatch.setenv("MKL_NUM_THREADS", "4")
-    assert list(_local([], workers=1)) == []
+    assert list(run_local([], workers=1)) == []
     assert os.environ["OMP_NUM_THREADS"] == "1" and os.environ["OPENBLAS_NUM_THREADS"] == "1"
     assert os.environ["MKL_NUM_THREADS"] == "4"

@@ -317,12 +317,10 @@ def test_config_rejects_implausible_or_non_finite_delay(field: str, value: float
     ChannelConfig(**{field: 60.0})  # the bound itself is allowed
 
 
-def test_scenario_rejects_huge_latency_in_one_line(capsys) -> None:
-    from pathlib import Path
-
+def test_scenario_rejects_huge_latency_in_one_line(capsys, scenario_path) -> None:
     from corridor.cli import main
 
-    scenario = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+    scenario = scenario_path("merging")
     assert main([str(scenario), "--set", "channels.v2x.latency_s=1e9"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "channels.v2x.latency_s" in err and "60 s" in err, err

@@ -105,8 +105,8 @@ def test_duplicate_metric_column_is_an_error_naming_both():
 def test_declared_metric_columns_collide_at_build_and_the_kpi_prefix_namespaces_them():
     from types import SimpleNamespace
 
-    from corridor.traffic.monitors import TrafficKpis
-    from corridor.traffic.ramp_monitors import RampKpis
+    from corridor.analysis.monitoring.ramp_kpis import RampKpis
+    from corridor.analysis.monitoring.road import TrafficKpis
 
     sc = SimpleNamespace(warmup=0.0, dt=0.1)
     traffic = TrafficKpis("traffic", TrafficKpis.Params(), sc)

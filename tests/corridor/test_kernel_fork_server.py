@@ -9,27 +9,26 @@ import re
 import signal
 import subprocess
 import time
-from pathlib import Path
 
 import pandas as pd
 
 import corridor.batch as batch
 from corridor.scenario import load
-from corridor.worker import FRAME
+from tests.conftest import SCENARIOS
 
 VOLATILE = re.compile(r"(^|[._])(wall|rtf|traceback)($|[._])|solve|_time_s$|cpu")  # the machine's timings
 
-ROOT = Path(__file__).resolve().parents[2]
-HEGYI = str(ROOT / "scenarios" / "hegyi_benchmark.yaml")
+
+HEGYI = str(SCENARIOS / "hegyi_benchmark.yaml")
 
 
 def _rows(monkeypatch, fork_server: bool, workers: int) -> tuple[pd.DataFrame, int]:
     started = []
-    spawn = batch._spawn
-    monkeypatch.setattr(batch, "_spawn", lambda serve: started.append(serve) or spawn(serve))
+    spawn = batch.Worker.spawn
+    monkeypatch.setattr(batch.Worker, "spawn", lambda serve: started.append(serve) or spawn(serve))
     sc, raw = load(HEGYI, ["duration=300"])
     plan = batch.expand(sc, raw, HEGYI, runs=4, variants=["none", "alinea"])
-    rows = list(batch._local(plan, workers, fork_server))
+    rows = list(batch.run_local(plan, workers, fork_server))
     df = pd.DataFrame(rows).drop(columns=["wall_s"]).sort_values("run_id").reset_index(drop=True)
     return df[sorted(df.columns)], len(started)  # columns in a fixed order (rows finish in any order)
 
@@ -42,44 +41,29 @@ def test_fork_servers_give_the_rows_of_a_fresh_process_per_run(monkeypatch):
     pd.testing.assert_frame_equal(forked, fresh)
 
 
-def _frame(w: batch._Worker) -> tuple[int, bytes]:
-    """Block until the server's next result frame: (exit code of the run, row bytes)."""
-    os.set_blocking(w.fd, True)
-    data = bytearray()
-    while len(data) < FRAME.size or len(data) < FRAME.size + FRAME.unpack_from(data)[0]:
-        chunk = os.read(w.fd, 1 << 20)
-        assert chunk, "the server closed its pipe"
-        data += chunk
-    n, code, _retiring = FRAME.unpack_from(data)
-    return code, bytes(data[FRAME.size:FRAME.size + n])
-
-
 def test_a_killed_run_costs_its_row_and_its_server_serves_on():
     sc, raw = load(HEGYI, [])  # the full 2.5 h: long enough to be killed while it runs
     long_run = batch.expand(sc, raw, HEGYI, runs=1, variants=["none"])[0]
     sc, raw = load(HEGYI, ["duration=300"])
     short_run = batch.expand(sc, raw, HEGYI, runs=1, variants=["none"], seed=1)[0]
-    w = batch._spawn(True)
+    w = batch.Worker.spawn(True)
     try:
-        batch._send(w, long_run)
+        w.send(long_run)
         deadline = time.time() + 120
         while not (kids := subprocess.run(["pgrep", "-P", str(w.proc.pid)], capture_output=True,
                                           text=True).stdout.split()):
             assert time.time() < deadline, "no forked run appeared"
             time.sleep(0.02)
         os.kill(int(kids[0]), signal.SIGKILL)
-        code, data = _frame(w)
-        row = batch._row(long_run, data, code)
+        code, row = w.wait_row()
         assert code == -signal.SIGKILL and row["status"] == "error"
         assert "worker process died (signal SIGKILL)" in row["error"]
-        batch._send(w, short_run)  # the same server runs the next spec
-        code, data = _frame(w)
-        assert code == 0 and batch._row(short_run, data, code)["status"] == "ok"
+        w.send(short_run)  # the same server runs the next spec
+        code, row = w.wait_row()
+        assert code == 0 and row["status"] == "ok"
         assert w.proc.poll() is None
     finally:
-        os.kill(w.proc.pid, signal.SIGKILL)
-        w.proc.wait()
-        os.close(w.fd)
+        w.kill()
 
 
 def test_a_server_that_retires_loses_no_run(tmp_path, monkeypatch):
@@ -91,9 +75,9 @@ def test_a_server_that_retires_loses_no_run(tmp_path, monkeypatch):
 
     monkeypatch.setenv("CORRIDOR_RUNNER_RUNS", "1")
     started = []
-    spawn = batch._spawn
-    monkeypatch.setattr(batch, "_spawn", lambda serve: started.append(serve) or spawn(serve))
-    res = run(str(ROOT / "scenarios" / "parking_lot.yaml"), runs=3, sets=["duration=2"], out=tmp_path / "b",
+    spawn = batch.Worker.spawn
+    monkeypatch.setattr(batch.Worker, "spawn", lambda serve: started.append(serve) or spawn(serve))
+    res = run(str(SCENARIOS / "parking_lot.yaml"), runs=3, sets=["duration=2"], out=tmp_path / "b",
               report=False, workers=1)
     assert list(res.rows["status"]) == ["ok"] * 3, res.rows.get("error")
     assert len(started) == 3  # each server retired after its run
@@ -108,15 +92,15 @@ def _mixed_plan() -> list:
             ("hegyi_benchmark.yaml", ["duration=300"], ["alinea"], 1),
             ("uav_encounter.yaml", ["duration=8"], None, 1),
             ("merging.yaml", ["duration=40", "warmup=0"], ["v2x_cps", "sumo_default"], 2)):
-        sc, raw = load(str(ROOT / "scenarios" / path), sets)
-        plan.extend(batch.expand(sc, raw, str(ROOT / "scenarios" / path), runs=runs, variants=variants))
+        sc, raw = load(str(SCENARIOS / path), sets)
+        plan.extend(batch.expand(sc, raw, str(SCENARIOS / path), runs=runs, variants=variants))
     return plan
 
 
 def test_runs_sharing_a_runner_give_the_rows_of_a_fresh_process_each():
     plan = _mixed_plan()
-    shared = list(batch._local(plan, 1, True))  # one server, one runner: every run in one process
-    fresh = list(batch._local(plan, 1, False))
+    shared = list(batch.run_local(plan, 1, True))  # one server, one runner: every run in one process
+    fresh = list(batch.run_local(plan, 1, False))
     assert len(shared) == len(plan) and all(r["status"] == "ok" for r in shared), [r.get("error") for r in shared]
     key = lambda r: (r["scenario"], r["run_id"])  # noqa: E731 - the merging runs appear twice
     for a, b in zip(sorted(shared, key=key), sorted(fresh, key=key), strict=True):
@@ -134,25 +118,22 @@ def test_a_failed_run_ends_its_runner_and_the_next_run_gets_a_fresh_one():
     sc, raw = load(HEGYI, ["duration=300"])
     good = batch.expand(sc, raw, HEGYI, runs=2, variants=["none"])
     bad = dataclasses.replace(good[0], run_id="bad", overrides={"controllers": {"nope": {"type": "no_such_controller"}}})
-    w = batch._spawn(True)
+    w = batch.Worker.spawn(True)
     try:
-        batch._send(w, good[0])
-        assert _frame(w)[0] == 0
+        w.send(good[0])
+        assert w.wait_row()[0] == 0
         first = _runner_pids(w.proc.pid)
         assert len(first) == 1  # the runner waits for the next spec
-        batch._send(w, good[1])
-        assert _frame(w)[0] == 0 and _runner_pids(w.proc.pid) == first  # the same process ran both
-        batch._send(w, bad)
-        code, data = _frame(w)
-        row = batch._row(bad, data, code)
+        w.send(good[1])
+        assert w.wait_row()[0] == 0 and _runner_pids(w.proc.pid) == first  # the same process ran both
+        w.send(bad)
+        code, row = w.wait_row()
         assert code == 0 and row["status"] == "error" and "no_such_controller" in row["error"]
         assert _runner_pids(w.proc.pid) == []  # it ended with the failed run
-        batch._send(w, good[0])
-        code, data = _frame(w)
-        assert code == 0 and batch._row(good[0], data, code)["status"] == "ok"
+        w.send(good[0])
+        code, row = w.wait_row()
+        assert code == 0 and row["status"] == "ok"
         again = _runner_pids(w.proc.pid)
         assert len(again) == 1 and again != first
     finally:
-        os.kill(w.proc.pid, signal.SIGKILL)
-        w.proc.wait()
-        os.close(w.fd)
+        w.kill()

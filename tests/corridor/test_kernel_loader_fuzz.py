@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import math
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -17,9 +16,9 @@ from hypothesis import strategies as st
 from corridor.cli import main
 from corridor.errors import ScenarioError
 from corridor.scenario import Scenario, load, validate
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-PACKAGED = sorted((ROOT / "scenarios").glob("*.yaml"))
+PACKAGED = sorted((REPO / "scenarios").glob("*.yaml"))
 RAW = {p.name: yaml.safe_load(p.read_text()) for p in PACKAGED}
 FUZZ = settings(max_examples=60, deadline=2000, suppress_health_check=[HealthCheck.too_slow],
                 derandomize=True, database=None)
@@ -101,7 +100,7 @@ def test_load_of_mutated_file_is_a_scenario_or_one_line(tmp_path_factory, case):
 @FUZZ
 @given(name=st.sampled_from([p.name for p in PACKAGED]), data=st.data())
 def test_load_of_byte_damaged_file_is_a_scenario_or_one_line(tmp_path_factory, name, data):
-    raw = bytearray((ROOT / "scenarios" / name).read_bytes())
+    raw = bytearray((SCENARIOS / name).read_bytes())
     for _ in range(data.draw(st.integers(1, 8))):
         i = data.draw(st.integers(0, len(raw) - 1))
         op = data.draw(st.sampled_from(["flip", "insert", "cut"]))
@@ -123,7 +122,7 @@ def test_load_of_byte_damaged_file_is_a_scenario_or_one_line(tmp_path_factory, n
        value=st.one_of(st.text(max_size=40), st.floats().map(repr), st.integers().map(str),
                        st.sampled_from([".nan", ".inf", "-.inf", "1e308", "[", "{a: [", "*x", "!!python/object x"])))
 def test_set_options_are_a_scenario_or_one_line(name, key, value):
-    _check_outcome(load, ROOT / "scenarios" / name, [f"{key}={value}"])
+    _check_outcome(load, SCENARIOS / name, [f"{key}={value}"])
 
 
 @pytest.mark.parametrize("argv", [
@@ -131,7 +130,7 @@ def test_set_options_are_a_scenario_or_one_line(name, key, value):
     ["--set", "road.sumo.extra_args=[--fcd-output, x]"], ["--set", "seed=-1"], ["--set", "=1"],
 ])
 def test_cli_cases_exit_2_with_one_line(capsys, argv):
-    code = main([str(ROOT / "scenarios" / "merging.yaml"), *argv])
+    code = main([str(SCENARIOS / "merging.yaml"), *argv])
     err = capsys.readouterr().err.strip()
     assert code == 2 and len(err.splitlines()) == 1 and len(err) < 320, err
 

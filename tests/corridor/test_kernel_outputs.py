@@ -5,15 +5,14 @@ to it (absolute paths and '..' are refused at load, in one line), carries the ru
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import pytest
 
 from corridor.cli import main
 from corridor.engine import RunContext, path_inside, relative_output_path
+from tests.conftest import SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-ENCOUNTER = ROOT / "scenarios" / "uav_encounter.yaml"
+ENCOUNTER = SCENARIOS / "uav_encounter.yaml"
 
 
 def one_line_exit_2(capsys, *argv: str) -> str:
@@ -73,7 +72,7 @@ def test_signals_file_name_cannot_escape(tmp_path):
     from corridor.run import simulate
     from corridor.scenario import load
 
-    sc, _ = load(ROOT / "scenarios" / "hegyi_benchmark.yaml", ["duration=20"])
+    sc, _ = load(SCENARIOS / "hegyi_benchmark.yaml", ["duration=20"])
     with pytest.raises(ValueError):
         simulate(sc, 0, out_dir=str(tmp_path / "out"), run_id="../../escaped")
     assert not (tmp_path / "escaped.npz").exists()

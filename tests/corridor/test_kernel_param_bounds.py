@@ -3,16 +3,14 @@ run that fails (or runs for minutes) later."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 
 from corridor.cli import main
 from corridor.errors import ScenarioError
 from corridor.scenario import load
+from tests.conftest import REPO
 
-ROOT = Path(__file__).resolve().parents[2]
-SC = ROOT / "scenarios"
+SC = REPO / "scenarios"
 
 
 def one_line_exit_2(capsys, *argv: str) -> str:

@@ -142,12 +142,12 @@ def test_a_peer_period_source_must_name_a_need() -> None:
 
 def test_the_packaged_components_declare_their_peers() -> None:
     """Every lookup of a peer goes through declared needs: no component scans ``ctx.components``."""
+    from corridor.analysis.monitoring.ramp_kpis import RampKpis
+    from corridor.analysis.monitoring.road import TrafficKpis
     from corridor.controllers.overtaking.components import OvertakingSumo
     from corridor.controllers.ramp_metering.components import RampControl
-    from corridor.traffic.monitors import TrafficKpis
-    from corridor.traffic.ramp_monitors import RampKpis
-    from corridor.traffic.sumo_backend import SumoBackend
-    from corridor.vehicles.ego_bicycle import EgoBicycle
+    from corridor.traffic.sumo.backend import SumoBackend
+    from corridor.vehicles.ground.ego_bicycle import EgoBicycle
 
     assert "road" in SumoBackend.provides and "ego" in EgoBicycle.provides
     assert EgoBicycle.needs["sumo"].role == "road" and EgoBicycle.period_source == "peer:sumo"

@@ -12,10 +12,10 @@ import yaml
 from corridor.batch import expand
 from corridor.errors import ScenarioError
 from corridor.scenario import load
-from corridor.traffic.road_spec import RoadSpec, road_spec
+from corridor.traffic.sumo.road_spec import RoadSpec, road_spec
+from tests.conftest import SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-MERGING = ROOT / "scenarios" / "merging.yaml"
+MERGING = SCENARIOS / "merging.yaml"
 
 
 @pytest.fixture()
@@ -76,11 +76,11 @@ def test_both_spellings_at_once_is_an_error(tmp_path):
 
 def test_network_params_are_the_builders_typed_model_and_unknown_nested_keys_exit_2(capsys):
     from corridor.cli import main
-    from corridor.traffic.net_beltway import BeltwayParams
+    from corridor.traffic.networks.beltway import BeltwayParams
 
-    sc, _ = load(ROOT / "scenarios" / "ramp_metering.yaml")
+    sc, _ = load(SCENARIOS / "ramp_metering.yaml")
     params = road_spec(sc).network.params
     assert isinstance(params, BeltwayParams) and params.lanes == 2
-    assert main([str(ROOT / "scenarios" / "ramp_metering.yaml"), "--set", "road.network.params.bogus=1"]) == 2
+    assert main([str(SCENARIOS / "ramp_metering.yaml"), "--set", "road.network.params.bogus=1"]) == 2
     err = capsys.readouterr().err
     assert "road.network.params.bogus: unknown key" in err and err.count("\n") == 1

@@ -9,10 +9,10 @@ from pydantic import ValidationError
 
 from corridor.cli import main
 from corridor.scenario import load
-from corridor.traffic.road_spec import road_spec
+from corridor.traffic.sumo.road_spec import road_spec
+from tests.conftest import SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-MERGING = ROOT / "scenarios" / "merging.yaml"
+MERGING = SCENARIOS / "merging.yaml"
 
 
 def run_cli(capsys, *argv: str) -> tuple[int, str]:

@@ -4,15 +4,15 @@ decode with pymavlink's parser, traffic estimates included."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from corridor.run import simulate
 from corridor.scenario import apply_overrides, load, validate
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "air_ground_watch.yaml"
+SCENARIO = SCENARIOS / "air_ground_watch.yaml"
 MACHINE = {"wall_s", "rtf", "wall_per_sim_s", "cpu_per_sim_s", "mpc_solve_p50_s", "mpc_solve_p95_s", "tube_solve_ms_mean"}
 
 
@@ -32,7 +32,7 @@ def test_road_and_air_share_one_run(tmp_path):
     assert metrics["nmac_uav_uav"] == 0 and metrics["collisions"] == 0
     assert metrics["link_sent"] > 0 and metrics["mavlink_bad_data"] == 0
     # the raw MAVLink log decodes with pymavlink's own parser (the generated dialect)
-    from corridor.vehicles.mavlink_dialect import dialect
+    from corridor.vehicles.mavlink.dialect import dialect
 
     data = (tmp_path / "mavlink" / "link-ct-s0.tlog").read_bytes()
     parser = dialect().MAVLink(None)
@@ -81,7 +81,7 @@ def test_perfect_information_baseline_feeds_the_mpc_the_ground_truth():
     """``segment_truth`` (the diagnostic baseline: the MPC on SUMO's segment truth) hands the MPC what
     ``segment_watch`` measures as truth (one SUMO step earlier: DECIDE reads the last integrated state),
     taken to the station scale by the scenario's station map."""
-    from corridor.controllers.ramp_metering.components import load_station_map
+    from corridor.traffic.macro.loop_state import load_station_map
 
     sc = variant("loops_failed", 121.0, "controllers.truth.type=segment_truth",
                  "controllers.ramps.params.estimator=truth", "monitors.watch.params.start_s=120")

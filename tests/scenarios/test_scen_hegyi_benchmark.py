@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from corridor.controllers.ramp_metering.hegyi import SYM_METANET_NO_CONTROL_TTS
 from corridor.run import simulate
 from corridor.scenario import load
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "hegyi_benchmark.yaml"
+SCENARIO = SCENARIOS / "hegyi_benchmark.yaml"
 
 
 def test_no_control_scenario_matches_independent_implementation() -> None:

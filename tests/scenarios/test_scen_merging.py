@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from corridor.controllers.merging.components import V2XMerging
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def _lane_changes(variant: str, duration_s: float, seed: int, params: dict | None = None

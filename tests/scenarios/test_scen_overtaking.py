@@ -14,17 +14,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from corridor.analysis.stl import parse_formula
 from corridor.scenario import load
+from corridor.stl import parse_formula
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-SCENARIO = ROOT / "scenarios" / "overtaking.yaml"
+SCENARIO = SCENARIOS / "overtaking.yaml"
 
 
 def run_cli(out: Path, *args: str) -> pd.DataFrame:
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--workers", "1", "--out", str(out),
            "--no-report", "--quiet", *args]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return pd.read_parquet(out / "runs.parquet")
 

@@ -17,9 +17,9 @@ import pytest
 from corridor.run import build
 from corridor.scenario import load
 from corridor.snapshot import Kind
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-SCENARIO = ROOT / "scenarios" / "parking.yaml"
+SCENARIO = SCENARIOS / "parking.yaml"
 PERPENDICULAR = ["road.network.params.layout=perpendicular", "road.network.params.bay_length_m=3.0",
                  "road.network.params.bay_depth_m=5.5"]
 
@@ -44,7 +44,7 @@ def test_sumo_parks_its_cars_in_the_declared_bays(sets: list[str]) -> None:
 def run_cli(out: Path, *args: str) -> pd.DataFrame:
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--workers", "2", "--out", str(out),
            "--no-report", "--quiet", *args]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=900)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-2000:]
     return pd.read_parquet(out / "runs.parquet")
 

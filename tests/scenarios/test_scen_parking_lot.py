@@ -15,9 +15,9 @@ import pytest
 
 from corridor.run import build
 from corridor.scenario import load
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-SCENARIO = ROOT / "scenarios" / "parking_lot.yaml"
+SCENARIO = SCENARIOS / "parking_lot.yaml"
 SHORT = ["duration=35"]
 SAME = ("he_success", "success", "collisions", "pos_err_m", "heading_err_rad", "min_clearance_m",
         "manoeuvre_time_s", "direction_changes", "final_mode", "planned_direction_changes", "slots_detected")
@@ -34,7 +34,7 @@ def run_once(seed: int, sets: list[str]) -> tuple[dict, list]:
 def test_cli_batch_parks_without_collision(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--runs", "2", "--workers", "2", "--out",
            str(tmp_path), "--no-report", "--quiet", *[a for s in SHORT for a in ("--set", s)]]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     df = pd.read_parquet(tmp_path / "runs.parquet")
     assert len(df) == 2 and (df["status"] == "ok").all(), df["error"].tolist()
@@ -76,13 +76,18 @@ def test_rerun_recording_with_lot_outlines_plan_and_sensor_overlays(tmp_path: Pa
     assert len(kinds["lines"]) == 6 and kinds["points"].shape[1] == 2  # six beams, their echoes
     assert any(e.data.get("polyline") for e in sim.ctx.events.of_kind("plan"))
     assert rrd.stat().st_size > 10_000
+    import json
+
+    lot_doc = json.loads((tmp_path / "parking" / "lot-run.json").read_text())  # the report's lot figure
+    assert len(lot_doc["outlines"]["bays"]) == 28 and len(lot_doc["plans"]) >= 1
+    assert len(lot_doc["driven"]) == 30 and lot_doc["goal"] is not None  # 3 s at the monitor's 0.1 s
 
 
 @pytest.mark.slow
 def test_fifty_runs_all_park(tmp_path: Path) -> None:
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--runs", "50", "--workers", "2", "--out",
            str(tmp_path), "--no-report", "--quiet"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=3600)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=3600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     df = pd.read_parquet(tmp_path / "runs.parquet")
     assert (df["collisions"] == 0).all() and df["he_success"].mean() >= 0.98

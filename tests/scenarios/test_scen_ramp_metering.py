@@ -12,16 +12,16 @@ import pandas as pd
 
 from corridor.run import simulate
 from corridor.scenario import load
+from tests.conftest import REPO, SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
-SCENARIO = ROOT / "scenarios" / "ramp_metering.yaml"
+SCENARIO = SCENARIOS / "ramp_metering.yaml"
 
 
 def test_cli_runs_the_three_variants(tmp_path: Path) -> None:
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "corridor.cli", str(SCENARIO), "--runs", "1", "--workers", "1", "--quiet",
            "--no-report", "--out", str(out), "--set", "duration=70"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300, check=False)
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr[-2000:]
     df = pd.read_parquet(out / "runs.parquet")
     assert sorted(df["variant"]) == ["alinea", "mpc", "none"]

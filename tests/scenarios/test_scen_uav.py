@@ -11,15 +11,16 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-ROOT = Path(__file__).resolve().parents[2]
-ENCOUNTER = ROOT / "scenarios" / "uav_encounter.yaml"
-SWARM = ROOT / "scenarios" / "uav_swarm.yaml"
+from tests.conftest import REPO, SCENARIOS
+
+ENCOUNTER = SCENARIOS / "uav_encounter.yaml"
+SWARM = SCENARIOS / "uav_swarm.yaml"
 
 
 def cli(*args: str) -> pd.DataFrame:
     out = Path(args[args.index("--out") + 1])
     exe = [sys.executable, "-m", "corridor.cli", *args, "--quiet", "--no-report"]
-    res = subprocess.run(exe, capture_output=True, text=True, cwd=ROOT, timeout=1800)
+    res = subprocess.run(exe, capture_output=True, text=True, cwd=REPO, timeout=1800)
     assert res.returncode == 0, res.stderr[-2000:]
     return pd.read_parquet(out / "runs.parquet")
 
@@ -91,6 +92,7 @@ def test_mavlink_bytes_decode_with_pymavlink_and_rerun_shows_aircraft(tmp_path: 
              "--set", "duration=3", "--set", "backends.link.params.log_path=mavlink/link.bin", "--rerun", str(rrd))
     paths = {c.entity_path for c in RrdReader(rrd).stream()}
     assert {"/world/entities", "/world/trails", "/metrics/min_sep_h", "/metrics/min_sep_3d"} <= paths
+    assert {"/world/air_markers", "/world/ground"} <= paths  # fixed-size markers, a grid at the origin
     assert (df["status"] == "ok").all()
     parser = mavlink2.MAVLink(None)
     msgs = parser.parse_buffer(log.read_bytes()) or []

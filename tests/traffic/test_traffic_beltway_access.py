@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import sumolib
 
-from corridor.traffic.network import build_network
+from corridor.traffic.networks.registry import build_network
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from corridor.traffic.calibrate import detector_points, fit_fundamental_diagram
+from corridor.traffic.macro.calibrate import detector_points, fit_fundamental_diagram
 
 
 def _metanet_speed(rho: np.ndarray, vf: float = 100.0, rc: float = 40.0, a: float = 1.8) -> np.ndarray:

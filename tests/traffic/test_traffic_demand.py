@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from corridor.traffic.demand import FlowDef, VehicleTypeDef, expected_count, mean_rate_vph, write_routes
-from corridor.traffic.network import build_network
+from corridor.traffic.networks.registry import build_network
+from corridor.traffic.sumo.demand import FlowDef, VehicleTypeDef, expected_count, mean_rate_vph, write_routes
 
 CAR = VehicleTypeDef("car", {"accel": 2.6, "decel": 4.5, "sigma": 0.5, "length": 5.0, "minGap": 2.5})
 

@@ -14,10 +14,10 @@ import pytest
 import sumolib
 from pydantic import ValidationError
 
-from corridor.traffic.driver_presets import PRESETS
-from corridor.traffic.network import build_network
-from corridor.traffic.road_spec import VehicleTypeSpec
-from corridor.traffic.sumo_backend import vtype_attrs
+from corridor.traffic.networks.registry import build_network
+from corridor.traffic.sumo.backend import vtype_attrs
+from corridor.traffic.sumo.driver_presets import PRESETS
+from corridor.traffic.sumo.road_spec import VehicleTypeSpec
 
 SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "flow_merge.yaml"
 

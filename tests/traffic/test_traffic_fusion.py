@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from corridor.traffic.fusion import FusionParams, SegmentFilter
-from corridor.traffic.loop_faults import LoopFaults, Reading, apply_fault, draw_faults
+from corridor.traffic.macro.fusion import FusionParams, SegmentFilter
+from corridor.traffic.sensing.loop_faults import LoopFaults, Reading, apply_fault, draw_faults
 
 
 def test_one_update_is_the_scalar_kalman_formula():
@@ -48,7 +48,7 @@ def test_a_failed_loop_is_down_weighted():
 
 def _camera_mean(truth: float, with_area: bool, area_km_lane: float = 0.286) -> float:
     """Time-mean fused density from camera counts alone: a Poisson count of the stretch every 2 s, with
-    the camera's variance (N + 1) / A^2 evaluated at its own count N, as ``corridor.vehicles.camera``."""
+    the camera's variance (N + 1) / A^2 evaluated at its own count N, as ``corridor.vehicles.sensors.camera``."""
     rng = np.random.default_rng(0)
     kf, out = SegmentFilter(1), []
     for k in range(3000):
@@ -90,7 +90,7 @@ def test_fault_draws_share_and_modes():
 
 
 def test_fault_modes():
-    from corridor.traffic.loop_faults import StationFault
+    from corridor.traffic.sensing.loop_faults import StationFault
 
     true, held = Reading(20.0, 1500.0, 25.0), Reading(5.0, 600.0, 30.0)
     assert apply_fault(StationFault("stuck_zero", 100.0), 50.0, true, held, 0.4) == true  # before the failure
@@ -108,7 +108,7 @@ def test_fault_window_is_checked():
 
 
 def _ring(flow_vph: float, occ_pct: float) -> list:
-    from corridor.traffic.detectors import RampMeasurement
+    from corridor.traffic.sensing.detectors import RampMeasurement
 
     return [RampMeasurement(key=f"{d}{k}", direction=d, interchange=k, tls="", storage_veh=40.0,
                             occupancy_down_pct=occ_pct, flow_down_vph=flow_vph, occupancy_up_pct=occ_pct,
@@ -116,7 +116,7 @@ def _ring(flow_vph: float, occ_pct: float) -> list:
 
 
 def test_zero_test_rejects_a_stuck_station_only_when_its_carriageway_is_busy():
-    from corridor.traffic.fusion_component import SegmentFusion
+    from corridor.traffic.macro.fusion_component import SegmentFusion
 
     fusion = SegmentFusion("fusion", SegmentFusion.Params(), None)
     ring = _ring(1800.0, 12.0)

@@ -4,20 +4,19 @@ world (a baseline controller, or none at all)."""
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from corridor.run import simulate
 from corridor.scenario import load
+from tests.conftest import SCENARIOS
 
-ROOT = Path(__file__).resolve().parents[2]
 SPEC_SIGNALS = ("gap_lead", "ahead_lead", "lat_lead", "lat_onc", "gap_onc", "lane_offset", "clearance")
 
 
 def test_overtaking_spec_signals_without_the_controller() -> None:
     """controller ``none``: the ego coasts behind the lead; the monitor still measures every spec input."""
-    sc, _ = load(ROOT / "scenarios" / "overtaking.yaml", ["controllers.overtaking.type=none", "duration=66"])
+    sc, _ = load(SCENARIOS / "overtaking.yaml", ["controllers.overtaking.type=none", "duration=66"])
     metrics, ctx, _ = simulate(sc, seed=0)
     for name in SPEC_SIGNALS:
         t, v = ctx.signals.get(name)
@@ -35,7 +34,7 @@ def test_overtaking_spec_signals_without_the_controller() -> None:
 def test_ramp_meter_rates_recorded_without_control() -> None:
     """``ramp_none`` (meters off) and no controller at all (the network's own meter program)."""
     for ctrl, expected in (("ramp_none", 1800.0), ("none", 900.0)):
-        sc, _ = load(ROOT / "scenarios" / "ramp_metering.yaml", [f"controllers.ramps.type={ctrl}", "duration=130"])
+        sc, _ = load(SCENARIOS / "ramp_metering.yaml", [f"controllers.ramps.type={ctrl}", "duration=130"])
         _, ctx, _ = simulate(sc, seed=0)
         rates = sorted(n for n in ctx.signals.names() if n.startswith("rate_"))
         assert len(rates) == 16, (ctrl, rates)  # 8 interchanges x 2 directions

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+from tests.conftest import SCENARIOS
+
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def _area_loss_against_sumo(before_m: float, after_m: float) -> dict[str, object]:

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from corridor.traffic.metanet import (
+from corridor.traffic.macro.metanet import (
     MetanetNetwork,
     MetanetParams,
     equilibrium_speed,
@@ -17,7 +17,7 @@ from corridor.traffic.metanet import (
     step,
     step_with_flows,
 )
-from corridor.traffic.metanet_networks import BeltwayLayout, beltway
+from corridor.traffic.macro.metanet_networks import BeltwayLayout, beltway
 
 T_H = 10.0 / 3600.0  # [h]
 

@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from corridor.traffic.meters import (
+from corridor.traffic.sumo.meters import (
     MeterTiming,
     choice_set,
     divert_probability,
@@ -18,8 +17,9 @@ from corridor.traffic.meters import (
     realised_rate_vph,
     red_time_s,
 )
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml"
+SCENARIO = SCENARIOS / "ramp_metering.yaml"
 
 
 def test_red_time_is_cycle_minus_green() -> None:

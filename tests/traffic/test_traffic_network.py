@@ -13,11 +13,11 @@ import pytest
 import sumolib
 from pydantic import ValidationError
 
-from corridor.traffic.network import (
-    BUILDERS,
+from corridor.traffic.networks.registry import (
     NetworkBuildError,
     PlainNet,
     build_network,
+    builder_names,
     params_model,
     run_netconvert,
 )
@@ -29,7 +29,7 @@ def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_registry_has_the_three_builders_with_strict_frozen_models() -> None:
-    assert {"highway_onramp", "beltway", "rural_two_lane"} <= set(BUILDERS)
+    assert {"highway_onramp", "beltway", "rural_two_lane", "parking_street", "sumo_files"} <= set(builder_names())
     for kind in ("highway_onramp", "beltway", "rural_two_lane"):
         model = params_model(kind)
         assert model.model_config["extra"] == "forbid" and model.model_config["frozen"]

@@ -9,8 +9,8 @@ from typing import Any
 
 import pytest
 
-from corridor.traffic.demand import FlowDef, VehicleTypeDef, write_routes
-from corridor.traffic.network import BuiltNetwork, build_network
+from corridor.traffic.networks.registry import BuiltNetwork, build_network
+from corridor.traffic.sumo.demand import FlowDef, VehicleTypeDef, write_routes
 
 CAR = VehicleTypeDef("car", {"accel": 2.6, "decel": 4.5, "sigma": 0.5, "length": 5.0, "minGap": 2.5})
 SUMO_OPTS = [

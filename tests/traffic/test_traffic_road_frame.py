@@ -8,6 +8,7 @@ the consumers read comes through ``ctx.snapshot`` (rows, road frame, tables, eve
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -20,7 +21,7 @@ import pytest
 
 from corridor.engine import Backend, RunContext, Simulation
 from corridor.snapshot import Kind, RoadEvents, RoadFrame, RoadTables, Role, WorldSnapshot
-from corridor.traffic.landmarks import OnrampLandmarks
+from corridor.traffic.networks.landmarks import OnrampLandmarks
 
 DT = 0.1  # [s]
 LENGTH = 5.0  # [m]
@@ -144,7 +145,7 @@ def run(road: ScriptedRoad, components: list[Any], duration_s: float, with_uav: 
 
 
 def surrogate_safety_on_a_scripted_follower() -> None:
-    from corridor.traffic.monitors import SurrogateSafety
+    from corridor.analysis.monitoring.road import SurrogateSafety
 
     # follower front at 100 m doing 20 m/s, leader (5 m long) front at 130 m doing 10 m/s
     road = ScriptedRoad([Scripted("lead", MAIN, 130.0, 10.0), Scripted("follow", MAIN, 100.0, 20.0)])
@@ -158,7 +159,7 @@ def surrogate_safety_on_a_scripted_follower() -> None:
 
 
 def trips_closed_form_delay() -> None:
-    from corridor.traffic.trips import Trips
+    from corridor.traffic.sumo.trips import Trips
 
     # free-flow time of route main: 1000 m at min(50, 25 x 1.0) m/s = 40 s; it drives 1000 m at
     # 20 m/s (50 s) after waiting 2 s to be inserted: delay 50 + 2 - 40 = 12 s.  One vehicle is
@@ -176,7 +177,7 @@ def trips_closed_form_delay() -> None:
 
 def v2x_commands_the_connected_ramp_vehicle() -> None:
     from corridor.controllers.merging.components import V2XMerging
-    from corridor.traffic.commands import SetSpeed
+    from corridor.traffic.sumo.commands import SetSpeed
 
     script = [Scripted("m0", MAIN, 850.0, 22.0), Scripted("m1", MAIN, 810.0, 22.0),
               Scripted("r0", RAMP, 830.0, 15.0, connected=True), Scripted("r1", RAMP, 790.0, 15.0)]
@@ -210,3 +211,16 @@ def test_road_consumers_run_without_libsumo() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip().endswith("ok")
+
+
+def test_no_closing_pair_is_a_missing_ttc_not_99() -> None:
+    """The follower is slower than its leader: no closing pair, so min_ttc_s is NaN (not the old
+    sentinel 99, which entered means) and the signal is +inf (TTC infinite) at every tick."""
+    from corridor.analysis.monitoring.road import SurrogateSafety
+
+    road = ScriptedRoad([Scripted("lead", MAIN, 130.0, 20.0), Scripted("follow", MAIN, 100.0, 10.0)])
+    mon = SurrogateSafety("safety", SurrogateSafety.Params(), scenario(1.0))
+    sim = run(road, [mon], 1.0)
+    assert math.isnan(sim.metrics["min_ttc_s"])
+    t, v = sim.ctx.signals.get("min_ttc")
+    assert len(v) and np.all(np.isposinf(v))

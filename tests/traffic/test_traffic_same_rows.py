@@ -9,9 +9,10 @@ import pytest
 
 from corridor.run import build
 from corridor.scenario import load
-from corridor.traffic.sumo_backend import SumoBackend
+from corridor.traffic.sumo.backend import SumoBackend
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def test_a_quiet_step_has_the_previous_steps_ids(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.traffic.station_map import StationMap, fit_station_map
+from corridor.traffic.macro.station_map import StationMap, fit_station_map
 
 
 def test_fit_recovers_a_linear_relation_and_inverts():

@@ -3,11 +3,10 @@ values) until it re-inserts it; the road frame leaves such rows out instead of f
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from corridor.api import run
+from tests.conftest import SCENARIOS
 
-RAMP = str(Path(__file__).resolve().parents[2] / "scenarios" / "ramp_metering.yaml")
+RAMP = str(SCENARIOS / "ramp_metering.yaml")
 
 
 def test_a_run_with_teleports_is_ok_and_counts_them(tmp_path):

@@ -1,4 +1,4 @@
-"""The road monitors process ticks in blocks (``corridor.traffic.tick_block``); any block size gives
+"""The road monitors process ticks in blocks (``corridor.analysis.monitoring.tick_block``); any block size gives
 the figures of tick-by-tick processing, bit for bit."""
 
 from __future__ import annotations
@@ -11,10 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from corridor.analysis.monitoring.tick_block import TickBlock
 from corridor.snapshot import RoadFrame, RoadTables, WorldSnapshot
-from corridor.traffic.tick_block import TickBlock
+from tests.conftest import SCENARIOS
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def _snapshot(uids: list[int], xs: list[float], offset: int = 0) -> WorldSnapshot:
@@ -46,9 +47,9 @@ def test_a_block_concatenates_the_road_rows_of_its_ticks() -> None:
 
 
 def _monitors_with_blocks(ticks: int) -> dict[str, object]:
+    from corridor.analysis.monitoring.road import SurrogateSafety, TrafficKpis
     from corridor.run import build
     from corridor.scenario import load
-    from corridor.traffic.monitors import SurrogateSafety, TrafficKpis
 
     SurrogateSafety.block_ticks = TrafficKpis.block_ticks = ticks
     # warm-up inside a block; a TTC threshold that is crossed (time exposed > 0) in 80 s

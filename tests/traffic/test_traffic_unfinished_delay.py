@@ -9,7 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-SCENARIO = Path(__file__).resolve().parents[2] / "scenarios" / "merging.yaml"
+from tests.conftest import SCENARIOS
+
+SCENARIO = SCENARIOS / "merging.yaml"
 
 
 def _delays_at_double_demand() -> dict[str, object]:

@@ -12,7 +12,8 @@ from pydantic import ValidationError
 from corridor.engine import Controller, RunContext, Simulation
 from corridor.scenario import validate
 from corridor.snapshot import Kind
-from corridor.vehicles.air_backend import (
+from corridor.vehicles.air.autopilot import VelocityCommand
+from corridor.vehicles.air.backend import (
     AirBackend,
     AircraftCommand,
     EncounterSpec,
@@ -20,7 +21,6 @@ from corridor.vehicles.air_backend import (
     encounter_aircraft,
     swarm_aircraft,
 )
-from corridor.vehicles.autopilot import VelocityCommand
 
 
 @pytest.mark.parametrize("geometry, rel_deg", [(0, 180.0), (1, 90.0), (2, 0.0)])
@@ -112,7 +112,7 @@ def test_goal_quad_flies_straight_to_its_goal_without_any_controller(tmp_path: P
 def test_link_counts_and_drops_garbage_and_corrupted_frames(tmp_path: Path) -> None:
     from corridor.run import build
     from corridor.vehicles.geodesy import Origin
-    from corridor.vehicles.mavlink_link import MavlinkEndpoint
+    from corridor.vehicles.mavlink.encode import MavlinkEndpoint
 
     sc = validate({"name": "t", "duration": 2.0, "dt": 0.1, "backends": {
         "air": {"type": "jsbsim_fleet", "params": {"aircraft": [

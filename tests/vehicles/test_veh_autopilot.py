@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.vehicles.autopilot import (
+from corridor.vehicles.air.autopilot import (
     HoldCommand,
     PositionCommand,
     QuadCascade,
@@ -14,7 +14,7 @@ from corridor.vehicles.autopilot import (
     VelocityCommand,
     WaypointCommand,
 )
-from corridor.vehicles.jsbsim_fleet import JSBSimFleet
+from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
 
 ORIGIN = (47.3769, 8.5417, 408.0)
 

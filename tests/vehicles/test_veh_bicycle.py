@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from corridor.vehicles.bicycle import BicycleParams, f, integrate, rk4_step
+from corridor.vehicles.ground.bicycle import BicycleParams, f, integrate, rk4_step
 
 P = BicycleParams()
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.traffic.net_beltway import DIRECTIONS, BeltwayParams, carriageway_arcs
-from corridor.traffic.segments import RingSegments
-from corridor.vehicles.camera import CameraParams, in_footprint, observe, optical_axis
+from corridor.traffic.networks.beltway import DIRECTIONS, BeltwayParams, carriageway_arcs
+from corridor.traffic.networks.segments import RingSegments
+from corridor.vehicles.sensors.camera import CameraParams, in_footprint, observe, optical_axis
 
 P = BeltwayParams(circumference_m=10000, interchanges=8, lanes=2, ramp_length_m=1200, ramp_span_m=300,
                   accel_lane_length_m=100)

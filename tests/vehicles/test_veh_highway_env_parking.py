@@ -10,7 +10,7 @@ import pytest
 
 from corridor.engine import RunContext
 from corridor.snapshot import Kind, Role
-from corridor.vehicles.highway_env_parking import EGO_ID, HighwayEnvParking, ParkingInput
+from corridor.vehicles.ground.highway_env_parking import EGO_ID, HighwayEnvParking, ParkingInput
 
 
 def make(seed: int = 3, **params: object) -> tuple[HighwayEnvParking, RunContext]:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from corridor.snapshot import Kind, WorldSnapshot
-from corridor.vehicles.jsbsim_fleet import JSBSimFleet, quiet_fds
+from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet, quiet_fds
 
 ORIGIN = (47.3769, 8.5417, 408.0)
 

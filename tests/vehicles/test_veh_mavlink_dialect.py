@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from corridor.channel import Channel, ChannelConfig
-from corridor.vehicles import mavlink_dialect
 from corridor.vehicles.geodesy import Origin
-from corridor.vehicles.mavlink_link import MavlinkLink
+from corridor.vehicles.mavlink import dialect as mavlink_dialect
+from corridor.vehicles.mavlink.link import MavlinkLink
 
 ORIGIN = Origin(38.9, -77.0, 50.0)
 

@@ -11,14 +11,18 @@ from pymavlink.dialects.v20 import common as mavlink2
 
 from corridor.channel import BernoulliLoss, Channel, ChannelConfig
 from corridor.vehicles.geodesy import Origin
-from corridor.vehicles.mavlink_link import (
-    GCS_SYSID,
-    LinkRates,
+from corridor.vehicles.mavlink.decode import (
     MavlinkDecoder,
+    report_from_messages,
+)
+from corridor.vehicles.mavlink.encode import (
+    GCS_SYSID,
     MavlinkEndpoint,
+)
+from corridor.vehicles.mavlink.link import (
+    LinkRates,
     MavlinkLink,
     parse_udp_address,
-    report_from_messages,
 )
 
 ORIGIN = Origin(47.3769, 8.5417, 408.0)
@@ -237,20 +241,21 @@ def test_shared_decode_gives_every_receiver_what_its_own_parse_gives() -> None:
     ids = ["u1", "u2", "c172"]
     pos = np.array([[0.0, 0.0, 30.0], [40.0, 0.0, 30.0], [800.0, 200.0, 300.0]])
     vel = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
-    own: dict[str, list[tuple]] = {}
+    own: dict[str, list[tuple]] = {}  # per receiver: (t_recv, src, send order, report)
     ref_counts = MavlinkDecoder()  # one decoder fed every copy: the per-copy counters summed
-    original_deliver = ch.deliver
+    original_deliver = ch.deliver_indexed
 
     def deliver_and_parse(t_s: float) -> list:
         out = original_deliver(t_s)
-        for d in out:  # the reference: a fresh decoder per copy, per-copy conversion
-            msgs = ref_counts.decode_datagram(d.payload)
-            r = report_from_messages(msgs, ORIGIN, d.src, d.t_sent_s, d.t_recv_s)
-            if r is not None:
-                own.setdefault(d.dst, []).append(r)
+        for b in out:  # the reference: a fresh decode per copy, per-copy conversion
+            for i, t_recv in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
+                msgs = ref_counts.decode_datagram(b.payload)
+                r = report_from_messages(msgs, ORIGIN, b.src, b.t_sent_s, t_recv)
+                if r is not None:
+                    own.setdefault(ch.node_names[i], []).append((t_recv, b.src, b.seq, r))
         return out
 
-    ch.deliver = deliver_and_parse
+    ch.deliver_indexed = deliver_and_parse
     shared: dict[str, list] = {}
     for k in range(50):
         t = k * 0.1
@@ -260,7 +265,8 @@ def test_shared_decode_gives_every_receiver_what_its_own_parse_gives() -> None:
     assert set(shared) == set(own) and sum(map(len, shared.values())) > 100
     for dst in own:
         assert len(shared[dst]) == len(own[dst])
-        for a, b in zip(shared[dst], own[dst], strict=True):
+        in_delivery_order = [r for *_, r in sorted(own[dst], key=lambda c: c[:3])]
+        for a, b in zip(shared[dst], in_delivery_order, strict=True):
             assert (a.src, a.sysid, a.kind, a.t_sent_s, a.t_recv_s, a.t_meas_s) == (
                 b.src, b.sysid, b.kind, b.t_sent_s, b.t_recv_s, b.t_meas_s)
             assert np.array_equal(a.p_enu, b.p_enu) and np.array_equal(a.v_enu, b.v_enu)
@@ -269,41 +275,12 @@ def test_shared_decode_gives_every_receiver_what_its_own_parse_gives() -> None:
     assert ref_counts.counters.messages > sum(map(len, own.values()))  # heartbeats are not reports
 
 
-def test_receive_latest_keeps_what_receive_would_keep() -> None:
-    """receive_latest (no TrafficReport per copy) keeps, per receiver and source, the newest report that
-    receive's reports give, and counts every copy in the decoders as receive does."""
-    cfg = ChannelConfig(latency_s=0.05, jitter_s=0.08, loss=BernoulliLoss(p=0.1))  # jitter reorders
-    (_, full), (_, lean) = _link(cfg), _link(cfg)
-    ids = ["u1", "u2", "c172"]
-    pos = np.array([[0.0, 0.0, 30.0], [40.0, 0.0, 30.0], [800.0, 200.0, 300.0]])
-    vel = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -50.0, 0.0]])
-    newest: dict[str, dict] = {"u1": {}, "u2": {}, "gcs": {}}
-    latest: dict[str, dict] = {"u1": {}, "u2": {}, "gcs": {}}
-    for k in range(60):
-        t = 0.05 * k
-        for link in (full, lean):
-            link.publish(t, ids, pos + vel * t, vel, np.zeros(3))
-        for dst, reports in full.receive(t).reports.items():
-            for r in reports:
-                old = newest[dst].get(r.src)
-                if old is None or r.t_meas_s >= old.t_meas_s:
-                    newest[dst][r.src] = r
-        assert lean.receive_latest(t, latest) == []
-        for dst in newest:
-            assert set(newest[dst]) == set(latest[dst])
-            for src, r in newest[dst].items():
-                got = latest[dst][src].report()
-                assert (got.src, got.sysid, got.kind, got.t_sent_s, got.t_recv_s, got.t_meas_s) == (
-                    r.src, r.sysid, r.kind, r.t_sent_s, r.t_recv_s, r.t_meas_s)
-                assert np.array_equal(got.p_enu, r.p_enu) and np.array_equal(got.v_enu, r.v_enu)
-    assert lean.counters() == full.counters() and full.counters().messages > 100
-
-
 @pytest.mark.parametrize("ber", [0.0, 2e-4])
-def test_receive_latest_table_keeps_what_receive_latest_keeps(ber: float) -> None:
-    """The array form (LatestReports, one pass per datagram over its receivers) keeps the same
-    report per (receiver, source), in the same first-arrival order, and counts every copy, with
-    and without bit errors (then copy by copy); a ground-station set-point still reaches its target."""
+def test_receive_latest_table_keeps_what_receive_would_keep(ber: float) -> None:
+    """The array form (LatestReports, one pass per datagram over its receivers) keeps, per (receiver,
+    source), the newest report of those ``receive`` hands out (equal measurement times: the later
+    delivered), routes the same set-points and counts every copy, with and without bit errors (then
+    copy by copy): both read the link's one receive path."""
     cfg = ChannelConfig(latency_s=0.05, jitter_s=0.08, loss=BernoulliLoss(p=0.1))  # jitter reorders
     kw = {"bit_error_rate": ber, "rng": np.random.default_rng(3)} if ber else {}
     (_, ref), (_, arr) = _link(cfg, **kw), _link(cfg, **({**kw, "rng": np.random.default_rng(3)} if ber else {}))
@@ -320,13 +297,17 @@ def test_receive_latest_table_keeps_what_receive_latest_keeps(ber: float) -> Non
             link.publish(t, ids, pos + vel * t, vel, np.zeros(3))
             if 10 <= k < 20:
                 link.command(t, "u2", v_enu=np.array([1.0, 2.0, float(k)]))
-        got, want = arr.receive_latest_table(t, table), ref.receive_latest(t, latest)
-        assert [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in got] == [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in want]
+        got, inbox = arr.receive_latest_table(t, table), ref.receive(t)
+        want_sp = inbox.setpoints
+        assert [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in got] == [(s.dst, s.t_recv_s, s.v_enu.tolist()) for s in want_sp]
+        for dst in rx:
+            for r in inbox.reports.get(dst, []):  # delivery order: the later delivered wins a tie
+                old = latest[dst].get(r.src)
+                if old is None or r.t_meas_s >= old.t_meas_s:
+                    latest[dst][r.src] = r
         setpoints += len(got)
         for r, dst in enumerate(rx):
-            order = np.argsort(np.where(table.fresh[r], table.first[r], np.iinfo(np.int64).max), kind="stable")
-            fresh = [src[c] for c in order.tolist() if table.fresh[r, c]]
-            assert fresh == list(latest[dst])  # same sources, same first-arrival order
+            assert {src[c] for c in range(len(src)) if table.fresh[r, c]} == set(latest[dst])
             for c, s in enumerate(src):
                 if table.fresh[r, c]:
                     want = latest[dst][s]

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.vehicles.autopilot import PositionCommand, QuadCascade, VelocityCommand
+from corridor.vehicles.air.autopilot import PositionCommand, QuadCascade, VelocityCommand
+from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
 from corridor.vehicles.geodesy import Origin, metres_per_degree
-from corridor.vehicles.jsbsim_fleet import JSBSimFleet
 
 ORIGIN = (47.3769, 8.5417, 408.0)
 _STICKS = ("fcs/aileron-cmd-norm", "fcs/elevator-cmd-norm", "fcs/rudder-cmd-norm", "fcs/throttle-cmd-norm")
@@ -97,7 +97,7 @@ def test_metres_per_degree_matches_the_enu_conversion() -> None:
 def test_leaving_out_the_unused_sensors_changes_nothing(monkeypatch: pytest.MonkeyPatch) -> None:
     """corridor's F450 copy omits SensorGps/SensorBaro and keeps only the IMU's yaw gyro: the flight
     is bit-identical with the full sensor set."""
-    from corridor.vehicles import jsbsim_fleet, jsbsim_models
+    from corridor.vehicles.air import jsbsim_fleet, jsbsim_models
 
     def flight(omit: tuple[str, ...], reduce_imu: bool = True) -> list[float]:
         monkeypatch.setattr(jsbsim_fleet, "aircraft_dir",

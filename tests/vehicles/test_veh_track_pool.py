@@ -6,8 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from corridor.vehicles.track_pool import TrackPool
-from corridor.vehicles.tracking import TrackTable
+from corridor.vehicles.tracks.pool import TrackPool
+from corridor.vehicles.tracks.table import TrackTable
 
 Q, R_POS, R_VEL, STALE = 1.0, 0.5, 0.3, 0.35
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.vehicles.track_stack import TrackStack, cv_matrices
-from corridor.vehicles.tracking import TrackTable, model_matrices
+from corridor.vehicles.tracks.stack import TrackStack, cv_matrices
+from corridor.vehicles.tracks.table import TrackTable, model_matrices
 
 Q, R_POS, R_VEL = 2.0, 0.5, 0.3
 

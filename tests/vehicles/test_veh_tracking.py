@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.vehicles.tracking import TrackTable, process_cov, transition
+from corridor.vehicles.tracks.table import TrackTable, process_cov, transition
 
 
 def _track_cv(table: TrackTable, rng: np.random.Generator, n: int, sigma_m: float) -> tuple[np.ndarray, ...]:
@@ -108,7 +108,7 @@ def test_batched_prediction_equals_per_track_prediction() -> None:
 def test_filters_invert_the_innovation_covariance_like_numpy() -> None:
     """The filters' ``inv`` (LAPACK gesv, filterpy's hook) is numpy.linalg.inv's computation: same
     inverse, and a singular matrix raises as numpy does."""
-    from corridor.vehicles.tracking import _inverse
+    from corridor.vehicles.tracks.table import _inverse
 
     rng = np.random.default_rng(0)
     for _ in range(50):

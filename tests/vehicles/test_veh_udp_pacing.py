@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import socket
 import time
-from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink2
@@ -13,8 +12,9 @@ from pymavlink.dialects.v20 import common as mavlink2
 from corridor.cli import main
 from corridor.run import simulate
 from corridor.scenario import load
+from tests.conftest import SCENARIOS
 
-ENCOUNTER = Path(__file__).resolve().parents[2] / "scenarios" / "uav_encounter.yaml"
+ENCOUNTER = SCENARIOS / "uav_encounter.yaml"
 
 
 def _receiver() -> tuple[socket.socket, int]:

@@ -9,7 +9,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.engine import Controller, Need, RunContext
-from corridor.traffic.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
+from corridor.traffic.macro.metanet_backend import NEEDS_METANET, MetanetBackend, SetMetanetInput
 
 
 class FixedMeter(Controller):
