@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from corridor.analysis.merge_sweep import NAME, sweep_section
 from corridor.analysis.plots import heatmap, line_chart, scatter_chart
 from corridor.analysis.report_series import load_npz, representative_runs
 from corridor.analysis.stats import mean_ci
@@ -107,7 +108,7 @@ def _all_intervals(out_dir: Path, runs: pd.DataFrame) -> tuple[np.ndarray, np.nd
 
 def paired_section(ok: pd.DataFrame, variants: list[str]) -> list[str]:
     cols = [(c, label) for c, label in PAIRED if c in ok and pd.to_numeric(ok[c], errors="coerce").notna().any()]
-    if "avg_speed_mps" not in ok or len(variants) < 2 or not cols:
+    if not ({"avg_speed_mps", "capacity_drop_pct"} & set(ok)) or len(variants) < 2 or not cols:
         return []
     base = variants[0]
     b = ok[ok["variant"].astype(str) == base].set_index("seed")
@@ -158,5 +159,7 @@ def report_sections(out_dir: Path, df: pd.DataFrame, scenario: Any, scenario_pat
         return []
     ok = df[df["status"] == "ok"]
     variants = list(dict.fromkeys(ok["variant"].astype(str)))
+    if any(NAME.match(v) for v in variants):  # the merging sweep: heat maps instead of per-variant tables
+        return sweep_section(ok)
     return [*bottleneck_section(out_dir, ok, variants), *paired_section(ok, variants),
             *space_time_section(out_dir, ok, variants)]
