@@ -53,7 +53,7 @@ from corridor.engine import Controller, Metric, RunContext
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.sumo.road_spec import require_landmarks
+from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracks.pool import TrackPool
@@ -176,6 +176,20 @@ class V2XMerging(Controller):
         self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
                                 stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
+        self.safety = self._deliverable_safety(ctx.scenario)
+
+    def _deliverable_safety(self, scenario: Any) -> SafetyParams:
+        """The safety layer's params limited to the braking a commanded vehicle delivers: commands go
+        out in SUMO's default speed mode, which keeps a commanded slowing within the type's ``decel``, so
+        ``b_ego`` is at most the smallest ``decel`` of the connected flows' types, and the reaction time
+        at least the period a command is held.  (With the calibrated humans, decel 2 m/s², the layer's
+        6 m/s² let commanded ramp vehicles run into their virtual leaders: 4 collisions in one run.)"""
+        road = road_spec(scenario) if scenario is not None else None
+        decels = [road.demand.vehicle_types[f.vtype].decel for f in road.demand.flows.values()
+                  if f.connected_share > 0] if road is not None else []
+        b_ego = min([self.p.safety.b_ego_mps2, *decels])
+        return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
+                                                "reaction_s": max(self.p.safety.reaction_s, self.period)})
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -402,10 +416,10 @@ class V2XMerging(Controller):
                     v_lead = max(vel_lead, 0.0)
                     if age_s > self.period:  # unheard since: assume it braked as hard as it can
                         x_last = gap - v_lead * age_s
-                        gap, v_lead = worst_case_leader(x_last, v_lead, age_s, self.p.safety.b_lead_mps2)
+                        gap, v_lead = worst_case_leader(x_last, v_lead, age_s, self.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
-                    acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)
+                    acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.safety)
             v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
             if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
