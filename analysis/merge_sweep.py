@@ -1,4 +1,4 @@
-"""The merging sweep's heat maps (``scenarios/merging_sweep.yaml``): where cooperative merging gains.
+"""The merging sweep's heat maps (``scenarios/sweeps/merging_sweep.yaml``): where cooperative merging gains.
 
 The sweep's variants are named ``p<penetration %>_r<ramp demand veh/h>_L<acceleration lane m>``
 (``tools/merging_sweep.py`` writes them); ``p0`` is the human baseline of its (ramp demand, lane) cell.

@@ -19,7 +19,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.bottleneck import analyse
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import Role
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
@@ -34,6 +34,14 @@ class MergeLoops(Component):
     """Counts crossings of each station per interval; breakdown and capacity drop at the end."""
 
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('breakdown', '1', "1 if the upstream station's speed fell at least 25 % below free flow and stayed so (HCM breakdown), else 0."),
+        Metric('breakdown_s', 's', 'End of the loop interval at which the breakdown began (NaN: none).'),
+        Metric('free_flow_speed_mps', 'm/s', 'Free-flow speed at the upstream station (given, or measured over the first minutes).'),
+        Metric('prebreakdown_flow_vph', 'veh/h', 'Largest moving-average downstream flow before the breakdown (NaN: none).'),
+        Metric('discharge_flow_vph', 'veh/h', 'Mean downstream (queue discharge) flow after the breakdown (NaN: none).'),
+        Metric('capacity_drop_pct', '%', 'Capacity drop: 100 x (1 - discharge / pre-breakdown maximum flow) (NaN: no breakdown).'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
 

@@ -23,12 +23,19 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.engine import Component, Need, Phase, RunContext
+from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 
 class NetworkMetrics(Component):
     phase = Phase.DETECT
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('avg_speed_mps', 'm/s', "Flow's average speed: mean speed of all vehicles in the network over the measured steps."),
+        Metric('outflow_vph', 'veh/h', 'Vehicles that left the network per hour after the warm-up.'),
+        Metric('co2_g_per_km', 'g/km', "CO2 from SUMO's emission model per vehicle-kilometre (road.sumo.emissions)."),
+        Metric('fuel_g_per_km', 'g/km', "Fuel from SUMO's emission model per vehicle-kilometre (road.sumo.emissions)."),
+        Metric('co2_total_kg', 'kg', "Total CO2 from SUMO's emission model (road.sumo.emissions)."),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
 

@@ -40,7 +40,7 @@ from corridor.controllers.merging.wave_damping import (
     follower_stopper,
     gap_speed_cap,
 )
-from corridor.engine import Controller, Need, RunContext
+from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.snapshot import Role
 from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.road_spec import road_spec
@@ -60,6 +60,11 @@ class RoadAhead:
 
 
 class WaveDamping(Controller):
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('v2x_delivery_ratio', '1', 'Share of the roadside unit\'s messages delivered.'),
+        Metric('v2x_fallbacks', '1', 'Connected vehicles handed back to their driver model because the last message was stale.'),
+        Metric('v2x_commands', '1', 'Speed commands sent to connected vehicles.'),
+    )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
 

@@ -39,7 +39,7 @@ def test_the_grid_is_the_documented_one_on_the_flagship() -> None:
 def test_the_committed_sweep_file_is_what_the_tool_writes(tmp_path: Path) -> None:
     tool = _tool()
     tool.write(tmp_path / "sweep.yaml")
-    assert (tmp_path / "sweep.yaml").read_text() == (REPO / "scenarios" / "merging_sweep.yaml").read_text()
+    assert (tmp_path / "sweep.yaml").read_text() == (REPO / "scenarios" / "sweeps" / "merging_sweep.yaml").read_text()
 
 
 def _rows() -> pd.DataFrame:
