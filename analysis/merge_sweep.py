@@ -37,7 +37,8 @@ class Cell:
 
     @property
     def significant(self) -> bool:
-        return math.isfinite(self.lo) and (self.lo > 0 or self.hi < 0)
+        """The interval excludes 0 (a zero-width interval, two equal differences, is no evidence)."""
+        return math.isfinite(self.lo) and self.hi > self.lo and (self.lo > 0 or self.hi < 0)
 
 
 def sweep_cells(ok: pd.DataFrame, metric: str) -> list[Cell]:

@@ -57,6 +57,14 @@ def test_cells_are_paired_differences_to_their_own_baseline() -> None:
     assert math.isclose(cell.mean, -2.5) and cell.hi < 0 and cell.significant  # -2, -3, -2.5
 
 
+def test_two_equal_differences_are_not_significant() -> None:
+    rows = _rows()
+    rows.loc[(rows["variant"] == "p25_r800_L100") & (rows["seed"] == 1), "delay_mean_s"] = 28.0  # -2, -2, -2.5
+    rows = rows[rows["seed"] < 2]  # -2, -2: zero spread
+    [cell] = sweep_cells(rows, "delay_mean_s")
+    assert cell.lo == cell.hi == -2.0 and not cell.significant
+
+
 def test_the_report_draws_the_sweep_instead_of_per_variant_tables(tmp_path: Path) -> None:
     html = "".join(report_sections(tmp_path, _rows(), None))
     assert "Merging sweep" in html and html.count('class="plot sweep"') == 1  # delay only: no other metric
