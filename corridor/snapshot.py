@@ -196,6 +196,8 @@ class RoadFrame:
     lane_pos: np.ndarray = field(default_factory=lambda: np.zeros(0))
     accel: np.ndarray = field(default_factory=lambda: np.zeros(0))
     distance: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    co2_mgps: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [mg/s] the backend's emission
+    fuel_mgps: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [mg/s] model (empty: not read)
     events: RoadEvents = field(default_factory=RoadEvents)
     detectors: DetectorFrame | None = None
     offset: int = 0  # snapshot row of the first road entity

@@ -4,6 +4,10 @@ Columns: runs, errors, collisions and the collision probability with its exact 9
 when the runs count collisions), then as many of the scenario's key metrics as fit the terminal width
 (mean ± standard deviation over the variant's ``ok`` runs); the rest are named under the table and
 shown in ``report.html``.
+
+Under it, when the batch has more than one variant: the paired differences of the first key metric
+to the first variant (the baseline), seed by seed (the variants of one seed share their random
+draws), as the mean difference with its 95 % Student-t interval over the seeds both ran.
 """
 
 from __future__ import annotations
@@ -58,6 +62,62 @@ def summary_rows(df: pd.DataFrame, key_metrics: list[str],
     return head, lines
 
 
+def paired_rows(df: pd.DataFrame, metric: str, confidence: float = 0.95) -> list[tuple[str, int, float, float, float]]:
+    """Per variant after the first: (variant, pairs, mean difference, interval low, high) of ``metric``
+    minus the first variant's, over the seeds where both have a finite value in an ``ok`` run."""
+    if metric not in df.columns or "seed" not in df.columns:
+        return []
+    ok = df[df["status"] == "ok"]
+    variants = list(dict.fromkeys(df["variant"]))
+    if len(variants) < 2:
+        return []
+
+    def by_seed(v: str) -> pd.Series:
+        g = ok[ok["variant"] == v]
+        return pd.Series(pd.to_numeric(g[metric], errors="coerce").to_numpy(dtype=float), index=g["seed"].to_numpy())
+
+    base = by_seed(variants[0])
+    rows = []
+    for v in variants[1:]:
+        both = pd.concat([by_seed(v), base], axis=1, join="inner").to_numpy(dtype=float)
+        d = both[:, 0] - both[:, 1]
+        d = d[np.isfinite(d)]
+        rows.append((str(v), len(d), *_mean_interval(d, confidence)))
+    return rows
+
+
+def _mean_interval(d: np.ndarray, confidence: float) -> tuple[float, float, float]:
+    """Mean and Student-t interval of the mean (nan where undefined)."""
+    if len(d) == 0:
+        return (math.nan, math.nan, math.nan)
+    m = float(d.mean())
+    if len(d) < 2:
+        return (m, math.nan, math.nan)
+    from scipy import stats  # here: scipy.stats costs ~0.4 s at import
+
+    h = float(stats.t.ppf(0.5 + confidence / 2, len(d) - 1)) * float(d.std(ddof=1)) / math.sqrt(len(d))
+    return (m, m - h, m + h)
+
+
+def paired_lines(df: pd.DataFrame, key_metrics: list[str]) -> list[str]:
+    """The paired-difference lines printed under the table (none for a single variant)."""
+    metric = next((m for m in key_metrics if m in df.columns and m != "collisions"), None)
+    rows = paired_rows(df, metric) if metric else []
+    if not rows:
+        return []
+    base = str(next(iter(dict.fromkeys(df["variant"]))))
+    out = [f"paired difference of {metric} to {base} (same seeds; mean [95 % t-interval], pairs):"]
+    for v, n, m, lo, hi in rows:
+        verdict = "" if not (math.isfinite(lo) and math.isfinite(hi)) else (
+            "  (interval excludes 0)" if lo > 0 or hi < 0 else "  (interval includes 0)")
+        out.append(f"  {v}: {_signed(m)} [{_signed(lo)}, {_signed(hi)}] ({n}){verdict}")
+    return out
+
+
+def _signed(x: float) -> str:
+    return _fmt(x) if not math.isfinite(x) or x < 0 else "+" + _fmt(x)
+
+
 def _fit(head: list[str], lines: list[list[str]], fixed: int, width: int) -> int:
     """How many columns fit ``width`` (the first ``fixed`` always stay); 3 characters per separator."""
     used = 0
@@ -102,3 +162,5 @@ def print_summary(df: pd.DataFrame, key_metrics: list[str], file: TextIO | None 
     console.print(table)
     if n < len(head):
         console.print(f"more metrics in report.html and runs.parquet: {', '.join(head[n:])}", markup=False)
+    for line in paired_lines(df, key_metrics):
+        console.print(line, markup=False)

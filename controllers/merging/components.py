@@ -47,7 +47,12 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
-from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel, worst_case_leader
+from corridor.controllers.merging.safety_layer import (
+    SafetyParams,
+    lane_leaders,
+    safe_accel,
+    worst_case_leader,
+)
 from corridor.controllers.merging.switching import (
     DIST_BOUNDARIES,
     MergeBoundaries,
@@ -62,7 +67,7 @@ from corridor.modes import HybridAutomaton, SwitchingParams
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
-from corridor.traffic.sumo.road_spec import require_landmarks
+from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator, CamMessage
 from corridor.vehicles.tracks.pool import TrackPool
@@ -136,6 +141,10 @@ class V2XMerging(Controller):
         #   with IDM drivers the hold made the V2X variants slower than SUMO's own merging (4 seeds:
         #   86-87 s mean delay against 80.6 s, ramp 40 s against 28 s; without it 78.8-79.1 s), and
         #   with Krauss drivers it makes no measurable difference (8 seeds: cps 12.80 / 12.82 s)
+        command_speed_mode: int = Field(27, ge=0, le=31)  # SUMO speed mode of commanded vehicles: 27 =
+        #   all checks but the type's comfortable decel (bit 2), so a commanded braking is executed up to
+        #   the type's emergency decel, as SUMO lets its own drivers brake; 31 caps it at `decel` (with the
+        #   calibrated humans, 2 m/s²: commanded ramp vehicles then ran into the ramp's queue)
         comfort_accel_mps2: float = Field(1.0, gt=0)  # [m/s^2] the requested arrival (rank, slot floor)
         #   assumes at most this acceleration towards the crossing speed
         # when a vehicle switches (controllers.merging.switching; defaults: the constants above)
@@ -206,6 +215,22 @@ class V2XMerging(Controller):
         self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
                                 stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
+        self.safety = self._deliverable_safety(ctx.scenario)
+
+    def _deliverable_safety(self, scenario: Any) -> SafetyParams:
+        """The safety layer's params limited to the braking a commanded vehicle delivers: in speed mode
+        ``command_speed_mode`` SUMO executes a commanded slowing up to the type's ``emergencyDecel``
+        (mode 27) or only up to its ``decel`` (bit 2 set, e.g. 31), so ``b_ego`` is at most the smallest
+        of those of the connected flows' types, and the reaction time at least the period a command is
+        held."""
+        road = road_spec(scenario) if scenario is not None else None
+        capped = bool(self.p.command_speed_mode & 4)
+        decels = [(vt.decel if capped else vt.emergency_decel)
+                  for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
+                             if f.connected_share > 0)] if road is not None else []
+        b_ego = min([self.p.safety.b_ego_mps2, *decels])
+        return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
+                                                "reaction_s": max(self.p.safety.reaction_s, self.period)})
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -256,7 +281,8 @@ class V2XMerging(Controller):
         dist[ramp & self._on_ramp_lane[r.lane]] /= self.cos_ramp  # along the inclined ramp
         return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
                 "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
-                "heading": heading, "lane": r.lane, "length": size[:, 0]}
+                "heading": heading, "lane": r.lane, "length": size[:, 0], "leader": lane_leaders(r.lane, r.lane_pos),
+                "lane_pos": r.lane_pos}
 
     def _classify_lanes(self, tb: RoadTables) -> None:
         """Per lane code, once per lane: on the ramp edge; the mainline lane that ramp vehicles join."""
@@ -454,14 +480,15 @@ class V2XMerging(Controller):
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
                     if vg.age_s > self.period:  # unheard since: assume it braked as hard as it can
                         x_last = gap - v_lead * vg.age_s
-                        gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.p.safety.b_lead_mps2)
+                        gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
-                    acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.p.safety)
+                    acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.safety)
+            acc = self._physical_leader_cap(s, k, acc)
             v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
             if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
-            cmds.append(SetSpeed(vid, v_next))
+            cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
             self.controlled.add(vid)
             self.commands_sent += 1
         for vid in [v for v in self.automata if v not in self.assigned or live.get(v) is None or dist[live[v]] < 0]:
@@ -487,6 +514,16 @@ class V2XMerging(Controller):
         lead_len = float(length[live[pred]]) if pred in live else 5.0
         gap = dist_m + pos_lead - lead_len  # > 0: the predecessor is ahead of the ego
         return VirtualGap(True, gap, vel_lead, age_s, lead_len)
+
+    def _physical_leader_cap(self, s: dict[str, Any], k: int, acc: float) -> float:
+        """``acc`` capped by the safety layer against the vehicle's own leader on its lane (sensed on
+        board).  SUMO's safe-speed check alone did not keep a commanded EIDM vehicle off a stopped
+        leader: with the calibrated humans commanded ramp vehicles ran into the ramp's queue at 7 m/s."""
+        j = int(s["leader"][k])
+        if j < 0:
+            return acc
+        gap = float(s["lane_pos"][j] - s["length"][j] - s["lane_pos"][k])
+        return safe_accel(gap, float(s["speed"][k]), float(s["speed"][j]), acc, self.safety)
 
     def _merge_gap_accel(self, gap_m: float, v: float, v_lead: float) -> float:
         """Constant-time-gap rule towards the virtual leader: open the gap that the lane change needs.

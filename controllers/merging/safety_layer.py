@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 
@@ -79,6 +80,15 @@ def safe_accel(gap_m: float, v_ego: float, v_lead: float, a_cmd: float, params: 
         return min(a_cmd, -params.b_ego_mps2)
     a_safe = (v1_max - v_ego) / params.reaction_s
     return min(a_cmd, max(a_safe, -params.b_ego_mps2))
+
+
+def lane_leaders(lane: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
+    """Per vehicle, the index of the next vehicle ahead on the same lane (-1: none on that lane)."""
+    order = np.lexsort((lane_pos, lane))
+    out = np.full(len(lane), -1, dtype=np.int64)
+    same = lane[order[:-1]] == lane[order[1:]]
+    out[order[:-1][same]] = order[1:][same]
+    return out
 
 
 def worst_case_leader(

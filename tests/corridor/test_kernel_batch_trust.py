@@ -135,12 +135,13 @@ def test_run_plan_is_lazy_and_ranks_run_ids():
 
     sc, raw = load(MERGING)
     plan = expand(sc, raw, MERGING, runs=10**9, seed=3)
-    assert len(plan) == 3 * 10**9
+    assert len(plan) == 4 * 10**9
     last = plan[-1]
     assert last.run_id == f"v2x_cps-s{3 + 10**9 - 1}" and plan.rank(last.run_id) == len(plan) - 1
-    assert plan.rank("sumo_default-s3") == 0 and plan.rank("nope-s3") == len(plan)
+    assert plan.rank("human-s3") == 0 and plan.rank("nope-s3") == len(plan)
     assert [s.run_id for s in list(expand(sc, raw, MERGING, runs=2))] == \
-        ["sumo_default-s0", "v2x_fifo-s0", "v2x_cps-s0", "sumo_default-s1", "v2x_fifo-s1", "v2x_cps-s1"]
+        ["human-s0", "sumo_default-s0", "v2x_fifo-s0", "v2x_cps-s0",
+         "human-s1", "sumo_default-s1", "v2x_fifo-s1", "v2x_cps-s1"]
 
 
 def _start(out: Path, runs: int, *extra: str) -> subprocess.Popen:

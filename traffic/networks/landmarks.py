@@ -171,6 +171,27 @@ class StreetParkingLandmarks(Landmarks):
     end_x: float  # [m] a counting line near the street's east end (``traffic_kpis``)
 
 
+class FlowMergeLandmarks(Landmarks):
+    """``flow_merge``: Flow's merge benchmark network (a single-lane highway along +x, a single-lane
+    on-ramp joining it at the junction ``merge_junction`` without an acceleration lane); x measured on
+    the built network."""
+
+    kind: Literal["flow_merge"] = "flow_merge"
+    highway_edges: tuple[str, ...]  # in driving order
+    ramp_edges: tuple[str, ...]
+    post_merge_edge: str
+    merge_junction: str
+    mainline_start_x: float  # [m] start of the highway inflow edge
+    merge_x: float  # [m] the junction where the ramp joins (end of the highway's pre-merge edge)
+    past_merge_x: float  # [m] start of the post-merge edge (past the junction)
+    mainline_end_x: float  # [m]
+    ramp_angle_deg: float  # [deg] between ramp and highway
+
+    def is_ramp_lane(self, lane: str) -> bool:
+        """A lane of one of the ramp's edges."""
+        return lane.rsplit("_", 1)[0] in self.ramp_edges
+
+
 class SumoFilesLandmarks(Landmarks):
     """``sumo_files``: a user's own SUMO network.  corridor knows no merge, ramp or bay on it: only
     what is measured on the network file."""
@@ -184,7 +205,10 @@ class SumoFilesLandmarks(Landmarks):
 
 LANDMARK_MODELS: dict[str, type[Landmarks]] = {
     m.model_fields["kind"].default: m
-    for m in (OnrampLandmarks, RuralLandmarks, BeltwayLandmarks, StreetParkingLandmarks, SumoFilesLandmarks)
+    for m in (
+        OnrampLandmarks, RuralLandmarks, BeltwayLandmarks, StreetParkingLandmarks, FlowMergeLandmarks,
+        SumoFilesLandmarks,
+    )
 }
 
 

@@ -113,6 +113,7 @@ class SumoBackend(Backend):
         self.tables = RoadTables(self.net.landmarks)
         self.controlled: set[str] = set()
         self._lc_mode0: dict[str, int] = {}  # original lane-change modes of vehicles a controller changed
+        self._speed_mode0: dict[str, int] = {}  # speed modes their vehicle types set at departure
         self._ids: list[str] = []  # ids of the vehicles in the network after the last step
         self.commands_ignored = 0
         # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
@@ -138,6 +139,8 @@ class SumoBackend(Backend):
                       libsumo.VAR_ACCELERATION, libsumo.VAR_LANE_ID, libsumo.VAR_LANEPOSITION)
         self._read_vars = (libsumo.VAR_POSITION, libsumo.VAR_SPEED, libsumo.VAR_ANGLE, libsumo.VAR_ACCELERATION,
                            libsumo.VAR_LANEPOSITION, libsumo.VAR_LANE_ID)
+        self._emission_vars = (libsumo.VAR_CO2EMISSION, libsumo.VAR_FUELCONSUMPTION) if self.road.sumo.emissions else ()
+        self._vars += self._emission_vars
         every = round(self.period / ctx.dt)
         self._last_tick = ((round(ctx.duration / ctx.dt) - 1) // every) * every  # the run's last SUMO step
         self._sim_vars = (libsumo.VAR_DEPARTED_VEHICLES_IDS, libsumo.VAR_ARRIVED_VEHICLES_IDS,
@@ -231,6 +234,7 @@ class SumoBackend(Backend):
             if vid in uid_of:
                 arrived.append(uid_of[vid])
             self.controlled.discard(vid)
+            self._speed_mode0.pop(vid, None)
         teleported = []
         for vid in sim.get(tel, ()):
             teleported.append(uid_of.get(vid, -1))
@@ -264,6 +268,9 @@ class SumoBackend(Backend):
         route = spec.route if spec else ls.vehicle.getRouteID(vid)
         vt = self.road.demand.vehicle_types[spec.vtype] if spec else None
         connected = bool(spec and self._rng.random() < spec.connected_share)
+        if vt is not None and vt.speed_mode is not None:
+            ls.vehicle.setSpeedMode(vid, vt.speed_mode)
+            self._speed_mode0[vid] = vt.speed_mode
         desired = ls.vehicle.getSpeedFactor(vid)
         max_speed = vt.max_speed if vt else 50.0
         if spec is None and self.net.user_files:  # a vehicle of the user's files: its own
@@ -342,6 +349,10 @@ class SumoBackend(Backend):
             role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
                          distance=distance, events=events, detectors=detectors)
+        if self._emission_vars:  # [mg/s] SUMO's emission model (HBEFA / PHEMlight of the vType's emissionClass)
+            co2, fuel = (itemgetter(v) for v in self._emission_vars)
+            road.co2_mgps = np.fromiter(map(co2, rows), dtype=float, count=n)
+            road.fuel_mgps = np.fromiter(map(fuel, rows), dtype=float, count=n)
         # SUMO reports the front bumper and its angle (clockwise from north): centre, velocity and
         # ENU yaw are derived when a consumer first reads them (corridor.poses)
         self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, size=same.size, road=road,
@@ -419,7 +430,7 @@ class SumoBackend(Backend):
                 continue
             if isinstance(c, cmd.Release):
                 v.setSpeed(vid, -1)
-                v.setSpeedMode(vid, 31)
+                v.setSpeedMode(vid, self._speed_mode0.get(vid, 31))
                 if vid in self._lc_mode0:
                     v.setLaneChangeMode(vid, self._lc_mode0.pop(vid))
                 self.controlled.discard(vid)

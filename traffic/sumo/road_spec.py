@@ -86,6 +86,19 @@ class VehicleTypeSpec(Strict):
     speed_dev: float = Field(0.1, ge=0)
     lc: dict[str, float] = Field(default_factory=dict)
     extra: dict[str, str | float] = Field(default_factory=dict)  # any other SUMO vType attribute
+    speed_mode: int | None = Field(None, ge=0, le=127)  # TraCI speed mode set when a vehicle departs
+    #   (None: SUMO's own, 31); Flow's humans drive "obey_safe_speed" = 1 (no right-of-way checks)
+    preset: str | None = None  # a driver preset of corridor.traffic.sumo.driver_presets: its values are the
+    #   defaults of this type, the fields given beside it override them (lc / extra key by key)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _apply_preset(cls, data: Any) -> Any:
+        if not isinstance(data, dict) or data.get("preset") is None:
+            return data
+        from corridor.traffic.sumo.driver_presets import preset_values
+
+        return preset_values(data["preset"], data)
 
 
 class FlowSpec(Strict):
@@ -154,6 +167,8 @@ class SumoOptions(Strict):
     collision_action: Literal["warn", "teleport", "remove", "none"] = "warn"
     collision_check_junctions: bool = True
     time_to_teleport: float = 300.0  # [s]; < 0 disables
+    emissions: bool = False  # read every vehicle's CO2 and fuel rate [mg/s] each step (SUMO's emission
+    #   model of its vType emissionClass) into the road frame; off: nothing read, nothing costs
     extra_args: list[str] = Field(default_factory=list)  # SUMO_ALLOWED_OPTIONS / _PREFIXES only
 
     @field_validator("outputs")

@@ -1,0 +1,240 @@
+"""Connected vehicles that dampen merge waves (``v2x_wave_damping``), over a lossy V2X channel.
+
+Per road step, in pipeline order:
+1. *sense*: a roadside unit (RSU) at the merge measures, with noisy sensors, the speed of every vehicle
+   on the highway in cells of ``cell_m`` from ``zone_before_m`` before the merge to its end, and the
+   arrival time at the merge of every vehicle on the ramp;
+2. *communicate*: every ``rsu_period_s`` it broadcasts both (one message) to the connected highway
+   vehicles in the zone, over the scenario's channel (range, latency, loss);
+3. *decide*: each connected highway vehicle with a fresh message drives the FollowerStopper
+   (``wave_damping.follower_stopper``) towards the speed the RSU reports for the road ahead of it
+   (jam absorption), capped so that it reaches the merge a headway behind a ramp vehicle it would
+   otherwise meet there (gap creation); the speed change per step is bounded (``a_max_mps2``,
+   ``b_comfort_mps2``: Flow's RL vehicles' 1.5 m/s²) and passes the safety layer
+   (``safety_layer.safe_accel``: the Gipps / RSS bound to its physical leader, sensed on board).  The
+   layer counts on the braking the vehicle can deliver: commanded in speed mode 27 SUMO executes a
+   commanded braking up to the type's ``emergencyDecel`` (in mode 31 only up to its ``decel``), so
+   ``b_ego`` is at most the smallest of those of the connected flows' types, and the reaction time at
+   least the period a command is held (a 6 m/s² bound with 2 m/s² brakes let
+   commanded vehicles run into their leaders: 5.9 collisions a run at 33 % with the calibrated humans).
+   Without a fresh message (older than ``stale_after_s``) the vehicle is handed back to its driver
+   model (``Release``, counted as a fallback); past the merge it is released for good.
+
+SUMO's own safe-speed check (the vehicle type's speed mode) stays on for commanded vehicles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from corridor.channel import Channel, ChannelConfig
+from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
+from corridor.controllers.merging.wave_damping import (
+    StopperParams,
+    downstream_speed,
+    follower_stopper,
+    gap_speed_cap,
+)
+from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.snapshot import Role
+from corridor.traffic.sumo.commands import Release, SetSpeed
+from corridor.traffic.sumo.road_spec import road_spec
+from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
+
+RSU = "rsu"
+
+
+@dataclass(frozen=True, slots=True)
+class RoadAhead:
+    """RSU -> connected vehicles: cell centres x [m], their mean speed [m/s] (nan: empty), ramp ETAs [s]."""
+
+    t_sent_s: float
+    cell_x_m: np.ndarray
+    cell_speed_mps: np.ndarray
+    ramp_eta_s: np.ndarray
+
+
+class WaveDamping(Controller):
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        Metric('v2x_delivery_ratio', '1', 'Share of the roadside unit\'s messages delivered.'),
+        Metric('v2x_fallbacks', '1', 'Connected vehicles handed back to their driver model because the last message was stale.'),
+        Metric('v2x_commands', '1', 'Speed commands sent to connected vehicles.'),
+    )
+    needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
+    period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
+
+    class Params(BaseModel):
+        model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+        channel: str = "v2x"  # a key of the scenario's `channels` (defaults if absent)
+        rsu_period_s: float = Field(0.5, gt=0)  # [s] between RSU broadcasts
+        cell_m: float = Field(50.0, gt=0)  # [m]
+        zone_before_m: float = Field(300.0, gt=0)  # [m] RSU coverage (and control) before the merge
+        horizon_m: float = Field(150.0, gt=0)  # [m] the road ahead a vehicle takes its speed from
+        u_min_mps: float = Field(5.0, ge=0)  # [m/s] lowest reference speed
+        u_max_mps: float = Field(30.0, gt=0)  # [m/s] highest (the speed limit)
+        free_above_mps: float | None = Field(18.0, gt=0)  # [m/s] cells at least this fast count as free
+        #   (u_max): the vehicle reacts to waves only, not to the ordinary spread of speeds (None: off)
+        a_max_mps2: float = Field(1.5, gt=0)  # [m/s²]
+        b_comfort_mps2: float = Field(1.5, gt=0)  # [m/s²] the law's own braking (the layer may brake harder)
+        gap_headway_s: float = Field(0.0, ge=0)  # [s] gap created behind a merging vehicle (0: none).  Off
+        #   by default: on flow_merge with the calibrated humans (4 seeds, 10 %) 1.5 s cost 5.5 m/s of
+        #   average speed against 2.0 m/s without it (a ramp vehicle waiting at the yield line slows
+        #   the connected vehicle to a crawl, and the humans behind it break down)
+        gap_zone_m: float = Field(200.0, ge=0)  # [m] gap creation only this close to the merge
+        stale_after_s: float = Field(1.0, gt=0)  # [s]
+        release_after_m: float = Field(0.0, ge=0)  # [m] past the merge point a vehicle is handed back
+        command_speed_mode: int = Field(27, ge=0, le=31)  # SUMO speed mode of commanded vehicles: 27 =
+        #   all checks but the type's comfortable decel (bit 2), so a commanded braking is executed up to
+        #   the type's emergency decel; 31 keeps the decel limit (the layer then counts on decel only)
+        sensor_noise_mps: float = Field(0.5, ge=0)  # [m/s] RSU speed sensing
+        stopper: StopperParams = Field(default_factory=StopperParams)
+        safety: SafetyParams = Field(default_factory=SafetyParams)
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name)
+        self.p = params
+        self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
+        self.latest: dict[str, RoadAhead] = {}  # vehicle -> newest RSU message received
+        self.controlled: set[str] = set()
+        self.fallbacks = 0
+        self.commands_sent = 0
+        self._next_rsu_s = 0.0
+
+    def setup(self, ctx: RunContext) -> None:
+        super().setup(ctx)
+        lm = road_frame(ctx).tables.landmarks
+        if not hasattr(lm, "merge_x"):
+            raise ValueError(f"{self.name}: wave damping needs the flow_merge network (a merge_x), not {lm.kind!r}")
+        self.lm = lm
+        self.merge_x, self.end_x = float(lm.merge_x), float(lm.mainline_end_x)
+        self.cos_ramp = math.cos(math.radians(lm.ramp_angle_deg))
+        self.cells = np.arange(self.merge_x - self.p.zone_before_m, self.end_x, self.p.cell_m) + 0.5 * self.p.cell_m
+        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
+        self.sensor_rng = ctx.rng(f"{self.name}.sensor")
+        self._ramp_lane = np.zeros(0, dtype=bool)
+        self.safety = self._deliverable_safety(ctx.scenario)
+
+    def _deliverable_safety(self, scenario: Any) -> SafetyParams:
+        """The safety layer's params limited to what the commanded vehicles can do (see the module doc)."""
+        road = road_spec(scenario) if scenario is not None else None
+        capped = bool(self.p.command_speed_mode & 4)  # SUMO keeps a commanded speed within `decel`
+        decels = [(vt.decel if capped else vt.emergency_decel)
+                  for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
+                             if f.connected_share > 0)] if road is not None else []
+        b_ego = min([self.p.safety.b_ego_mps2, *decels])
+        return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
+                                                "reaction_s": max(self.p.safety.reaction_s, self.period)})
+
+    # ------------------------------------------------------------------ the tick
+    def tick(self, ctx: RunContext) -> None:
+        s = self._sense(ctx)
+        if s is None:
+            return
+        self._communicate(ctx.t, s)
+        ctx.commands.extend(self._decide(ctx.t, s))
+
+    def _sense(self, ctx: RunContext) -> dict[str, Any] | None:
+        snap, r = ctx.snapshot, ctx.snapshot.road
+        if r is None or len(r) == 0:
+            return None
+        sl, tb = r.sl, r.tables
+        if len(self._ramp_lane) < tb.n_lanes:
+            self._ramp_lane = np.array([self.lm.is_ramp_lane(n) for n in tb.lane_names], dtype=bool)
+        pos, size = snap.position[sl], snap.size[sl]
+        front = pos[:, 0] + 0.5 * size[:, 0] * np.cos(snap.heading[sl])
+        return {"ids": list(snap.ids[sl]), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
+                "on_ramp": self._ramp_lane[r.lane], "ramp": tb.role[r.uid] == Role.RAMP,
+                "connected": tb.connected[r.uid], "pos": pos}
+
+    def _communicate(self, t: float, s: dict[str, Any]) -> None:
+        """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
+        zone = s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m) & (s["front"] < self.merge_x + self.p.release_after_m)
+        members = {s["ids"][k] for k in np.flatnonzero(zone)}
+        for vid in members - set(self.channel.receivers):
+            self.channel.attach(vid)
+        for vid in set(self.channel.receivers) - members:
+            self.channel.detach(vid)
+            self.latest.pop(vid, None)
+        if t + 1e-9 >= self._next_rsu_s:
+            self._next_rsu_s += self.p.rsu_period_s
+            self.channel.set_positions_arrays(s["ids"], s["pos"])
+            self.channel.send(t, RSU, self._measure(t, s), np.array([self.merge_x, 0.0, 0.0]))
+        for d in self.channel.deliver(t):
+            if d.dst in members:
+                self.latest[d.dst] = d.payload
+
+    def _measure(self, t: float, s: dict[str, Any]) -> RoadAhead:
+        """The RSU's noisy view: mean speed per cell on the highway, ramp vehicles' arrival times."""
+        noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))
+        v = np.maximum(s["speed"] + noise, 0.0)
+        line = ~s["on_ramp"]
+        k = np.floor((s["front"][line] - (self.cells[0] - 0.5 * self.p.cell_m)) / self.p.cell_m).astype(int)
+        ok = (k >= 0) & (k < len(self.cells))
+        total = np.bincount(k[ok], weights=v[line][ok], minlength=len(self.cells))
+        count = np.bincount(k[ok], minlength=len(self.cells))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cell_speed = np.where(count > 0, total / count, np.nan)
+        ramp = s["on_ramp"]
+        dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
+        eta = t + np.maximum(dist, 0.0) / np.maximum(v[ramp], 1.0)
+        return RoadAhead(t, self.cells, cell_speed, eta)
+
+    def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
+        cmds: list[Any] = []
+        ids, front, speed, length = s["ids"], s["front"], s["speed"], s["length"]
+        line = np.flatnonzero(~s["on_ramp"])
+        order = line[np.argsort(front[line], kind="stable")]  # the vehicles on the highway line, rear first
+        for j, k in enumerate(order):
+            vid = ids[k]
+            if not s["connected"][k] or s["ramp"][k]:
+                continue
+            if front[k] >= self.merge_x + self.p.release_after_m:
+                self._release(vid, cmds)
+                continue
+            msg = self.latest.get(vid)
+            if msg is None or t - msg.t_sent_s > self.p.stale_after_s:
+                if vid in self.controlled:
+                    self.fallbacks += 1
+                    self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, own driver model")
+                self._release(vid, cmds)
+                continue
+            lead = order[j + 1] if j + 1 < len(order) else None
+            gap = float(front[lead] - length[lead] - front[k]) if lead is not None else math.inf
+            v_lead = float(speed[lead]) if lead is not None else self.p.u_max_mps
+            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead),
+                                 self.p.command_speed_mode))
+            self.controlled.add(vid)
+            self.commands_sent += 1
+        return cmds
+
+    def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float) -> float:
+        """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
+        p = self.p
+        cells = msg.cell_speed_mps
+        if p.free_above_mps is not None:
+            cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
+        u = downstream_speed(x, msg.cell_x_m, cells, p.horizon_m, p.u_max_mps)
+        dist = self.merge_x - x
+        if p.gap_headway_s > 0 and dist < p.gap_zone_m:
+            u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))
+        u = float(np.clip(u, p.u_min_mps, p.u_max_mps))
+        v_cmd = follower_stopper(gap, v, v_lead, u, p.stopper) if math.isfinite(gap) else u
+        a = float(np.clip((v_cmd - v) / self.period, -p.b_comfort_mps2, p.a_max_mps2))
+        if math.isfinite(gap):
+            a = safe_accel(gap, v, v_lead, a, self.safety)
+        return max(0.0, v + a * self.period)
+
+    def _release(self, vid: str, cmds: list[Any]) -> None:
+        if vid in self.controlled:
+            self.controlled.discard(vid)
+            cmds.append(Release(vid))
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        st = self.channel.stats()
+        return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_fallbacks": self.fallbacks,
+                "v2x_commands": self.commands_sent}
