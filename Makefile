@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 DEV_STAMP := $(VENV)/.installed-dev
-RUNS ?= 4
+RUNS ?= 8
 OUT ?= results/merging
 
 .PHONY: run test test-all lint bench docs clean chromium
