@@ -43,3 +43,12 @@ def scenarios_dir() -> Path:
 def scenario_path() -> Callable[[str], Path]:
     """A function: scenario name -> its file (``scenario_path("merging")``)."""
     return scenario_file
+
+# --set lines for SUMO's Krauss drivers on scenarios/merging.yaml (its sumo_default variant): tests whose
+# figures were measured with them (the scenario's base humans, EIDM since issue 27, never brake hard)
+KRAUSS = [
+    "road.demand.vehicle_types.car={car_following: Krauss, accel: 2.6, decel: 4.5, sigma: 0.5, tau: 1.0, "
+    "length: 4.8, min_gap: 2.5, max_speed: 40, speed_dev: 0.1}",
+    "road.demand.vehicle_types.truck={car_following: Krauss, accel: 1.2, decel: 4.0, sigma: 0.5, tau: 1.5, "
+    "length: 12.0, width: 2.5, min_gap: 3.0, max_speed: 25, speed_dev: 0.05}",
+]

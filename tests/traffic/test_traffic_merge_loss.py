@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.conftest import SCENARIOS
+from tests.conftest import KRAUSS, SCENARIOS
 
 SCENARIO = SCENARIOS / "merging.yaml"
 
@@ -20,7 +20,9 @@ def _area_loss_against_sumo(before_m: float, after_m: float) -> dict[str, object
     from corridor.scenario import load
 
     sets = ["duration=120", "warmup=0", f"monitors.kpis.params.merge_area.before_m={before_m}",
-            f"monitors.kpis.params.merge_area.after_m={after_m}"]
+            f"monitors.kpis.params.merge_area.after_m={after_m}", *KRAUSS]
+    # (Krauss: with the EIDM humans SUMO's getTimeLoss goes negative while a driver's speed error takes
+    # it above its desired speed, down to -0.5 s in 120 s; the monitor counts no negative loss)
     sc, _ = load(str(SCENARIO), sets)
     sim = build(sc, 3, Path(tempfile.mkdtemp()))
     ctx = sim.ctx

@@ -13,7 +13,7 @@ import pytest
 
 from corridor.analysis.monitoring.tick_block import TickBlock
 from corridor.snapshot import RoadFrame, RoadTables, WorldSnapshot
-from tests.conftest import SCENARIOS
+from tests.conftest import KRAUSS, SCENARIOS
 
 SCENARIO = SCENARIOS / "merging.yaml"
 
@@ -53,7 +53,7 @@ def _monitors_with_blocks(ticks: int) -> dict[str, object]:
 
     SurrogateSafety.block_ticks = TrafficKpis.block_ticks = ticks
     # warm-up inside a block; a TTC threshold that is crossed (time exposed > 0) in 80 s
-    sets = ["duration=80", "warmup=23.3", "monitors.ssm.params.ttc_threshold_s=12"]
+    sets = ["duration=80", "warmup=23.3", "monitors.ssm.params.ttc_threshold_s=12", *KRAUSS]
     sc, _ = load(str(SCENARIO), sets)
     sim = build(sc, 2, Path(tempfile.mkdtemp()))
     metrics = sim.run()
