@@ -62,6 +62,8 @@ def draw(signals: dict[str, dict], out: Path) -> None:
 REPORT_PLOTS: dict[str, tuple[list[str], list[str], dict[str, str]]] = {
     "merging": (["duration=300"], [], {"Mean speed": "merging_mean_speed",
                                        "Time lost around the merge": "merging_merge_loss"}),
+    "merge_bottleneck": ([], ["eidm_human"], {"Bottleneck: breakdown and capacity drop (virtual loops)":
+                                               "merge_bottleneck_loop_flows"}),
     "ramp_metering": (["duration=1200"], ["mpc"], {"Mainline speed contour": "ramp_metering_contour",
                                                    "Meter rates": "ramp_metering_meter_rates"}),
 }
