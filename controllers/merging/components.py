@@ -215,22 +215,7 @@ class V2XMerging(Controller):
         self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
                                 stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
-        self.safety = self._deliverable_safety(ctx.scenario)
-
-    def _deliverable_safety(self, scenario: Any) -> SafetyParams:
-        """The safety layer's params limited to the braking a commanded vehicle delivers: in speed mode
-        ``command_speed_mode`` SUMO executes a commanded slowing up to the type's ``emergencyDecel``
-        (mode 27) or only up to its ``decel`` (bit 2 set, e.g. 31), so ``b_ego`` is at most the smallest
-        of those of the connected flows' types, and the reaction time at least the period a command is
-        held."""
-        road = road_spec(scenario) if scenario is not None else None
-        capped = bool(self.p.command_speed_mode & 4)
-        decels = [(vt.decel if capped else vt.emergency_decel)
-                  for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
-                             if f.connected_share > 0)] if road is not None else []
-        b_ego = min([self.p.safety.b_ego_mps2, *decels])
-        return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
-                                                "reaction_s": max(self.p.safety.reaction_s, self.period)})
+        self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -562,3 +547,18 @@ class V2XMerging(Controller):
                 "v2x_dropped_after_end": st.dropped_after_end, "v2x_dropped_overflow": st.dropped_overflow,
                 "v2x_commands": self.commands_sent,
                 "min_virtual_gap_m": self.min_virtual_gap if math.isfinite(self.min_virtual_gap) else np.nan}
+
+
+def deliverable_safety(safety: SafetyParams, scenario: Any, command_speed_mode: int, period_s: float) -> SafetyParams:
+    """The safety layer's params ``safety`` limited to the braking a commanded vehicle delivers: in speed
+    mode ``command_speed_mode`` SUMO executes a commanded slowing up to the type's ``emergencyDecel``
+    (mode 27) or only up to its ``decel`` (bit 2 set, e.g. 31), so ``b_ego`` is at most the smallest of
+    those of the connected flows' types, and the reaction time at least the period ``period_s`` [s] a
+    command is held.  Shared by the V2X merging and wave-damping controllers."""
+    road = road_spec(scenario) if scenario is not None else None
+    capped = bool(command_speed_mode & 4)
+    decels = [(vt.decel if capped else vt.emergency_decel)
+              for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
+                         if f.connected_share > 0)] if road is not None else []
+    return safety.model_copy(update={"b_ego_mps2": min([safety.b_ego_mps2, *decels]),
+                                     "reaction_s": max(safety.reaction_s, period_s)})

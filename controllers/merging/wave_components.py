@@ -33,6 +33,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.channel import Channel, ChannelConfig
+from corridor.controllers.merging.components import deliverable_safety
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
     StopperParams,
@@ -43,7 +44,6 @@ from corridor.controllers.merging.wave_damping import (
 from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.snapshot import Role
 from corridor.traffic.sumo.commands import Release, SetSpeed
-from corridor.traffic.sumo.road_spec import road_spec
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
@@ -117,18 +117,7 @@ class WaveDamping(Controller):
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
-        self.safety = self._deliverable_safety(ctx.scenario)
-
-    def _deliverable_safety(self, scenario: Any) -> SafetyParams:
-        """The safety layer's params limited to what the commanded vehicles can do (see the module doc)."""
-        road = road_spec(scenario) if scenario is not None else None
-        capped = bool(self.p.command_speed_mode & 4)  # SUMO keeps a commanded speed within `decel`
-        decels = [(vt.decel if capped else vt.emergency_decel)
-                  for vt in (road.demand.vehicle_types[f.vtype] for f in road.demand.flows.values()
-                             if f.connected_share > 0)] if road is not None else []
-        b_ego = min([self.p.safety.b_ego_mps2, *decels])
-        return self.p.safety.model_copy(update={"b_ego_mps2": b_ego,
-                                                "reaction_s": max(self.p.safety.reaction_s, self.period)})
+        self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:

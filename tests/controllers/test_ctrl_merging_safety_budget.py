@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from corridor.controllers.merging.components import V2XMerging
+from corridor.controllers.merging.components import V2XMerging, deliverable_safety
 from corridor.controllers.merging.safety_layer import lane_leaders
 from corridor.scenario import load
 from corridor.variants import variant_scenarios
@@ -22,7 +22,7 @@ def _budget(sets: list[str], mode: int | None = None) -> tuple[float, float]:
     vsc = variant_scenarios(sc)["v2x_cps"]
     params = dict(vsc.controllers["merge"].params) | ({"command_speed_mode": mode} if mode is not None else {})
     comp = V2XMerging("merge", V2XMerging.Params.model_validate(params), vsc)
-    s = comp._deliverable_safety(vsc)
+    s = deliverable_safety(comp.p.safety, vsc, comp.p.command_speed_mode, comp.period)
     return s.b_ego_mps2, s.reaction_s
 
 
