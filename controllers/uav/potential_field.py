@@ -124,28 +124,23 @@ def _relevant(obs: AvoidanceObservation, p: PotentialFieldParams) -> list[Tracke
     return [o for o in obs.others if np.linalg.norm(o.pos - obs.own_pos) < p.influence_m]
 
 
-def _agent_gradients(obs: AvoidanceObservation, p: PotentialFieldParams) -> tuple[np.ndarray, np.ndarray]:
-    """Gradients (K, 3) of every agent's repulsive term at the ego position, all agents at once, and
-    each agent's position relative to the ego (K, 3); the same arithmetic as :func:`_agent_terms`
-    (agents beyond ``influence_m`` get zero rows)."""
-    others = obs.others
-    x, v = obs.own_pos, obs.own_vel
-    pos = np.array([o.pos for o in others], dtype=float).reshape(-1, 3)
-    vel = np.array([o.vel for o in others], dtype=float).reshape(-1, 3)
-    sig = np.array([o.sigma_m for o in others], dtype=float)
-    piloted = np.array([o.is_piloted for o in others], dtype=bool)
-    rel = x - pos
+def pair_repulsion(x: np.ndarray, v: np.ndarray, o_pos: np.ndarray, o_vel: np.ndarray, sigma: np.ndarray,
+                   piloted: np.ndarray, p: PotentialFieldParams) -> np.ndarray:
+    """-grad of each pair's repulsive term at its ego (K, 3) [m/s]: the ego at ``x``, ``v`` (K, 3) and the
+    other agent of the pair; agents beyond ``influence_m`` give zero rows.  Shared by the per-UAV
+    method (:func:`_agent_gradients`) and the fleet (``potential_field_fleet``)."""
+    rel = x - o_pos
     d_raw = np.sqrt(np.einsum("kd,kd->k", rel, rel))
     d = np.maximum(d_raw, 1e-9)
     unit = rel / d[:, None]
-    v_rel = v - vel
+    v_rel = v - o_vel
     u_dot_v = np.einsum("kd,kd->k", unit, v_rel)
     closing = -u_dot_v  # [m/s] > 0 when approaching
     weight = np.where(piloted, p.piloted_weight, p.uav_weight)
     radius = np.where(piloted, p.piloted_safety_radius_m, p.uav_safety_radius_m)
     tau = np.where(piloted, p.piloted_lookahead_s, p.uav_lookahead_s)
     approaching = closing > 0.0
-    f = d - radius - sig - np.where(approaching, tau * closing, 0.0)
+    f = d - radius - sigma - np.where(approaching, tau * closing, 0.0)
     grad_f = unit + np.where(approaching, tau / d, 0.0)[:, None] * (v_rel - unit * u_dot_v[:, None])
     soft = f < p.eps_m  # C1 positive floor (see _soft_floor)
     e = np.exp(np.minimum(f, p.eps_m) / p.eps_m - 1.0)
@@ -154,7 +149,19 @@ def _agent_gradients(obs: AvoidanceObservation, p: PotentialFieldParams) -> tupl
     # bounded support: -(w/fc^2 - w/f0^2) inside f0, zero beyond; 1/f tail when f0 is None (w/inf = 0)
     scale = np.where(fc < f0, -(weight / fc**2 - weight / f0**2) * dfc, 0.0)
     scale = np.where(d_raw < p.influence_m, scale, 0.0)
-    return scale[:, None] * grad_f, -rel
+    return -scale[:, None] * grad_f
+
+
+def _agent_gradients(obs: AvoidanceObservation, p: PotentialFieldParams) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (K, 3) of every agent's repulsive term at the ego position, all agents at once, and
+    each agent's position relative to the ego (K, 3); the same arithmetic as :func:`_agent_terms`
+    (agents beyond ``influence_m`` get zero rows)."""
+    others = obs.others
+    pos = np.array([o.pos for o in others], dtype=float).reshape(-1, 3)
+    vel = np.array([o.vel for o in others], dtype=float).reshape(-1, 3)
+    sig = np.array([o.sigma_m for o in others], dtype=float)
+    piloted = np.array([o.is_piloted for o in others], dtype=bool)
+    return -pair_repulsion(obs.own_pos, obs.own_vel, pos, vel, sig, piloted, p), -(obs.own_pos - pos)
 
 
 def _rotate_ccw(g: np.ndarray) -> np.ndarray:

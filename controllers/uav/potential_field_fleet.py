@@ -16,7 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from corridor.controllers.uav.potential_field import PotentialFieldParams
+from corridor.controllers.uav.potential_field import PotentialFieldParams, pair_repulsion
 
 
 class FleetCommands(NamedTuple):
@@ -37,31 +37,6 @@ def goal_flow(x: np.ndarray, goal: np.ndarray, p: PotentialFieldParams) -> np.nd
     k, dq = p.goal_gain_per_s, p.goal_quadratic_radius_m
     scale = np.where(r <= dq, 2.0 * k, 2.0 * k * dq / np.maximum(r, 1e-12))
     return -scale[:, None] * e
-
-
-def pair_repulsion(x: np.ndarray, v: np.ndarray, o_pos: np.ndarray, o_vel: np.ndarray, sigma: np.ndarray,
-                   piloted: np.ndarray, p: PotentialFieldParams) -> np.ndarray:
-    """-grad of each pair's repulsive term at the ego (K, 3) [m/s] (``_agent_gradients``, per pair)."""
-    rel = x - o_pos
-    d_raw = np.sqrt(np.einsum("kd,kd->k", rel, rel))
-    d = np.maximum(d_raw, 1e-9)
-    unit = rel / d[:, None]
-    v_rel = v - o_vel
-    u_dot_v = np.einsum("kd,kd->k", unit, v_rel)
-    closing = -u_dot_v
-    weight = np.where(piloted, p.piloted_weight, p.uav_weight)
-    radius = np.where(piloted, p.piloted_safety_radius_m, p.uav_safety_radius_m)
-    tau = np.where(piloted, p.piloted_lookahead_s, p.uav_lookahead_s)
-    approaching = closing > 0.0
-    f = d - radius - sigma - np.where(approaching, tau * closing, 0.0)
-    grad_f = unit + np.where(approaching, tau / d, 0.0)[:, None] * (v_rel - unit * u_dot_v[:, None])
-    soft = f < p.eps_m
-    e = np.exp(np.minimum(f, p.eps_m) / p.eps_m - 1.0)
-    fc, dfc = np.where(soft, p.eps_m * e, f), np.where(soft, e, 1.0)
-    f0 = np.array([np.inf if c is None else c for c in (p.uav_cutoff_m, p.piloted_cutoff_m)])[piloted.astype(int)]
-    scale = np.where(fc < f0, -(weight / fc**2 - weight / f0**2) * dfc, 0.0)
-    scale = np.where(d_raw < p.influence_m, scale, 0.0)
-    return -scale[:, None] * grad_f
 
 
 def fleet_commands(x: np.ndarray, v: np.ndarray, goal: np.ndarray, ego: np.ndarray, o_pos: np.ndarray,
