@@ -15,20 +15,12 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from corridor.errors import CorridorError
+from corridor.rare_event import column_name
 
 _BIN = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv}
 _CMP = {ast.Eq: operator.eq, ast.NotEq: operator.ne, ast.Lt: operator.lt, ast.LtE: operator.le,
         ast.Gt: operator.gt, ast.GtE: operator.ge}
 _FUN: dict[str, Callable[..., float]] = {"abs": abs, "min": min, "max": max}
-
-
-def _dotted(node: ast.AST) -> str | None:
-    if isinstance(node, ast.Name):
-        return node.id
-    if isinstance(node, ast.Attribute):
-        head = _dotted(node.value)
-        return None if head is None else f"{head}.{node.attr}"
-    return None
 
 
 class Expression:
@@ -44,7 +36,7 @@ class Expression:
         self._check(self._tree, what)
 
     def _check(self, node: ast.AST, what: str) -> None:
-        name = _dotted(node)
+        name = column_name(node)
         if name is not None:
             self.names.add(name)
             return
@@ -77,7 +69,7 @@ class Expression:
         return self._eval(self._tree, row)
 
     def _eval(self, node: ast.AST, row: Mapping[str, Any]) -> Any:
-        name = _dotted(node)
+        name = column_name(node)
         if name is not None:
             v = row.get(name, math.nan)
             return math.nan if v is None else float(v)

@@ -24,11 +24,12 @@ _CMP = {ast.Lt: operator.lt, ast.LtE: operator.le, ast.Gt: operator.gt, ast.GtE:
         ast.Eq: operator.eq, ast.NotEq: operator.ne}
 
 
-def _column(node: ast.AST) -> str | None:
+def column_name(node: ast.AST) -> str | None:
+    """The dotted column a name or attribute node reads (``a.b.c``), None for any other node."""
     if isinstance(node, ast.Name):
         return node.id
     if isinstance(node, ast.Attribute):
-        head = _column(node.value)
+        head = column_name(node.value)
         return None if head is None else f"{head}.{node.attr}"
     return None
 
@@ -84,7 +85,7 @@ class Event:
         num = _number(node)
         if num is not None:
             return num
-        col = _column(node)
+        col = column_name(node)
         value = row.get(col, math.nan) if col is not None else math.nan
         try:
             return float(value)
@@ -97,7 +98,7 @@ class Event:
             return Level(f"spec.{self.spec}.space", 1.0)
         body = self.tree.body
         if isinstance(body, ast.Compare) and len(body.ops) == 1 and type(body.ops[0]) in (ast.Lt, ast.LtE, ast.Gt, ast.GtE):
-            col, num = _column(body.left), _number(body.comparators[0])
+            col, num = column_name(body.left), _number(body.comparators[0])
             if col is not None and num is not None:
                 sign = 1.0 if isinstance(body.ops[0], ast.Lt | ast.LtE) else -1.0
                 return Level(col, sign, num)
@@ -143,11 +144,11 @@ def _check(node: ast.AST, text: str, cols: set[str]) -> None:
             if type(op) not in _CMP:
                 raise CorridorError(f"--estimate {clip(text)}: only <, <=, >, >=, ==, != compare")
         for side in (node.left, *node.comparators):
-            if _number(side) is None and _column(side) is None:
+            if _number(side) is None and column_name(side) is None:
                 raise CorridorError(f"--estimate {clip(text)}: compare column names and numbers only")
-            if (col := _column(side)) is not None:
+            if (col := column_name(side)) is not None:
                 cols.add(col)
-    elif (col := _column(node)) is not None:
+    elif (col := column_name(node)) is not None:
         cols.add(col)
     else:
         raise CorridorError(f"--estimate {clip(text)}: expected comparisons such as 'collisions > 0' "
