@@ -201,6 +201,10 @@ class RoadFrame:
     events: RoadEvents = field(default_factory=RoadEvents)
     detectors: DetectorFrame | None = None
     offset: int = 0  # snapshot row of the first road entity
+    # ids of the ``Role.CONTROLLED`` rows whose pose is set from outside the backend's lane dynamics
+    # (SUMO: ``moveToXY``, the ego bicycle); the other controlled rows are only speed-commanded and the
+    # backend still moves them along its lanes.  None: every controlled row is posed from outside
+    posed: frozenset[str] | None = None
 
     def __len__(self) -> int:
         return int(self.uid.shape[0])

@@ -29,7 +29,15 @@ class CollisionMonitor(Component):
     as lane-aligned boxes (lane position minus length, lateral offset of the front bumper +- half the
     width), which is wrong for an ego standing at an angle to its lane (reversing into a bay: SUMO
     reported a stopped follower inside the ego while the real boxes were 0.9 m apart, issue 14).  Such
-    pairs are decided by the oriented-box check, which sees every controlled row's real pose."""
+    pairs are decided by the oriented-box check, which sees every controlled row's real pose.
+
+    A controlled road row that its backend still moves along its lanes (``RoadFrame.posed`` does not
+    list it: SUMO vehicles whose speed a controller commands) is judged like every other SUMO driver,
+    by SUMO's own report, not by boxes built from SUMO's drawn pose.  That pose is not the one SUMO's
+    dynamics use: a vehicle that changes lanes at standstill while its rear still lies on the junction
+    is drawn from its front on the new lane to its rear on the old lane's junction lane, across the
+    lane between, and stays so while it stands (the merging sweep's one collision, issue 27: a
+    commanded ramp car drawn at 56 deg for 8 s; a human in the same pose is never box-checked)."""
 
     phase = Phase.DETECT
     metrics: ClassVar[tuple[Metric, ...]] = (
@@ -55,7 +63,7 @@ class CollisionMonitor(Component):
         s = ctx.snapshot
         prev, self._prev = self._prev, None
         if s.road is not None and s.road.events.collisions:
-            controlled = {str(i) for i in s.ids[s.role == _CONTROLLED]}
+            controlled = {str(i) for i in s.ids[self._posed_rows(s)]}
             for t, a, v, kind in s.road.events.collisions:
                 if a in controlled or v in controlled:  # decided by the exact box check below
                     ctx.events.emit(t, self.name, "road_collision_report",
@@ -67,7 +75,9 @@ class CollisionMonitor(Component):
         if np.maximum.reduce(s.role) < _CONTROLLED and np.maximum.reduce(s.kind) <= _TRUCK:
             self._plain = (s.role, s.kind)
             return  # only backend-driven road vehicles: their backend reports collisions
-        special = np.flatnonzero((s.role == _CONTROLLED) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
+        special = np.flatnonzero(self._posed_rows(s) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
+        if not len(special):
+            return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
         pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
                                   s.position[:, 2], s.size[:, 2], involving=special)
         now: set[tuple[int, int]] = set()
@@ -81,6 +91,20 @@ class CollisionMonitor(Component):
                     t_hit = prev.t + float(frac) * (ctx.t - prev.t)
                     self._add(ctx, t_hit, str(s.ids[i]), str(s.ids[j]), "box overlap between ticks")
         self._prev = cur
+
+    @staticmethod
+    def _posed_rows(s: Any) -> np.ndarray:
+        """Rows with role ``CONTROLLED`` whose pose is set from outside a road backend's lane dynamics
+        (every controlled row, but the road rows its backend lists as only speed-commanded)."""
+        ctrl = s.role == _CONTROLLED
+        road = s.road
+        if road is None or road.posed is None or not len(road):
+            return ctrl
+        rows = road.offset + np.flatnonzero(ctrl[road.sl])
+        lane_driven = [k for k in rows.tolist() if str(s.ids[k]) not in road.posed]
+        if lane_driven:
+            ctrl[lane_driven] = False
+        return ctrl
 
     def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:
         key = (a, b) if a < b else (b, a)

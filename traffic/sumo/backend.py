@@ -112,6 +112,10 @@ class SumoBackend(Backend):
         self.net = network or build_network(self.road.network.type, self.road.network.params, cache_dir)
         self.tables = RoadTables(self.net.landmarks)
         self.controlled: set[str] = set()
+        # of those, the vehicles whose pose is set from outside SUMO's lane dynamics (moveToXY, the
+        # ego bicycle): the others are only speed- or lane-commanded and SUMO still moves them along
+        # its lanes (the collision monitor trusts SUMO's own check for them, as for every SUMO driver)
+        self.posed: set[str] = set()
         self._lc_mode0: dict[str, int] = {}  # original lane-change modes of vehicles a controller changed
         self._speed_mode0: dict[str, int] = {}  # speed modes their vehicle types set at departure
         self._ids: list[str] = []  # ids of the vehicles in the network after the last step
@@ -234,6 +238,7 @@ class SumoBackend(Backend):
             if vid in uid_of:
                 arrived.append(uid_of[vid])
             self.controlled.discard(vid)
+            self.posed.discard(vid)
             self._speed_mode0.pop(vid, None)
         teleported = []
         for vid in sim.get(tel, ()):
@@ -348,7 +353,8 @@ class SumoBackend(Backend):
             role = role.copy()
             role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
-                         distance=distance, events=events, detectors=detectors)
+                         distance=distance, events=events, detectors=detectors,
+                         posed=frozenset(self.posed) if self.posed else frozenset())
         if self._emission_vars:  # [mg/s] SUMO's emission model (HBEFA / PHEMlight of the vType's emissionClass)
             co2, fuel = (itemgetter(v) for v in self._emission_vars)
             road.co2_mgps = np.fromiter(map(co2, rows), dtype=float, count=n)
@@ -410,8 +416,10 @@ class SumoBackend(Backend):
         return x, y, v.getAngle(vid), v.getSpeed(vid)
 
     def mark_controlled(self, vid: str) -> None:
-        """Report ``vid`` as ``Role.CONTROLLED`` from the next snapshot on (an externally driven vehicle)."""
+        """Report ``vid`` as ``Role.CONTROLLED`` from the next snapshot on (an externally driven vehicle,
+        its pose set from outside SUMO: ``RoadFrame.posed``)."""
         self.controlled.add(vid)
+        self.posed.add(vid)
 
     # ------------------------------------------------------------------ commands
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
@@ -434,6 +442,7 @@ class SumoBackend(Backend):
                 if vid in self._lc_mode0:
                     v.setLaneChangeMode(vid, self._lc_mode0.pop(vid))
                 self.controlled.discard(vid)
+                self.posed.discard(vid)
                 continue
             if isinstance(c, cmd.SetLaneChangeMode):
                 self._lc_mode0.setdefault(vid, v.getLaneChangeMode(vid))
@@ -451,6 +460,7 @@ class SumoBackend(Backend):
             elif isinstance(c, cmd.ChangeLane):
                 v.changeLane(vid, c.lane_index, c.duration_s)
             elif isinstance(c, cmd.MoveToXY):
+                self.posed.add(vid)
                 v.setSpeed(vid, max(0.0, c.speed_mps))
                 v.moveToXY(vid, c.edge, c.lane, c.x, c.y, 90.0 - math.degrees(c.yaw_rad), c.keep_route)
 
