@@ -51,12 +51,14 @@ RSU = "rsu"
 
 @dataclass(frozen=True, slots=True)
 class RoadAhead:
-    """RSU -> connected vehicles: cell centres x [m], their mean speed [m/s] (nan: empty), ramp ETAs [s]."""
+    """RSU -> connected vehicles: cell centres x [m], their mean speed [m/s] (nan: empty), ramp ETAs [s],
+    and the connected vehicle asked to stop for the ramp vehicles waiting at the yield line (None: none)."""
 
     t_sent_s: float
     cell_x_m: np.ndarray
     cell_speed_mps: np.ndarray
     ramp_eta_s: np.ndarray
+    yielder: str | None = None
 
 
 class WaveDamping(Controller):
@@ -86,6 +88,16 @@ class WaveDamping(Controller):
         #   average speed against 2.0 m/s without it (a ramp vehicle waiting at the yield line slows
         #   the connected vehicle to a crawl, and the humans behind it break down)
         gap_zone_m: float = Field(200.0, ge=0)  # [m] gap creation only this close to the merge
+        # courtesy stop: while ramp vehicles wait at the yield line, the RSU asks one connected highway
+        # vehicle (the nearest that can stop at ``yield_stop_m`` before the merge with ``b_comfort``) to
+        # stop there and hold for up to ``yield_hold_s``, so the waiting ramp vehicles can go.  SUMO's
+        # drivers at the yield line take no gap a moving stream offers (flow_merge, calibrated humans:
+        # none merged in 300 s, and easing off to open 3-10 s gaps let none in either)
+        yield_stop_m: float = Field(0.0, ge=0)  # [m] stop point before the merge (0: off)
+        yield_zone_m: float = Field(300.0, gt=0)  # [m] vehicles this close to the merge may be asked
+        yield_hold_s: float = Field(10.0, ge=0)  # [s] longest hold once stopped
+        waiting_m: float = Field(30.0, ge=0)  # [m] a ramp vehicle this close to the merge and
+        waiting_mps: float = Field(2.0, ge=0)  # [m/s]  slower than this waits at the yield line
         stale_after_s: float = Field(1.0, gt=0)  # [s]
         release_after_m: float = Field(0.0, ge=0)  # [m] past the merge point a vehicle is handed back
         command_speed_mode: int = Field(27, ge=0, le=31)  # SUMO speed mode of commanded vehicles: 27 =
@@ -104,6 +116,8 @@ class WaveDamping(Controller):
         self.fallbacks = 0
         self.commands_sent = 0
         self._next_rsu_s = 0.0
+        self._yield: tuple[str, float | None] | None = None  # (the yielding vehicle, when it stopped [s])
+        self._yielded: set[str] = set()  # vehicles that have held once (never asked twice)
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -171,7 +185,41 @@ class WaveDamping(Controller):
         ramp = s["on_ramp"]
         dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
         eta = t + np.maximum(dist, 0.0) / np.maximum(v[ramp], 1.0)
-        return RoadAhead(t, self.cells, cell_speed, eta)
+        waiting = bool(np.any((dist < self.p.waiting_m) & (v[ramp] < self.p.waiting_mps)))
+        return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
+
+    def _pick_yielder(self, t: float, s: dict[str, Any], waiting: bool) -> str | None:
+        """The connected highway vehicle asked to stop for the waiting ramp vehicles (courtesy stop):
+        the one holding already, until no ramp vehicle waits or it held ``yield_hold_s``; else the
+        nearest to the stop point that can still stop there comfortably."""
+        p = self.p
+        if p.yield_stop_m <= 0 or not waiting:
+            if self._yield is not None:
+                self._yielded.add(self._yield[0])
+            self._yield = None
+            return None
+        ids = s["ids"]
+        room = self.merge_x - p.yield_stop_m - s["front"]  # [m] to the stop point
+        if self._yield is not None:
+            vid, t_stop = self._yield
+            k = ids.index(vid) if vid in ids else -1
+            if k >= 0 and room[k] > -1.0 and (t_stop is None or t - t_stop < p.yield_hold_s):
+                if t_stop is None and s["speed"][k] < 0.5:
+                    self._yield = (vid, t)
+                return vid
+            self._yielded.add(vid)
+            self._yield = None
+        v = s["speed"]
+        ok = (s["connected"] & ~s["ramp"] & ~s["on_ramp"] & (room > 0)
+              & (room < p.yield_zone_m - p.yield_stop_m) & (v * v <= 2.0 * p.b_comfort_mps2 * room))
+        cand = [k for k in np.flatnonzero(ok) if ids[k] not in self._yielded]
+        if not cand:
+            return None
+        k = min(cand, key=lambda j: room[j])
+        self._yield = (ids[k], None)
+        self.events.emit(t, self.name, "courtesy_stop", f"{ids[k]}: stop {p.yield_stop_m:.0f} m before the merge "
+                         "for the ramp vehicles waiting at the yield line", vehicle=ids[k])
+        return ids[k]
 
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds: list[Any] = []
@@ -195,13 +243,13 @@ class WaveDamping(Controller):
             lead = order[j + 1] if j + 1 < len(order) else None
             gap = float(front[lead] - length[lead] - front[k]) if lead is not None else math.inf
             v_lead = float(speed[lead]) if lead is not None else self.p.u_max_mps
-            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead),
+            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead, vid),
                                  self.p.command_speed_mode))
             self.controlled.add(vid)
             self.commands_sent += 1
         return cmds
 
-    def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float) -> float:
+    def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
         p = self.p
         cells = msg.cell_speed_mps
@@ -213,6 +261,8 @@ class WaveDamping(Controller):
             u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))
         u = float(np.clip(u, p.u_min_mps, p.u_max_mps))
         v_cmd = follower_stopper(gap, v, v_lead, u, p.stopper) if math.isfinite(gap) else u
+        if msg.yielder is not None and msg.yielder == vid:  # courtesy stop at the stop point
+            v_cmd = min(v_cmd, math.sqrt(2.0 * p.b_comfort_mps2 * max(dist - p.yield_stop_m, 0.0)))
         a = float(np.clip((v_cmd - v) / self.period, -p.b_comfort_mps2, p.a_max_mps2))
         if math.isfinite(gap):
             a = safe_accel(gap, v, v_lead, a, self.safety)

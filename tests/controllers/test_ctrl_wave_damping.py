@@ -94,3 +94,43 @@ def test_the_safety_layer_counts_on_the_braking_the_vehicle_delivers() -> None:
     # at t = 254 s on this seed (SUMO executes a commanded speed within the type's decel)
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
         assert pool.submit(_collisions_with_calibrated_humans).result() == 0
+
+
+def _courtesy_stops(yield_stop_m: float) -> tuple[int, int, float]:
+    """(courtesy-stop requests, collisions, lowest speed of an asked vehicle before the merge [m/s]) of
+    ``cal_merge0`` seed 0 over 200 s."""
+    import tempfile
+
+    from corridor.batch import expand
+    from corridor.run import build
+    from corridor.scenario import load, validate
+    from corridor.scenario.overrides import apply_overrides
+
+    sc, raw = load(str(SCENARIO), ["duration=200"])
+    spec = next(s for s in expand(sc, raw, str(SCENARIO), 1, seed=0) if s.variant == "cal_merge0")
+    wave = {"type": "v2x_wave_damping", "params": {"yield_stop_m": yield_stop_m}}
+    vsc = validate(apply_overrides(spec.base, {**spec.overrides, "controllers.wave": wave}), "courtesy stop")
+    asked: set[str] = set()
+    v_min = math.inf
+    with tempfile.TemporaryDirectory() as tmp:
+        sim = build(vsc, 0, Path(tmp))
+        sim.start()
+        for _ in range(sim.n_ticks):
+            sim.step()
+            asked |= {e.data["vehicle"] for e in sim.ctx.events.of_kind("courtesy_stop")}
+            snap = sim.ctx.snapshot
+            for k, vid in enumerate(snap.ids):
+                if vid in asked and snap.position[k, 0] < 586.0:  # before the merge (merge_x 586.8 m)
+                    v_min = min(v_min, float(snap.speed[k]))
+        metrics = sim.finish()
+        sim.close()
+    return len(sim.ctx.events.of_kind("courtesy_stop")), int(metrics["collisions"]), v_min
+
+
+def test_courtesy_stop_halts_a_connected_vehicle_for_waiting_ramp_vehicles() -> None:
+    """Off by default (it cost average speed on flow_merge, docs/guide/flow-merge.md); when on, the RSU
+    asks a connected vehicle to stop before the merge while ramp vehicles wait at the yield line."""
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        on, off = pool.submit(_courtesy_stops, 80.0).result(), pool.submit(_courtesy_stops, 0.0).result()
+    assert on[0] >= 1 and on[1] == 0 and on[2] < 0.5
+    assert off[0] == 0
