@@ -239,3 +239,10 @@ class CorridorParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has 
 
 gym.register(id="corridor/UavEncounter-v0", entry_point="corridor.envs:CorridorEnv",
              kwargs={"scenario": "uav_encounter.yaml"})
+# highway-env's conventions (corridor.ego_env): an agent drives one ego vehicle
+gym.register(id="corridor/Merge-v0", entry_point="corridor.ego_env:EgoEnv",
+             kwargs={"scenario": "merging.yaml", "variant": "human", "agent_type": "merge_agent",
+                     "features_range": {"y": 40.0}})  # [m] the ramp meets the mainline at an angle
+gym.register(id="corridor/Overtaking-v0", entry_point="corridor.ego_env:EgoEnv",
+             kwargs={"scenario": "overtaking.yaml", "variant": "event", "agent_type": "overtaking_agent",
+                     "drop_controllers": ("overtaking",), "max_episode_s": 45.0})
