@@ -25,7 +25,9 @@ safety layer on every tick, and scores each decision.  The environment owns the 
 
 The component's side (duck-typed, see ``corridor.controllers.merging.agent_components``): ``ego_id`` (the
 vehicle id once it drives, else None), ``reference_xy`` [m], ``act(action)`` and
-``outcome(collided) -> (reward, done, info)`` (done: the goal is reached or the ego left the road).
+``outcome(collided) -> (reward, done, info)`` (done: the goal is reached or the ego left the road);
+a component that drives several vehicles (``EgoParallelEnv``) takes an agent ``slot`` in both and
+names their vehicles with ``vid_of(slot)``.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from typing import Any, Literal, Protocol, cast
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from pettingzoo import ParallelEnv
 
 from corridor.batch import draws_for
 from corridor.engine import Simulation
@@ -62,11 +65,14 @@ class EgoAgent(Protocol):
     def ego_id(self) -> str | None:
         """The vehicle the agent drives (None until it is on the road)."""
 
-    def act(self, action: Any) -> None:
+    def vid_of(self, slot: str) -> str | None:
+        """The vehicle agent ``slot`` drives (None until it is on the road)."""
+
+    def act(self, action: Any, slot: str = "ego") -> None:
         """Hold ``action`` from now on (it is applied every tick through the safety layer)."""
 
-    def outcome(self, collided: bool) -> tuple[float, bool, dict[str, Any]]:
-        """The decision period's reward, whether the ego is done (goal or gone), per-step info."""
+    def outcome(self, collided: bool, slot: str = "ego") -> tuple[float, bool, dict[str, Any]]:
+        """The decision period's reward, whether the vehicle is done (goal or gone), per-step info."""
 
 
 def kinematics(s: WorldSnapshot, ego_row: int, count: int, ranges: dict[str, float],
@@ -151,19 +157,28 @@ class EgoEnv(gym.Env):
         ego = self.agent.ego_id
         return None if ego is None else self.sim.ctx.snapshot.index().get(ego)
 
-    def _collided(self) -> bool:
-        """A ``collision`` event naming the ego since the last look."""
+    def _new_collisions(self) -> set[str]:
+        """The entities named by ``collision`` events since the last look."""
         assert self.sim is not None
         events = self.sim.ctx.events.events
         new, self._events_seen = events[self._events_seen:], len(events)
-        return any(e.kind == "collision" and self.agent.ego_id in (e.data.get("a"), e.data.get("b")) for e in new)
+        return {str(e.data.get(k)) for e in new if e.kind == "collision" for k in ("a", "b")}
 
-    def _observe(self) -> np.ndarray:
-        row = self._ego_row() if self.sim is not None else None
-        if row is None:  # the ego left the network (or the run is closed)
+    def _observe(self, vid: str | None = None) -> np.ndarray:
+        """The Kinematics observation of ``vid`` (default: the ego)."""
+        vid = self.agent.ego_id if vid is None else vid
+        row = None if self.sim is None or vid is None else self.sim.ctx.snapshot.index().get(vid)
+        if row is None:  # the vehicle left the network (or the run is closed)
             return np.zeros((self.count, len(KINEMATICS)), np.float32)
         assert self.sim is not None
         return kinematics(self.sim.ctx.snapshot, row, self.count, self.ranges, self.agent.reference_xy)
+
+    def _row_info(self) -> dict[str, Any]:
+        """The run's results row so far (NaN as None), its seed and draws."""
+        assert self.sim is not None
+        row = {**self.sim.finish(), **event_counts(self.sim.ctx)}
+        return {**{k: _no_nan(v) for k, v in row.items()}, "seed": self.seed_,
+                **{f"draw.{k}": v for k, v in self.draws.items()}}
 
     def _close_run(self) -> None:
         if self.sim is not None:
@@ -189,7 +204,7 @@ class EgoEnv(gym.Env):
             if self.sim.ctx.tick >= self.end_tick:
                 break
             self.sim.step()
-            collided = self._collided()
+            collided = self.agent.ego_id in self._new_collisions()
             if collided or self._ego_row() is None:
                 break
         reward, done, info = self.agent.outcome(collided)
@@ -197,11 +212,89 @@ class EgoEnv(gym.Env):
         truncated = not terminated and self.sim.ctx.tick >= self.end_tick
         obs = self._observe()
         if terminated or truncated:
-            row = {**self.sim.finish(), **event_counts(self.sim.ctx)}
-            info = {**info, **{k: _no_nan(v) for k, v in row.items()}, "seed": self.seed_,
-                    **{f"draw.{k}": v for k, v in self.draws.items()}}
+            info = {**info, **self._row_info()}
             self._close_run()
         return obs, float(reward), terminated, truncated, info
 
     def close(self) -> None:
         self._close_run()
+
+
+class EgoParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has no type information
+    """PettingZoo ``ParallelEnv``: ``n_agents`` vehicles driven by agents, each as ``EgoEnv``'s ego.
+
+    The agent component must drive several vehicles (``merge_agent`` with ``agents: N``: the first N
+    connected vehicles departing from ``ego_depart_s`` on; agent ``cv_k`` drives the k-th).  An agent
+    joins ``agents`` when its vehicle departs and leaves it when it is done (goal, collision: each
+    agent's own reward and termination as in ``EgoEnv``) or at truncation; the run closes when no
+    agent is left.  ``possible_agents`` are the N slots; a slot whose vehicle has not departed before
+    the end never appears.  At the end every agent's ``info`` holds the run's row.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": [], "name": "corridor_ego_parallel_v0"}
+
+    def __init__(self, n_agents: int = 4, **kwargs: Any) -> None:
+        if n_agents < 2:
+            raise CorridorError(f"n_agents {n_agents}: a parallel environment needs >= 2 (one agent: EgoEnv)")
+        params = {**kwargs.pop("agent_params", {}), "agents": n_agents}
+        self.core = EgoEnv(agent_params=params, **kwargs)
+        self.possible_agents = [f"cv_{k}" for k in range(n_agents)]
+        self.agents: list[str] = []
+        self._obs_space, self._act_space = self.core.observation_space, self.core.action_space
+
+    def observation_space(self, agent: str) -> spaces.Space[Any]:
+        return self._obs_space
+
+    def action_space(self, agent: str) -> spaces.Space[Any]:
+        return self._act_space
+
+    def _departed(self) -> list[str]:
+        """Slots whose vehicle is on the road and that have not finished."""
+        return [a for a in self.possible_agents if a not in self._finished
+                and (vid := self.core.agent.vid_of(a)) is not None and self.core.sim is not None
+                and vid in self.core.sim.ctx.snapshot.index()]
+
+    def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
+        run_seed = seed if seed is not None else int(np.random.default_rng().integers(2**31 - 1))
+        self.core._start(run_seed)  # runs until the first agent's vehicle departed
+        self._finished: set[str] = set()
+        self.agents = self._departed()
+        return {a: self.core._observe(self.core.agent.vid_of(a)) for a in self.agents}, \
+            {a: {"seed": run_seed, "vid": self.core.agent.vid_of(a)} for a in self.agents}
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict[str, Any], dict[str, float], dict[str, bool],
+                                                     dict[str, bool], dict[str, Any]]:
+        core = self.core
+        if core.sim is None:
+            raise CorridorError("step() after the episode ended: call reset() first")
+        for a, u in actions.items():
+            if a in self.agents:
+                core.agent.act(u, a)
+        hits: set[str] = set()
+        for _ in range(core.ticks_per_decision):
+            if core.sim.ctx.tick >= core.end_tick:
+                break
+            core.sim.step()
+            hits |= core._new_collisions()
+        obs, rew, term, trunc, info = {}, {}, {}, {}, {}
+        ended = core.sim.ctx.tick >= core.end_tick
+        for a in self.agents:
+            vid = core.agent.vid_of(a)
+            r, done, info[a] = core.agent.outcome(vid in hits, a)
+            obs[a], rew[a] = core._observe(vid), r
+            term[a] = vid in hits or done
+            trunc[a] = ended and not term[a]
+        for a in self._departed():  # vehicles that departed during this period join
+            if a not in obs:
+                vid = core.agent.vid_of(a)
+                obs[a], rew[a], term[a], trunc[a], info[a] = core._observe(vid), 0.0, False, ended, {"vid": vid}
+        self._finished |= {a for a in obs if term[a] or trunc[a]}
+        self.agents = [a for a in obs if not (term[a] or trunc[a])]
+        if not self.agents:
+            row = core._row_info()
+            info = {a: {**i, **row} for a, i in info.items()}
+            core._close_run()
+        return obs, rew, term, trunc, info
+
+    def close(self) -> None:
+        self.core.close()

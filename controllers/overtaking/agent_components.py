@@ -96,8 +96,11 @@ class OvertakingAgent(Controller):
     def ego_id(self) -> str | None:
         return self.ego.vid if self.ego.active else None
 
+    def vid_of(self, slot: str) -> str | None:
+        return self.ego_id  # one agent
+
     # ------------------------------------------------------------------ the environment's side
-    def act(self, action: Any) -> None:
+    def act(self, action: Any, slot: str = "ego") -> None:
         """Hold ``action`` from now on."""
         if self.p.action == "discrete":
             if self.target is None:
@@ -108,7 +111,7 @@ class OvertakingAgent(Controller):
             b = self.bike
             self._action = continuous(action, (b.accel_min_mps2, -b.steer_max_rad), (b.accel_max_mps2, b.steer_max_rad))
 
-    def outcome(self, collided: bool) -> tuple[float, bool, dict[str, Any]]:
+    def outcome(self, collided: bool, slot: str = "ego") -> tuple[float, bool, dict[str, Any]]:
         """The decision period's reward, whether the episode is done, and its terms."""
         p = self.p
         _, y, _, v = self._state

@@ -1,5 +1,6 @@
 """corridor/Merge-v0 and corridor/Overtaking-v0 (corridor.ego_env): Gymnasium's checker, determinism,
-what the actions do, the safety layer, and a collision ending the episode with the metric in info.
+what the actions do, the safety layer, and a collision ending the episode with the metric in info; the
+merge's PettingZoo ParallelEnv (corridor.envs.merge_parallel_env): the parallel API test, determinism.
 
 Short episodes: the merge ego departs at 10 s (instead of 60 s), the overtaking ego at 5 s (instead of
 60 s). libsumo allows one simulation per process and every ``reset`` closes the previous run, so one
@@ -14,9 +15,11 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from pettingzoo.test import parallel_api_test
 
 import corridor.envs  # noqa: F401  (registers the corridor/ ids)
 from corridor.controllers.ego_actions import FASTER, IDLE, LANE_LEFT, LANE_RIGHT, SLOWER
+from corridor.envs import merge_parallel_env
 from corridor.errors import CorridorError
 
 MERGE = {"agent_params": {"ego_depart_s": 10.0}, "max_episode_s": 12.0}
@@ -106,3 +109,28 @@ def test_bad_settings_are_one_line_errors() -> None:
         gymnasium.make("corridor/Merge-v0", action_type="steer")
     with pytest.raises(CorridorError, match="no variant 'v2x'"):
         gymnasium.make("corridor/Merge-v0", variant="v2x")
+
+
+def test_merge_parallel_env_api_and_determinism() -> None:
+    """Every agent a connected vehicle near the merge (PettingZoo's parallel API test), joining when it
+    comes near and leaving when done; the same seed and actions give the same observations."""
+    env = merge_parallel_env(n_agents=3, agent_params={"ego_depart_s": 10.0}, max_episode_s=15.0)
+    assert env.possible_agents == ["cv_0", "cv_1", "cv_2"]
+    parallel_api_test(env, num_cycles=20)
+
+    def run(seed: int) -> tuple[list[dict[str, np.ndarray]], set[str], dict[str, Any]]:
+        obs, _ = env.reset(seed=seed)
+        out, seen, info = [obs], set(env.agents), {}
+        while env.agents:
+            obs, _, _, _, info = env.step({a: (LANE_LEFT if k % 2 else FASTER) for k, a in enumerate(env.agents)})
+            out.append(obs)
+            seen |= set(obs)
+        return out, seen, info
+
+    a, seen, info = run(2)
+    b, _, _ = run(2)
+    assert seen == {"cv_0", "cv_1", "cv_2"} and len(a) == len(b) == 16  # 15 decisions of 1 s
+    assert all(x.keys() == y.keys() and all(np.array_equal(x[k], y[k]) for k in x) for x, y in zip(a, b, strict=True))
+    assert all("collisions" in i and i["vid"] for i in info.values())
+    assert len({i["vid"] for i in info.values()}) == len(info)  # one vehicle per agent
+    env.close()
