@@ -81,6 +81,15 @@ def test_merge_actions_drive_the_ramp_vehicle() -> None:
     env.close()
 
 
+def test_merge_full_throttle_is_capped_by_the_safety_layer() -> None:
+    """Continuous [full throttle, merge left] every step: the Gipps/RSS bound lowers the command behind
+    the mainline leader (seed 1), and nobody collides."""
+    env = gymnasium.make("corridor/Merge-v0", action_type="continuous", **{**MERGE, "max_episode_s": 40.0})
+    _, _, info = _rollout(env, 1, [np.array([1.0, 1.0], np.float32)] * 40)
+    assert info["ego_merged"] == 1 and info["ego_safety_caps"] > 0 and info["collisions"] == 0
+    env.close()
+
+
 def test_overtaking_pass_completes_and_the_safety_layer_holds_full_throttle() -> None:
     env = gymnasium.make("corridor/Overtaking-v0", **OVERTAKE)
     _, rewards, info = _rollout(env, 0, [FASTER, LANE_LEFT, FASTER] + [IDLE] * 5 + [LANE_RIGHT] + [IDLE] * 10)
