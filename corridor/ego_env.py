@@ -240,6 +240,7 @@ class EgoParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has no ty
         self.core = EgoEnv(agent_params=params, **kwargs)
         self.possible_agents = [f"cv_{k}" for k in range(n_agents)]
         self.agents: list[str] = []
+        self._rng = np.random.default_rng()  # run seeds of resets without a seed (until one is given)
         self._obs_space, self._act_space = self.core.observation_space, self.core.action_space
 
     def observation_space(self, agent: str) -> spaces.Space[Any]:
@@ -255,8 +256,10 @@ class EgoParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has no ty
                 and vid in self.core.sim.ctx.snapshot.index()]
 
     def reset(self, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[dict[str, Any], dict[str, Any]]:
-        run_seed = seed if seed is not None else int(np.random.default_rng().integers(2**31 - 1))
-        self.core._start(run_seed)  # runs until the first agent's vehicle departed
+        if seed is not None:  # later resets without a seed draw their run seeds from this one
+            self._rng = np.random.default_rng(seed)
+        run_seed = seed if seed is not None else int(self._rng.integers(2**31 - 1))
+        self.core._start(run_seed)  # runs until the first agent's vehicle came near
         self._finished: set[str] = set()
         self.agents = self._departed()
         return {a: self.core._observe(self.core.agent.vid_of(a)) for a in self.agents}, \
