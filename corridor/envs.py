@@ -40,6 +40,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from corridor.batch import draws_for
+from corridor.ego_env import EgoParallelEnv
 from corridor.engine import Simulation
 from corridor.errors import CorridorError
 from corridor.objective import Expression, value, violations
@@ -239,3 +240,16 @@ class CorridorParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has 
 
 gym.register(id="corridor/UavEncounter-v0", entry_point="corridor.envs:CorridorEnv",
              kwargs={"scenario": "uav_encounter.yaml"})
+# highway-env's conventions (corridor.ego_env): an agent drives one ego vehicle
+MERGE = {"scenario": "merging.yaml", "variant": "human", "agent_type": "merge_agent",
+         "features_range": {"y": 40.0}}  # [m] the ramp meets the mainline at an angle
+gym.register(id="corridor/Merge-v0", entry_point="corridor.ego_env:EgoEnv", kwargs=MERGE)
+gym.register(id="corridor/Overtaking-v0", entry_point="corridor.ego_env:EgoEnv",
+             kwargs={"scenario": "overtaking.yaml", "variant": "event", "agent_type": "overtaking_agent",
+                     "drop_controllers": ("overtaking",), "max_episode_s": 45.0})
+
+
+def merge_parallel_env(n_agents: int = 4, **kwargs: Any) -> EgoParallelEnv:
+    """PettingZoo ``ParallelEnv`` of the merge: the first ``n_agents`` connected vehicles departing from
+    ``agent_params["ego_depart_s"]`` (60 s) on are agents ``cv_0`` ... (``corridor.ego_env.EgoParallelEnv``)."""
+    return EgoParallelEnv(n_agents=n_agents, **{**MERGE, **kwargs})
