@@ -132,6 +132,7 @@ class HybridAutomaton:
         self._tree: dict[str, tuple[Mode, str | None]] = {}
         _flatten(modes, None, self._tree)
         self.modes = tuple(self._tree)
+        self._paths = {m: self._path_of(m) for m in self.modes}  # the tree is fixed: each chain built once
         if initial not in self._tree:
             raise ValueError(f"{name}: initial mode {initial!r} not in {self.modes}")
         for tr in transitions:
@@ -148,8 +149,11 @@ class HybridAutomaton:
     # ---- the tree ----------------------------------------------------------------------------------
     def path(self, mode: str | None = None) -> tuple[str, ...]:
         """Outermost-first chain of modes holding ``mode`` (itself included; default the active leaf)."""
+        return self._paths[mode or self.mode]
+
+    def _path_of(self, mode: str) -> tuple[str, ...]:
         out: list[str] = []
-        m: str | None = mode or self.mode
+        m: str | None = mode
         while m is not None:
             out.append(m)
             m = self._tree[m][1]

@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.analysis.ccd import Poses, swept_overlaps
+from corridor.analysis.ccd import Poses, _prev_rows, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
 from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.snapshot import Kind, Role
@@ -78,13 +78,16 @@ class CollisionMonitor(Component):
         special = np.flatnonzero(self._posed_rows(s) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
         if not len(special):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
+        cur = Poses.of(s)
+        if not _may_touch(prev, cur, special):  # no box of a special row can reach another's: nothing to find
+            self._prev = cur
+            return
         pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
                                   s.position[:, 2], s.size[:, 2], involving=special)
         now: set[tuple[int, int]] = set()
         for i, j in pairs.tolist():  # every pair has a special row
             now.add((i, j))
             self._add(ctx, ctx.t, str(s.ids[i]), str(s.ids[j]), "box overlap")
-        cur = Poses.of(s)
         if prev is not None and ctx.t > prev.t:
             for i, j, frac in zip(*swept_overlaps(prev, cur, special), strict=True):
                 if (int(i), int(j)) not in now:
@@ -115,3 +118,23 @@ class CollisionMonitor(Component):
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         return {"collisions": len(self.pairs),
                 "first_collision_s": min(self.pairs.values()) if self.pairs else np.nan}
+
+
+def _may_touch(prev: Poses | None, cur: Poses, rows: np.ndarray) -> bool:
+    """False only if no pair with a row of ``rows`` can overlap now or have met since ``prev``.
+
+    A necessary condition of both box checks: the pair's centres are now, in the plane, within the sum
+    of their bounding-sphere radii (half the 3-D diagonal, at least the plane's) plus both
+    displacements since ``prev`` (the closest approach of the swept check lies within them)."""
+    n = len(cur.ids)
+    step = np.zeros(n)
+    if prev is not None and len(prev.ids):
+        pr = _prev_rows(prev.ids, cur.ids)
+        seen = pr >= 0
+        step[seen] = np.linalg.norm(cur.position[seen] - prev.position[pr[seen]], axis=1)
+    reach = 0.5 * np.linalg.norm(cur.size, axis=1) + step  # [m]
+    xy = cur.position[:, :2]
+    d = np.linalg.norm(xy[rows][:, None, :] - xy[None, :, :], axis=-1)
+    near = d <= (reach[rows][:, None] + reach[None, :]) * (1.0 + 1e-9) + 1e-6  # a margin for round-off
+    near[np.arange(len(rows)), rows] = False  # a row and itself
+    return bool(near.any())

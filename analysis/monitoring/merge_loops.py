@@ -8,6 +8,11 @@ station gives a flow [veh/h], a space-mean speed (the harmonic mean of the spot 
 density q / v [veh/km]; they are recorded as signals ``loop_flow_vph_<station>``,
 ``loop_speed_mps_<station>``, ``loop_density_vpkm_<station>`` (the report's flow-time and flow-density
 plots) and the run's row gets the breakdown figures of ``corridor.analysis.bottleneck``.
+
+The ticks are processed in blocks of ``block_ticks`` (``corridor.analysis.monitoring.tick_block``): the
+crossings of a block in one numpy pass, the intervals closed tick by tick (their signals recorded when
+the block is processed, each with its interval's end time); the figures are those of tick-by-tick
+processing, bit for bit (``tests/traffic/test_traffic_tick_block.py``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from corridor.analysis.bottleneck import analyse
+from corridor.analysis.monitoring.tick_block import RoadTicks, TickBlock
 from corridor.engine import Component, Metric, Need, Phase, RunContext
 from corridor.snapshot import Role
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
@@ -44,6 +50,7 @@ class MergeLoops(Component):
     )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
+    block_ticks: ClassVar[int] = 100  # ticks processed together (corridor.analysis.monitoring.tick_block)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -73,6 +80,7 @@ class MergeLoops(Component):
         self.t: list[float] = []
         self.flow: list[np.ndarray] = []  # per interval: [veh/h] per station
         self.speed: list[np.ndarray] = []  # [m/s] (nan: nobody crossed)
+        self._block = TickBlock(self.block_ticks)
 
     def setup(self, ctx: RunContext) -> None:
         lm = road_frame(ctx).tables.landmarks
@@ -80,26 +88,57 @@ class MergeLoops(Component):
         self.mainline_only = self.line_x < lm.x(self.p.mainline_below)
 
     def tick(self, ctx: RunContext) -> None:
-        road = road_frame(ctx)
-        if len(road):
-            self._crossings(ctx, road.uid, road.tables.role, road.tables.n_uids)
-        while ctx.t + 1e-9 >= self._interval_end:
-            self._close_interval(ctx)
+        road_frame(ctx)
+        if self._block.add(ctx.t, ctx.snapshot):
+            self._process(ctx)
 
-    def _crossings(self, ctx: RunContext, uid: np.ndarray, role: np.ndarray, n_uids: int) -> None:
+    def _process(self, ctx: RunContext) -> None:
+        """The held ticks at once: the block's crossings in one numpy pass, then the intervals closed
+        tick by tick, each tick's counts and spot speeds added as one tick-by-tick step adds them."""
+        b = self._block.take()
+        if b is None:
+            return
+        tb = road_frame(ctx).tables
+        crossed = self._crossings(b, tb.role, tb.n_uids)  # (block rows, stations)
+        hit = np.flatnonzero(crossed.any(axis=1))
+        ticks = np.unique(b.tick[hit]).tolist()
+        vel = b.rows_of("velocity") if len(hit) else np.zeros((0, 3))
+        due = iter(ticks)
+        k_next = next(due, -1)
+        for k, t in enumerate(b.t.tolist()):
+            if k == k_next:  # the tick's rows, as (crossed / v).sum(axis=0) of a tick-by-tick step
+                rows = slice(int(b.starts[k]), int(b.starts[k] + b.rows[k]))
+                c = crossed[rows]
+                self._count += c.sum(axis=0)
+                self._inv_speed += (c / np.maximum(np.hypot(vel[rows, 0], vel[rows, 1]), 0.1)[:, None]).sum(axis=0)
+                k_next = next(due, -1)
+            while t + 1e-9 >= self._interval_end:
+                self._close_interval(ctx)
+
+    def _crossings(self, b: RoadTicks, role: np.ndarray, n_uids: int) -> np.ndarray:
+        """Which station each row of the block crossed since its vehicle's previous row (rows, stations)."""
         if len(self._x_prev) < n_uids:
             self._x_prev = np.concatenate([self._x_prev, np.full(n_uids + 256 - len(self._x_prev), np.nan)])
-        rows = ctx.snapshot.road.sl
-        x = ctx.snapshot.position[rows, 0]
-        speed = ctx.snapshot.speed[rows]
-        before = self._x_prev[uid]
-        self._x_prev[uid] = x
+        uid = b.road("uid")
+        if not len(uid):
+            return np.zeros((0, len(self.names)), dtype=bool)
+        x = b.rows_of("position")[:, 0]
+        # each vehicle's rows in tick order: its x at its previous row (the first: the previous block's)
+        order = np.argsort(uid.astype(np.uint16) if n_uids <= 1 << 16 else uid, kind="stable")
+        u, xo = uid[order], x[order]
+        first = np.empty(len(u), dtype=bool)
+        first[0], first[1:] = True, u[1:] != u[:-1]
+        before_o = np.empty(len(u))
+        before_o[1:] = xo[:-1]
+        before_o[first] = self._x_prev[u[first]]
+        last = np.empty(len(u), dtype=bool)
+        last[:-1], last[-1] = first[1:], True
+        self._x_prev[u[last]] = xo[last]
+        before = np.empty(len(u))
+        before[order] = before_o
         crossed = (before[:, None] < self.line_x[None, :]) & (x[:, None] >= self.line_x[None, :])
-        if not crossed.any():
-            return
         crossed &= ~(self.mainline_only[None, :] & (role[uid] == Role.RAMP)[:, None])
-        self._count += crossed.sum(axis=0)
-        self._inv_speed += (crossed / np.maximum(speed, 0.1)[:, None]).sum(axis=0)
+        return crossed
 
     def _close_interval(self, ctx: RunContext) -> None:
         t = self._interval_end
@@ -118,6 +157,7 @@ class MergeLoops(Component):
         self._interval_end += self.p.interval_s
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        self._process(ctx)
         if not self.t:
             return {}
         t, flow, speed = np.array(self.t), np.array(self.flow), np.array(self.speed)

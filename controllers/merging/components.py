@@ -69,7 +69,7 @@ from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
-from corridor.traffic.v2x import CamGenerator, CamMessage
+from corridor.traffic.v2x import CamGenerator
 from corridor.vehicles.tracks.pool import TrackPool
 
 RSU = "rsu"
@@ -267,7 +267,7 @@ class V2XMerging(Controller):
         return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
                 "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
                 "heading": heading, "lane": r.lane, "length": size[:, 0], "leader": lane_leaders(r.lane, r.lane_pos),
-                "lane_pos": r.lane_pos}
+                "lane_pos": r.lane_pos, "row": dict(zip(ids, range(len(ids))))}
 
     def _classify_lanes(self, tb: RoadTables) -> None:
         """Per lane code, once per lane: on the ramp edge; the mainline lane that ramp vehicles join."""
@@ -300,9 +300,12 @@ class V2XMerging(Controller):
                                     **{ids[k]: pos[k] for k in np.flatnonzero(near)}})
         idx = np.flatnonzero(near)
         sel = [ids[k] for k in idx]
-        msgs = self.cams.build(t, sel, pos[idx], s["speed"][idx], s["accel"][idx], s["heading"][idx],
-                               s["lane"][idx], road=["ramp" if s["ramp"][k] else "main" for k in idx],
-                               dist_to_merge_m=s["dist"][idx])
+        due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
+        # a CAM's content that its receivers use, as one row each: [position on the merge axis
+        # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
+        cam_z = np.column_stack((-s["dist"][due], s["speed"][due]))
+        cam_pos = np.zeros((len(due), 3))
+        cam_pos[:, :2] = pos[due, :2]  # [m] the sender's position for the range check (a CAM's x, y)
         # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
         # sender may precede in the crossing order), so only those copies are simulated: each is drawn
         # with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
@@ -319,7 +322,8 @@ class V2XMerging(Controller):
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
         # a multicast per CAM: the same draws as one unicast send per copy
-        cams = [(m.sender_id, m, m.position_m, [RSU, *followers.get(m.sender_id, ())]) for m in msgs]
+        cams = [(vid, z, p, [RSU, *followers.get(vid, ())])
+                for vid, z, p in zip([ids[k] for k in due.tolist()], cam_z, cam_pos, strict=True)]
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self.channel.send_many(t, cams)
             cams = []
@@ -334,23 +338,37 @@ class V2XMerging(Controller):
         """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each
         vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
         names = self.channel.node_names
-        cams: list[tuple[float, int, str, CamMessage]] = []
+        cams: list[Any] = []  # the batches of CAMs (payload: a row [position, speed], see _communicate)
         assignments: list[tuple[float, int, str, Assignment]] = []
         for b in self.channel.deliver_indexed(t):
-            m = b.payload
-            copies = zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True)
-            if isinstance(m, CamMessage):
-                cams.extend((tr, b.seq, names[di], m) for di, tr in copies
-                            if names[di] in self.tracks and self._tracks_sender(names[di], m.sender_id))
-            elif isinstance(m, Assignment):
-                assignments.extend((tr, b.seq, names[di], m) for di, tr in copies)
+            if type(b.payload) is Assignment:
+                assignments.extend((tr, b.seq, names[di], b.payload)
+                                   for di, tr in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True))
+            else:
+                cams.append(b)
         assignments.sort(key=lambda c: (c[0], c[1]))
         for tr, _, dst, m in assignments:  # a vehicle keeps the last one delivered
             self.assigned[dst] = (tr, m)
         if cams:
-            cams.sort(key=lambda c: (c[0], c[1]))
-            self.tracks.fuse([c[2] for c in cams], [c[3].sender_id for c in cams], np.array([c[3].t_sent_s for c in cams]),
-                             np.array([(-c[3].dist_to_merge_m, c[3].speed_mps) for c in cams]))
+            self._fuse_cams(cams, names)
+
+    def _fuse_cams(self, batches: list[Any], names: list[str]) -> None:
+        """The copies of the CAM batches that their receivers track, fused in delivery order
+        ((t_recv, send order) per copy; a batch's copies in their order)."""
+        n = [b.dst_idx.size for b in batches]
+        dst = [names[i] for i in np.concatenate([b.dst_idx for b in batches]).tolist()]
+        src = [b.src for b, k in zip(batches, n, strict=True) for _ in range(k)]
+        keep = [j for j, (d, sv) in enumerate(zip(dst, src, strict=True))
+                if d in self.tracks and self._tracks_sender(d, sv)]
+        if not keep:
+            return
+        t_recv = np.concatenate([b.t_recv_s for b in batches])[keep]
+        seq = np.repeat([b.seq for b in batches], n)[keep]
+        order = np.lexsort((seq, t_recv)).tolist()  # stable: ties keep the batch's copy order
+        rows = [keep[j] for j in order]
+        t_sent = np.repeat([b.t_sent_s for b in batches], n)
+        z = np.repeat(np.array([b.payload for b in batches]), n, axis=0)
+        self.tracks.fuse([dst[j] for j in rows], [src[j] for j in rows], t_sent[rows], z[rows])
 
     def _tracks_sender(self, dst: str, src: str) -> bool:
         """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
@@ -396,8 +414,8 @@ class V2XMerging(Controller):
                 self._aoi_max = max(self._aoi_max, age)
         # vehicles of the sequence that reached the merge point since the last call anchor the next
         # headway at their measured crossing time; the others left the conflict (lane change)
-        live = dict(zip(ids, dist, strict=True))
-        crossed = {vid: t for vid in self.coord.sequence if vid not in index and live.get(vid, 1.0) <= 0.0}
+        row = s["row"]
+        crossed = {vid: t for vid in self.coord.sequence if vid not in index and vid in row and dist[row[vid]] <= 0.0}
         times = self.coord.assign(t, zone, crossed)
         if not zone:
             return {}, []
@@ -415,9 +433,9 @@ class V2XMerging(Controller):
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
         cmds: list[Any] = []
-        ids, dist, speed, length = s["ids"], s["dist"], s["speed"], s["length"]
+        dist, speed, length = s["dist"], s["speed"], s["length"]
         lim = self.p.limits
-        live = {v: k for k, v in enumerate(ids)}
+        live = s["row"]
         for vid in list(self.controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
             if k is None or dist[k] < 0:  # past the nose: SUMO's lane-change model completes the merge
@@ -452,7 +470,7 @@ class V2XMerging(Controller):
                     cmds.append(Release(vid))
                 continue
             if near_merge:  # virtual-vehicle following: cruise, bounded below by the order predecessor
-                acc = float(np.clip(target - speed[k], lim.a_min_mps2, lim.a_max_mps2))
+                acc = min(max(float(target - speed[k]), lim.a_min_mps2), lim.a_max_mps2)  # np.clip
             else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
                 acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
             if near_merge and cross_pred:
@@ -470,7 +488,7 @@ class V2XMerging(Controller):
                     acc = min(acc, self._merge_gap_accel(gap, float(speed[k]), v_lead))
                     acc = safe_accel(gap, float(speed[k]), v_lead, acc, self.safety)
             acc = self._physical_leader_cap(s, k, acc)
-            v_next = float(np.clip(speed[k] + acc * self.period, 0.0, lim.v_max_mps))
+            v_next = min(max(float(speed[k] + acc * self.period), 0.0), lim.v_max_mps)  # np.clip
             if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))

@@ -47,17 +47,23 @@ def test_a_block_concatenates_the_road_rows_of_its_ticks() -> None:
 
 
 def _monitors_with_blocks(ticks: int) -> dict[str, object]:
+    from corridor.analysis.monitoring.merge_loops import MergeLoops
     from corridor.analysis.monitoring.road import SurrogateSafety, TrafficKpis
     from corridor.run import build
     from corridor.scenario import load
 
-    SurrogateSafety.block_ticks = TrafficKpis.block_ticks = ticks
-    # warm-up inside a block; a TTC threshold that is crossed (time exposed > 0) in 80 s
-    sets = ["duration=80", "warmup=23.3", "monitors.ssm.params.ttc_threshold_s=12", *KRAUSS]
+    SurrogateSafety.block_ticks = TrafficKpis.block_ticks = MergeLoops.block_ticks = ticks
+    # warm-up inside a block; a TTC threshold that is crossed (time exposed > 0) in 80 s; loop intervals
+    # of 10 s (some inside a block), free-flow speed over the first 30 s
+    sets = ["duration=80", "warmup=23.3", "monitors.ssm.params.ttc_threshold_s=12", *KRAUSS,
+            "monitors.loops.params.interval_s=10", "monitors.loops.params.free_flow_window_s=30",
+            "monitors.loops.params.sustain_s=10", "monitors.loops.params.window_s=20",
+            "monitors.loops.params.transition_s=0"]
     sc, _ = load(str(SCENARIO), sets)
     sim = build(sc, 2, Path(tempfile.mkdtemp()))
     metrics = sim.run()
-    signals = {n: sim.ctx.signals.get(n) for n in ("min_ttc", "vehicles", "mean_speed")}
+    loops = [f"loop_{q}_{st}" for q in ("flow_vph", "speed_mps", "density_vpkm") for st in ("up", "merge", "down")]
+    signals = {n: sim.ctx.signals.get(n) for n in ("min_ttc", "vehicles", "mean_speed", *loops)}
     return {"metrics": metrics, "signals": signals}
 
 
@@ -73,7 +79,12 @@ def test_blocks_of_1_and_of_37_ticks_give_the_same_figures_bit_for_bit() -> None
     for key in ("min_ttc_s", "max_drac_mps2", "ttc_exposed_s", "hard_brakes", "throughput_vph", "tts_vh",
                 "energy_proxy_mean", "merge_loss_mainline_s", "merge_loss_ramp_s", "merge_loss_mean_s"):
         assert many["metrics"][key] == m[key], key
+    for key in ("free_flow_speed_mps", "breakdown", "breakdown_s", "prebreakdown_flow_vph", "discharge_flow_vph",
+                "capacity_drop_pct"):  # the loops' figures (NaN where there is no breakdown)
+        assert np.array_equal(many["metrics"][key], m[key], equal_nan=True), key
+    flows = one["signals"]["loop_flow_vph_down"]
+    assert len(flows[0]) == 8 and flows[1].sum() > 0  # eight 10 s intervals, vehicles counted
     assert len(one["signals"]["min_ttc"][0]) == 800  # one value per tick (the others: ticks with vehicles)
     for name, (t, v) in one["signals"].items():
-        assert len(t) > 700 and np.array_equal(many["signals"][name][0], t), name
-        assert np.array_equal(many["signals"][name][1], v), name
+        assert (len(t) > 700 or name.startswith("loop_")) and np.array_equal(many["signals"][name][0], t), name
+        assert np.array_equal(many["signals"][name][1], v, equal_nan=True), name
