@@ -119,25 +119,45 @@ def _theta_rows(pb: Any, theta: np.ndarray, n: int, seed: int, out: Path, tag: s
     return _run(sp, out / "holdout" / tag, "local", workers, None, False)
 
 
-def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, switch: list[str],
-                 sets: Sequence[str]) -> list[dict[str, Any]]:
-    """The PPO policy on the held-out seeds and draws; finished rows are kept in ``rows.parquet``."""
+_WORKER: dict[str, Any] = {}  # per policy-evaluating process: the problem of its folder
+
+
+def _policy_run(folder: str, seed: int, draws: dict[str, Any]) -> dict[str, Any]:
+    """One held-out run of the PPO policy in ``folder`` (in a worker process)."""
+    from corridor.learn_ppo import evaluate_policy
+
+    if _WORKER.get("folder") != folder:
+        data = load_learn(Path(folder))
+        _WORKER.update(folder=folder, data=data, pb=problem_of(data))
+    data = _WORKER["data"]
+    return evaluate_policy(Path(folder), _WORKER["pb"], list(data["sets"]), (data["switch"][0], data["switch"][1]),
+                           seed, draws)
+
+
+def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, workers: int) -> list[dict[str, Any]]:
+    """The PPO policy on the held-out seeds and draws (``workers`` processes); finished rows are kept in
+    ``rows.parquet`` as they come (a second call runs only the missing ones)."""
+    import multiprocessing as mp
+    import os
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
     import pandas as pd
 
     from corridor.learn_core import specs
-    from corridor.learn_ppo import evaluate_policy
 
     store = out / "holdout" / tag / "rows.parquet"
     store.parent.mkdir(parents=True, exist_ok=True)
     done = {r["run_id"]: r for r in pd.read_parquet(store).to_dict("records")} if store.is_file() else {}
-    rows = []
-    for s in specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold"):
-        if s.run_id not in done:
-            row = evaluate_policy(folder, pb, list(sets), (switch[0], switch[1]), s.seed, s.draws)
-            done[s.run_id] = {**row, "run_id": s.run_id, "seed": s.seed}
+    hold = specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold")
+    todo = [s for s in hold if s.run_id not in done]
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per process: torch's own threads would contend
+    with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn")) as ex:
+        futures = {ex.submit(_policy_run, str(folder), s.seed, s.draws): s for s in todo}
+        for fut in as_completed(futures):
+            s = futures[fut]
+            done[s.run_id] = {**fut.result(), "run_id": s.run_id, "seed": s.seed}
             pd.DataFrame(list(done.values())).to_parquet(store, index=False)
-        rows.append(done[s.run_id])
-    return rows
+    return [done[s.run_id] for s in hold]
 
 
 def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str], workers: int) -> list[dict[str, Any]]:
@@ -153,7 +173,7 @@ def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str]
         tag = f"{data['method']}-{folder.name}"
         key: tuple[float, ...] = ()
         if data["theta"] is None:
-            rows = _policy_rows(pb, folder, n, seed, out, tag, data["switch"], data["sets"])
+            rows = _policy_rows(pb, folder, n, seed, out, tag, workers)
             theta = "policy"
         else:
             th = np.array([data["theta"][k] for k in data["keys"]])
@@ -226,7 +246,8 @@ def scan_rows(folder: Path) -> tuple[dict[str, str], list[dict[str, Any]]]:
     return short, pd.read_parquet(folder / "runs.parquet").to_dict("records")
 
 
-def scan_table(folders: list[Path], reference: Path, objective: str, constraints: Sequence[str]) -> list[dict[str, Any]]:
+def scan_table(folders: list[Path], reference: Path, objective: str, constraints: Sequence[str],
+               metrics: Sequence[str] = ()) -> list[dict[str, Any]]:
     from corridor.objective import Expression, value, violations
 
     obj = Expression(objective, "--objective")
@@ -238,37 +259,42 @@ def scan_table(folders: list[Path], reference: Path, objective: str, constraints
     for folder in folders:
         sets, rows = scan_rows(folder)
         m, lo, hi, pairs = paired(o0, _by_seed(rows, f))
-        out.append({"folder": str(folder), "sets": sets, "objective": ci95(list(_by_seed(rows, f).values())),
-                    "paired_diff": (m, lo, hi), "pairs": pairs,
-                    "violating": sum(violations(cons, r) > 0 for r in rows if r.get("status", "ok") == "ok")})
+        t = {"folder": str(folder), "sets": sets, "objective": ci95(list(_by_seed(rows, f).values())),
+             "paired_diff": (m, lo, hi), "pairs": pairs,
+             "violating": sum(violations(cons, r) > 0 for r in rows if r.get("status", "ok") == "ok")}
+        for col in metrics:
+            g = lambda r, c=col: float(r.get(c, math.nan))  # noqa: E731
+            t[f"paired_diff.{col}"] = paired(_by_seed(ref, g), _by_seed(rows, g))[:3]
+        out.append(t)
     return out
 
 
-def scan_figure(table: list[dict[str, Any]], x: str, objective: str) -> Any:
-    """Paired difference against the reference (95 % interval) vs the ``x`` set value, one line per
-    combination of the other set values."""
+def scan_figure(table: list[dict[str, Any]], x: str, objective: str, metrics: Sequence[str] = ()) -> Any:
+    """Paired differences against the reference (95 % intervals) vs the ``x`` set value: the objective,
+    then each metric; one line per combination of the other set values (keys equal to ``x`` in every
+    folder move with it and are left out of the label)."""
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(7.0, 3.8), layout="constrained")
-    ax = fig.subplots()
-    groups: dict[str, list[tuple[float, tuple[float, float, float]]]] = {}
-    for t in table:
-        if x not in t["sets"]:
-            continue
-        label = ", ".join(f"{k} {v}" for k, v in sorted(t["sets"].items()) if k != x) or objective
-        groups.setdefault(label, []).append((float(t["sets"][x]), t["paired_diff"]))
-    for label, pts in groups.items():
-        pts.sort()
-        xs = np.array([p[0] for p in pts])
-        m = np.array([p[1][0] for p in pts])
-        lo = np.array([p[1][1] for p in pts])
-        hi = np.array([p[1][2] for p in pts])
-        ax.errorbar(xs, m, yerr=[m - lo, hi - m], marker="o", capsize=3, label=label)
-    ax.axhline(0.0, color="grey", lw=0.8)
-    ax.set_xscale("log")
-    ax.set_xlabel(x)
-    ax.set_ylabel(f"{objective}: paired difference\nagainst the reference (95 % CI)")
-    ax.legend(fontsize=7)
+    panels = [("paired_diff", f"{objective}")] + [(f"paired_diff.{c}", c) for c in metrics]
+    fig = Figure(figsize=(7.0, 2.2 + 1.8 * len(panels)), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(len(panels), 1, sharex=True))
+    on_x = [t for t in table if x in t["sets"]]
+    tied = {k for k in on_x[0]["sets"] if all(t["sets"].get(k) == t["sets"][x] for t in on_x)} if on_x else set()
+    groups: dict[str, list[dict[str, Any]]] = {}
+    for t in on_x:
+        label = ", ".join(f"{k} {v}" for k, v in sorted(t["sets"].items()) if k not in tied)
+        groups.setdefault(label or x, []).append(t)
+    for ax, (field, name) in zip(axes, panels, strict=True):
+        for label, ts in groups.items():
+            ts = sorted(ts, key=lambda t: float(t["sets"][x]))
+            xs = np.array([float(t["sets"][x]) for t in ts])
+            m, lo, hi = (np.array([t[field][i] for t in ts]) for i in range(3))
+            ax.errorbar(xs, m, yerr=[m - lo, hi - m], marker="o", capsize=3, label=label)
+        ax.axhline(0.0, color="grey", lw=0.8)
+        ax.set_ylabel(f"{name}\n(paired diff., 95 % CI)", fontsize=8)
+    axes[0].set_xscale("log")
+    axes[-1].set_xlabel(x)
+    axes[0].legend(fontsize=7)
     return fig
 
 
@@ -292,6 +318,7 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--objective", required=True)
     s.add_argument("--constraint", action="append", default=[])
     s.add_argument("--x", required=True, help="the --set key on the x axis (boundary.param)")
+    s.add_argument("--metric", action="append", default=[], help="a column whose paired difference to show too")
     s.add_argument("--plot", type=Path)
     args = ap.parse_args(argv)
     try:
@@ -310,14 +337,15 @@ def main(argv: list[str] | None = None) -> int:
                 figure(args.folders).savefig(args.plot)
                 print(args.plot)
         else:
-            table = scan_table(args.folders, args.reference, args.objective, args.constraint)
+            table = scan_table(args.folders, args.reference, args.objective, args.constraint, args.metric)
             print(f"{'set values':60s} {'pairs':>5s} {'objective':>26s} {'paired diff [95 % CI]':>34s} violating")
             for t in table:
                 label = ", ".join(f"{k}={v}" for k, v in t["sets"].items())
+                extra = "".join(f"  d {c} {fmt_ci(*t[f'paired_diff.{c}'], digits=2)}" for c in args.metric)
                 print(f"{label:60s} {t['pairs']:5d} {fmt_ci(*t['objective']):>26s} {fmt_ci(*t['paired_diff']):>34s} "
-                      f"{t['violating']}")
+                      f"{t['violating']}{extra}")
             if args.plot:
-                scan_figure(table, args.x, args.objective).savefig(args.plot)
+                scan_figure(table, args.x, args.objective, args.metric).savefig(args.plot)
                 print(args.plot)
     except CorridorError as exc:
         print(str(exc), file=sys.stderr)

@@ -64,13 +64,14 @@ def test_scan_pairs_every_folder_with_the_reference_by_seed(tmp_path: Path, caps
     key = "controllers.avoid.params.boundaries.avoid_enter.dist_m"
     ref = _batch(tmp_path / "ref", [f"{key}=10000"], [1.3, 1.4, 1.5], [0, 0, 0])
     near = _batch(tmp_path / "near", [f"{key}=80"], [1.2, 1.35, 1.4], [0, 1, 0])
-    table = lb.scan_table([ref, near], ref, "-path_ratio_mean", ["nmac == 0"])
+    table = lb.scan_table([ref, near], ref, "-path_ratio_mean", ["nmac == 0"], ["nmac"])
     assert table[0]["paired_diff"][:1] == (0.0,) and table[0]["violating"] == 0
     assert table[1]["sets"] == {"avoid_enter.dist_m": "80"}
     assert table[1]["paired_diff"][0] == pytest.approx(0.25 / 3) and table[1]["violating"] == 1
+    assert table[1]["paired_diff.nmac"][0] == pytest.approx(1 / 3)
     svg = tmp_path / "scan.svg"
     assert lb.main(["scan", str(ref), str(near), "--reference", str(ref), "--objective=-path_ratio_mean",
-                    "--constraint", "nmac == 0", "--x", "avoid_enter.dist_m", "--plot", str(svg)]) == 0
+                    "--constraint", "nmac == 0", "--x", "avoid_enter.dist_m", "--metric", "nmac", "--plot", str(svg)]) == 0
     assert "avoid_enter.dist_m=80" in capsys.readouterr().out and svg.read_text().startswith("<?xml")
 
 
@@ -95,3 +96,19 @@ def test_holdout_uses_the_seeds_and_draws_of_learns_own_comparison(tmp_path: Pat
     stamp = [p.stat().st_mtime_ns for p in parts]
     lb.holdout_table([out], 2, tmp_path / "bench", [], 2)
     assert [p.stat().st_mtime_ns for p in parts] == stamp  # nothing ran again
+
+
+def test_a_ppo_policy_is_run_on_the_held_out_seeds_of_learns_own_comparison(tmp_path: Path) -> None:
+    """The policy runs in worker processes; its held-out figure is the one --method ppo reports."""
+    pytest.importorskip("stable_baselines3")
+    sys.path.insert(0, str(ROOT / "tools"))  # the spawned workers import the tool by name
+    out = tmp_path / "ppo"
+    assert run_scenario(["uav_encounter", "--variant", "potential_field", "--method", "ppo", "--quiet",
+                         "--learn", "avoid_enter.dist_m", "--objective", "-path_ratio_mean", "--budget", "8",
+                         "--holdout", "2", "--set", "duration=3", "--out", str(out)]) == 0
+    own = json.loads((out / "learn.json").read_text())["holdout"]
+    (row,) = lb.holdout_table([out], 2, tmp_path / "bench", [], 2)
+    assert row["theta"] == "policy" and row["pairs"] == 2
+    assert row["learned_objective"][0] == pytest.approx(own["learned"]["objective_mean"])
+    assert row["hand_tuned_objective"][0] == pytest.approx(own["hand_tuned"]["objective_mean"])
+    assert len(pd.read_parquet(tmp_path / "bench" / "holdout" / "ppo-ppo" / "rows.parquet")) == 2
