@@ -320,7 +320,9 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--x", required=True, help="the --set key on the x axis (boundary.param)")
     s.add_argument("--metric", action="append", default=[], help="a column whose paired difference to show too")
     s.add_argument("--plot", type=Path)
-    args = ap.parse_args(argv)
+    from corridor.cli import _glue_expressions
+
+    args = ap.parse_args(_glue_expressions(list(sys.argv[1:] if argv is None else argv)))
     try:
         if args.cmd == "holdout":
             if args.holdout < 2:

@@ -70,7 +70,7 @@ def test_scan_pairs_every_folder_with_the_reference_by_seed(tmp_path: Path, caps
     assert table[1]["paired_diff"][0] == pytest.approx(0.25 / 3) and table[1]["violating"] == 1
     assert table[1]["paired_diff.nmac"][0] == pytest.approx(1 / 3)
     svg = tmp_path / "scan.svg"
-    assert lb.main(["scan", str(ref), str(near), "--reference", str(ref), "--objective=-path_ratio_mean",
+    assert lb.main(["scan", str(ref), str(near), "--reference", str(ref), "--objective", "-path_ratio_mean",
                     "--constraint", "nmac == 0", "--x", "avoid_enter.dist_m", "--metric", "nmac", "--plot", str(svg)]) == 0
     assert "avoid_enter.dist_m=80" in capsys.readouterr().out and svg.read_text().startswith("<?xml")
 
