@@ -12,6 +12,7 @@ held-out comparison uses), the hand-tuned start theta0 once, every distinct lear
 equal to theta0 reuses its rows: same seed, same rows) and every PPO policy (deterministic actions, in
 the Gymnasium environment).  It prints, per method: training episodes, theta, the held-out objective,
 the paired difference learned - hand-tuned with its 95 % t interval, the runs that broke a constraint,
+the paired difference of the reward (objective - penalty x broken constraints, what the learners maximise),
 the paired difference of each ``--metric`` column, and the training episodes needed to reach 95 % of
 the final objective (``episodes_to_95``, on the training stages; 0 when the learned theta is theta0).  Rows go to ``OUT/holdout/<tag>/``; a second call with the
 same ``OUT`` re-uses the finished runs (resume).
@@ -210,6 +211,7 @@ def compare(pb: Any, base: list[dict[str, Any]], rows: list[dict[str, Any]], met
     res = {"pairs": pairs, "hand_tuned_objective": ci95(list(o0.values())), "learned_objective": ci95(list(o1.values())),
            "paired_diff": (m, lo, hi), "violating_hand_tuned": violating(pb, base),
            "violating_learned": violating(pb, rows), "errors": sum(r.get("status", "ok") != "ok" for r in rows)}
+    res["paired_diff_reward"] = paired(_by_seed(base, pb.reward), _by_seed(rows, pb.reward))[:3]
     for col in metrics:
         f = lambda r, c=col: float(r.get(c, math.nan))  # noqa: E731
         res[f"paired_diff.{col}"] = paired(_by_seed(base, f), _by_seed(rows, f))[:3]
@@ -221,13 +223,14 @@ def print_holdout(table: list[dict[str, Any]], metrics: Sequence[str]) -> None:
     m0 = t0["hand_tuned_objective"]
     print(f"held-out: {t0['pairs']} seeds; hand-tuned objective {fmt_ci(*m0)}, violating runs {t0['violating_hand_tuned']}")
     head = ["method", "train ep.", "ep. to 95 %", "theta", "held-out objective", "learned - hand-tuned [95 % CI]",
-            "violating", *[f"d {c}" for c in metrics]]
+            "violating", "reward: learned - hand-tuned", *[f"d {c}" for c in metrics]]
     print("| " + " | ".join(head) + " |")
     print("|" + "---|" * len(head))
     for t in table:
         e95 = "-" if t["episodes_to_95"] is None else str(t["episodes_to_95"])
         cells = [t["method"], str(t["training_episodes"]), e95, t["theta"], fmt_ci(*t["learned_objective"]),
                  fmt_ci(*t["paired_diff"]), f"{t['violating_hand_tuned']} -> {t['violating_learned']}",
+                 fmt_ci(*t["paired_diff_reward"]),
                  *[fmt_ci(*t[f"paired_diff.{c}"], digits=3) for c in metrics]]
         print("| " + " | ".join(cells) + " |")
 

@@ -89,6 +89,7 @@ def test_holdout_uses_the_seeds_and_draws_of_learns_own_comparison(tmp_path: Pat
     assert row["pairs"] == 2 and row["training_episodes"] == 12
     assert row["hand_tuned_objective"][0] == pytest.approx(own["hand_tuned"]["objective_mean"])
     assert row["learned_objective"][0] == pytest.approx(own["learned"]["objective_mean"])
+    assert row["violating_learned"] == 0 and row["paired_diff_reward"][0] == pytest.approx(row["paired_diff"][0])
     parts = sorted((tmp_path / "bench" / "holdout").glob("*/parts/*.parquet"))
     assert len(parts) == 4  # theta0 and the learned theta, 2 seeds each
     lb.print_holdout(table, ["sep_min_h_m"])
