@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,8 @@ def figure(folders: list[Path]) -> Figure:
                         label=f"{name}: held-out {key.replace('_', '-')} ({h['runs']} seeds)")
         ax2.bar(runs, viol, width=2.0, alpha=0.6, color=line.get_color())
     ax.set_ylabel(f"objective: {data['objective']}")
-    ax.set_title(f"{data['scenario']} [{data['variant']}]: learning {', '.join(k.split('boundaries.')[-1] for k in data['keys'])}")
+    keys = ", ".join(k.split("boundaries.")[-1] for k in data["keys"])
+    ax.set_title("\n".join(textwrap.wrap(f"{data['scenario']} [{data['variant']}]: learning {keys}", 90)), fontsize=9)
     ax.legend(fontsize=6, framealpha=0.7)
     ax2.set_ylabel("violating runs")
     ax2.set_xlabel("training runs")
