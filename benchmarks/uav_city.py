@@ -5,7 +5,9 @@ each in its own process; CPU is ``time.process_time`` of that process (its child
 runs are measured from outside with ``resource.getrusage(RUSAGE_CHILDREN)``), never wall time (the
 machine is shared). Printed per N: the CPU per simulated second of the run loop (from the backend's
 first tick: ``cpu_per_sim_s``), the same including set-up (JSBSim loads, the city draw), the
-real-time factor on one core (1 / CPU per simulated second) and the share of flight time in 6-DOF.
+real-time factor on one core (1 / CPU per simulated second), the share of flight time in 6-DOF, and
+the CPU per simulated second spent growing the FDM pools (model loads, spin-ups: the first seconds)
+and on the promotions' in-flight spawns.
 
     python benchmarks/uav_city.py --n 100 500 2000 --duration 60
 
@@ -59,6 +61,20 @@ def one_run(sets: list[str], seed: int) -> dict[str, Any]:
     return simulate(sc, seed)[0]
 
 
+def one_run_switch_cost(sets: list[str], seed: int) -> dict[str, Any]:
+    """``one_run`` plus the CPU per simulated second spent growing the FDM pools (``pool_cpu_per_sim_s``:
+    model loads and spin-ups, a cost of a run's first seconds) and on the promotions' in-flight spawns
+    (``spawn_cpu_per_sim_s``); one-process runs only (NaN with shards)."""
+    from corridor.run import simulate
+    from corridor.scenario import load
+
+    sc, _ = load(CITY, sets)
+    m, ctx, _ = simulate(sc, seed)
+    js = ctx.components["air"].js
+    return {**m, "pool_cpu_per_sim_s": getattr(js, "warm_cpu_s", math.nan) / sc.duration,
+            "spawn_cpu_per_sim_s": getattr(js, "spawn_cpu_s", math.nan) / sc.duration}
+
+
 def one_run_exchange(sets: list[str], seed: int) -> dict[str, Any]:
     """``one_run`` plus, for a sharded run, where its CPU went: ``main_cpu_per_sim_s`` (the run's own
     process: point masses, fidelity check, link, controllers, monitors, the exchange's sending side),
@@ -92,13 +108,14 @@ def timed_run(sets: list[str], seed: int, duration_s: float, fn: Any = one_run) 
 
 def cost_curve(ns: list[int], duration_s: float, seed: int, extra: list[str]) -> None:
     print(f"{'N':>6} {'CPU/sim s (loop)':>17} {'CPU/sim s (total)':>18} {'x real time':>12} {'6-DOF share':>12} "
-          f"{'promotions':>11} {'LoS/fh':>8}")
+          f"{'promotions':>11} {'LoS/fh':>8} {'pool growth':>12} {'spawns':>7}")
     for n in ns:
         sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}", "controllers.avoid.type=city_potential_field",
                 *extra]
-        m = timed_run(sets, seed, duration_s)
+        m = timed_run(sets, seed, duration_s, one_run_switch_cost)
         print(f"{n:>6} {m['cpu_per_sim_s']:>17.3f} {m['cpu_total_per_sim_s']:>18.3f} {1.0 / m['cpu_per_sim_s']:>12.2f} "
-              f"{m['six_dof_share']:>12.3f} {m['promotions']:>11} {m['los_per_fh']:>8.2f}", flush=True)
+              f"{m['six_dof_share']:>12.3f} {m['promotions']:>11} {m['los_per_fh']:>8.2f} "
+              f"{m['pool_cpu_per_sim_s']:>12.3f} {m['spawn_cpu_per_sim_s']:>7.3f}", flush=True)
 
 
 def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str]) -> None:
