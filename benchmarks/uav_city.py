@@ -238,6 +238,24 @@ def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, ext
     full = [done[("jsbsim", s)] for s in complete]
     for name in variants:
         _bias_report(name, variants[name], [done[(name, s)] for s in complete], full, n, size_m, duration_s)
+    names = list(variants)
+    for name in names[1:]:  # what the boundary changes, the all-6-DOF runs aside
+        _contrast(name, names[0], [done[(name, s)] for s in complete], [done[(names[0], s)] for s in complete])
+
+
+def _contrast(name: str, ref: str, a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
+    """Paired differences between two multi-fidelity variants (mean, 95 % t-interval)."""
+    from scipy import stats
+
+    print(f"contrast {name} minus {ref} ({len(a)} paired seeds; mean, 95 % t-interval)")
+    for k in BIAS_METRICS:
+        x, y = np.array([r[k] for r in a], float), np.array([r[k] for r in b], float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        d = x[ok] - y[ok]
+        if len(d) < 2:
+            continue
+        half = float(stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+        print(f"  {k:22s} {d.mean():+8.3f} [{d.mean() - half:+8.3f}, {d.mean() + half:+8.3f}]")
 
 
 def _bias_report(name: str, sets: list[str], multi: list[dict[str, Any]], full: list[dict[str, Any]], n: int,
