@@ -5,18 +5,24 @@ each in its own process; CPU is ``time.process_time`` of that process (its child
 runs are measured from outside with ``resource.getrusage(RUSAGE_CHILDREN)``), never wall time (the
 machine is shared). Printed per N: the CPU per simulated second of the run loop (from the backend's
 first tick: ``cpu_per_sim_s``), the same including set-up (JSBSim loads, the city draw), the
-real-time factor on one core (1 / CPU per simulated second) and the share of flight time in 6-DOF.
+real-time factor on one core (1 / CPU per simulated second), the share of flight time in 6-DOF, and
+the CPU per simulated second spent growing the FDM pools (model loads, spin-ups: the first seconds)
+and on the promotions' in-flight spawns.
 
     python benchmarks/uav_city.py --n 100 500 2000 --duration 60
 
 Fidelity bias (``--bias``): at N drones (default 200) in a ``--size`` m city (default 3000 m, about
 the density of 2,200 drones in 10 km x 10 km, so a short run has encounters), each seed runs twice,
-multi-fidelity and all-6-DOF, with the same seed (the same city, missions and link losses: common
-random numbers). Per metric the paired differences (multi - all-6-DOF) get a mean with its 95 %
-t-interval and a Wilcoxon signed-rank p-value; the fidelity does not bias a metric when the
-interval holds 0. Also printed: the CPU ratio.
+all-6-DOF and once per multi-fidelity ``--variant`` (default: the scenario's boundaries), with the
+same seed (the same city, missions and link losses: common random numbers). Per metric the paired
+differences (multi - all-6-DOF) get a mean with its 95 % t-interval, a 95 % bootstrap interval
+(seeds resampled) and a Wilcoxon signed-rank p-value; the fidelity does not bias a metric when both
+intervals hold 0. The nearest-approach distributions (each aircraft's smallest distance to another,
+pooled over the seeds) get quantile differences with intervals from resampling the paired seeds,
+and a two-sample KS statistic with a paired permutation p-value. Also printed: the CPU ratio.
 
-    python benchmarks/uav_city.py --bias --seeds 10 --duration 60
+    python benchmarks/uav_city.py --bias --seeds 50 --duration 30 \
+        --variant default: --variant converging:backends.air.params.fidelity.promote_on=converging
 
 Shards (``--shards 1 2``): the same run with the 6-DOF aircraft in 1, 2, ... shard processes
 (``backends.air.params.shards``), ``--repeat`` times each, interleaved; printed per run: wall time
@@ -30,11 +36,12 @@ simulated second, and whether the rows equal the one-shard run's.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import resource
 import sys
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -54,11 +61,46 @@ def one_run(sets: list[str], seed: int) -> dict[str, Any]:
     return simulate(sc, seed)[0]
 
 
-def timed_run(sets: list[str], seed: int, duration_s: float) -> dict[str, Any]:
-    """``one_run`` in a child process; adds ``cpu_total_per_sim_s`` (the child's CPU, set-up included)."""
+def one_run_switch_cost(sets: list[str], seed: int) -> dict[str, Any]:
+    """``one_run`` plus the CPU per simulated second spent growing the FDM pools (``pool_cpu_per_sim_s``:
+    model loads and spin-ups, a cost of a run's first seconds) and on the promotions' in-flight spawns
+    (``spawn_cpu_per_sim_s``); one-process runs only (NaN with shards)."""
+    from corridor.run import simulate
+    from corridor.scenario import load
+
+    sc, _ = load(CITY, sets)
+    m, ctx, _ = simulate(sc, seed)
+    js = ctx.components["air"].js
+    return {**m, "pool_cpu_per_sim_s": getattr(js, "warm_cpu_s", math.nan) / sc.duration,
+            "spawn_cpu_per_sim_s": getattr(js, "spawn_cpu_s", math.nan) / sc.duration}
+
+
+def one_run_exchange(sets: list[str], seed: int) -> dict[str, Any]:
+    """``one_run`` plus, for a sharded run, where its CPU went: ``main_cpu_per_sim_s`` (the run's own
+    process: point masses, fidelity check, link, controllers, monitors, the exchange's sending side),
+    ``shard_cpu_per_sim_s`` (all shard processes), and per tick the exchange's round trips, their wall
+    time and what of it the slowest shard's work does not explain (``exchange_ms_per_round``)."""
+    from corridor.run import simulate
+    from corridor.scenario import load
+
+    sc, _ = load(CITY, sets)
+    m, ctx, _ = simulate(sc, seed)
+    air, sim_s = ctx.components["air"], sc.duration
+    js = air.js
+    if not hasattr(js, "rounds"):
+        return {**m, "main_cpu_per_sim_s": m["cpu_per_sim_s"], "shard_cpu_per_sim_s": 0.0}
+    shard = (js.shard_cpu_s() - air.shard_cpu_t0_s) / sim_s
+    ticks = round(sim_s / sc.dt)
+    return {**m, "main_cpu_per_sim_s": m["cpu_per_sim_s"] - shard, "shard_cpu_per_sim_s": shard,
+            "rounds_per_tick": js.rounds / ticks, "round_ms_per_tick": 1e3 * js.round_wall_s / ticks,
+            "exchange_ms_per_round": 1e3 * (js.round_wall_s - js.slowest_work_s) / max(js.rounds, 1)}
+
+
+def timed_run(sets: list[str], seed: int, duration_s: float, fn: Any = one_run) -> dict[str, Any]:
+    """``fn`` (``one_run``) in a child process; adds ``cpu_total_per_sim_s`` (the child's CPU, set-up included)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     with ProcessPoolExecutor(1) as ex:
-        m = ex.submit(one_run, sets, seed).result()
+        m = ex.submit(fn, sets, seed).result()
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
     return {**m, "cpu_total_per_sim_s": cpu / duration_s}
@@ -66,31 +108,36 @@ def timed_run(sets: list[str], seed: int, duration_s: float) -> dict[str, Any]:
 
 def cost_curve(ns: list[int], duration_s: float, seed: int, extra: list[str]) -> None:
     print(f"{'N':>6} {'CPU/sim s (loop)':>17} {'CPU/sim s (total)':>18} {'x real time':>12} {'6-DOF share':>12} "
-          f"{'promotions':>11} {'LoS/fh':>8}")
+          f"{'promotions':>11} {'LoS/fh':>8} {'pool growth':>12} {'spawns':>7}")
     for n in ns:
         sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}", "controllers.avoid.type=city_potential_field",
                 *extra]
-        m = timed_run(sets, seed, duration_s)
+        m = timed_run(sets, seed, duration_s, one_run_switch_cost)
         print(f"{n:>6} {m['cpu_per_sim_s']:>17.3f} {m['cpu_total_per_sim_s']:>18.3f} {1.0 / m['cpu_per_sim_s']:>12.2f} "
-              f"{m['six_dof_share']:>12.3f} {m['promotions']:>11} {m['los_per_fh']:>8.2f}", flush=True)
+              f"{m['six_dof_share']:>12.3f} {m['promotions']:>11} {m['los_per_fh']:>8.2f} "
+              f"{m['pool_cpu_per_sim_s']:>12.3f} {m['spawn_cpu_per_sim_s']:>7.3f}", flush=True)
 
 
 def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str]) -> None:
-    machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s"}
+    machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s", "main_cpu_per_sim_s", "shard_cpu_per_sim_s",
+               "rounds_per_tick", "round_ms_per_tick", "exchange_ms_per_round"}
     print(f"N={n}, {duration_s:.0f} s, potential field; wall of the run loop (rtf: simulated s per wall s)")
-    print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'6-DOF share':>12} "
-          f"{'rows = 1 shard':>15} {'load avg (1 min)':>17}")
+    print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'main':>7} "
+          f"{'shards':>7} {'6-DOF share':>12} {'rows = 1 shard':>15} {'load avg (1 min)':>17}  exchange")
     for r in range(repeat):
         ref: dict[str, Any] | None = None
         for k in shards:
             sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}",
                     "controllers.avoid.type=city_potential_field", f"backends.air.params.shards={k}", *extra]
-            m = timed_run(sets, seed, duration_s)
+            m = timed_run(sets, seed, duration_s, one_run_exchange)
             wall = duration_s / m["rtf"]
             ref = ref or {**m, "wall": wall}
             same = all(_same(m[c], ref[c]) for c in m if c not in machine)
+            ex = (f"{m['rounds_per_tick']:.2f} round trips/tick, {m['round_ms_per_tick']:.2f} ms/tick, "
+                  f"{m['exchange_ms_per_round']:.2f} ms/round beyond the slowest shard" if "rounds_per_tick" in m else "")
             print(f"{r:>5} {k:>6} {wall:>13.1f} {ref['wall'] / wall:>9.2f} {m['cpu_per_sim_s']:>10.3f} "
-                  f"{m['six_dof_share']:>12.3f} {str(same):>15} {os.getloadavg()[0]:>17.2f}", flush=True)
+                  f"{m['main_cpu_per_sim_s']:>7.3f} {m['shard_cpu_per_sim_s']:>7.3f} {m['six_dof_share']:>12.3f} "
+                  f"{str(same):>15} {os.getloadavg()[0]:>17.2f}  {ex}", flush=True)
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -98,29 +145,161 @@ def _same(a: Any, b: Any) -> bool:
     return nan or bool(a == b)
 
 
-def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, extra: list[str]) -> None:
+def one_run_nn(sets: list[str], seed: int) -> dict[str, Any]:
+    """``one_run`` plus every aircraft's nearest approach over the run [m] (``nn``, the separation
+    monitor's per-aircraft minimum: the distribution the fidelity check compares)."""
+    from corridor.run import simulate
+    from corridor.scenario import load
+
+    sc, _ = load(CITY, sets)
+    m, ctx, _ = simulate(sc, seed)
+    nn = ctx.components["separation"].nn
+    return {**m, "nn": np.asarray(nn if nn is not None else [], float)}
+
+
+def _paired(d: np.ndarray, rng: np.random.Generator, boot: int = 10_000) -> tuple[float, float, float, float]:
+    """Mean of the paired differences ``d``, its 95 % t-interval half-width, its 95 % bootstrap
+    (percentile, resampling seeds) interval."""
     from scipy import stats
 
+    if len(d) < 2:
+        return float(d.mean()) if len(d) else math.nan, math.nan, math.nan, math.nan
+    half = float(stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+    means = d[rng.integers(0, len(d), (boot, len(d)))].mean(axis=1)
+    lo, hi = np.quantile(means, [0.025, 0.975])
+    return float(d.mean()), half, float(lo), float(hi)
+
+
+NN_QUANTILES = (0.01, 0.05, 0.25, 0.5)
+
+
+def _nn_tests(a: list[np.ndarray], b: list[np.ndarray], rng: np.random.Generator, boot: int = 2000
+              ) -> tuple[list[tuple[float, float, float, float]], float, float]:
+    """Nearest-approach distributions, pooled over seeds (multi ``a`` vs all-6-DOF ``b``, per seed):
+    per quantile (q, difference, 95 % interval by resampling the paired seeds); the two-sample KS
+    statistic D of the pools and its p-value by a paired permutation test (the two runs of a seed
+    swap labels at random, which under no fidelity effect leaves the pools' law unchanged)."""
+    from scipy import stats
+
+    def qdiff(ix: np.ndarray) -> np.ndarray:
+        pa, pb = np.concatenate([a[i] for i in ix]), np.concatenate([b[i] for i in ix])
+        return np.quantile(pa, NN_QUANTILES) - np.quantile(pb, NN_QUANTILES)
+
+    k = len(a)
+    est = qdiff(np.arange(k))
+    reps = np.array([qdiff(rng.integers(0, k, k)) for _ in range(boot)])
+    lo, hi = np.quantile(reps, 0.025, axis=0), np.quantile(reps, 0.975, axis=0)
+    rows = [(q, float(e), float(x), float(y)) for q, e, x, y in zip(NN_QUANTILES, est, lo, hi, strict=True)]
+    d0 = stats.ks_2samp(np.concatenate(a), np.concatenate(b)).statistic
+    perm = []
+    for _ in range(boot // 4):
+        swap = rng.random(k) < 0.5
+        pa = np.concatenate([b[i] if swap[i] else a[i] for i in range(k)])
+        pb = np.concatenate([a[i] if swap[i] else b[i] for i in range(k)])
+        perm.append(stats.ks_2samp(pa, pb).statistic)
+    p = (1 + int(np.sum(np.array(perm) >= d0))) / (1 + len(perm))
+    return rows, float(d0), p
+
+
+def _load_cache(path: Path | None) -> dict[tuple[str, int], dict[str, Any]]:
+    """Finished runs of an earlier (or interrupted) bias check: (variant, seed) -> row."""
+    out: dict[tuple[str, int], dict[str, Any]] = {}
+    if path is not None and path.exists():
+        for line in path.read_text().splitlines():
+            r = json.loads(line)
+            out[(r["variant"], r["seed"])] = {**r, "nn": np.asarray(r["nn"], float)}
+    return out
+
+
+def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, extra: list[str],
+         variants: dict[str, list[str]], cache: Path | None = None, analyse_only: bool = False) -> None:
+    """The paired fidelity check: every seed runs all-6-DOF once and each multi-fidelity variant
+    (its ``--set`` list) once, with the same seed (common random numbers). With ``cache`` every
+    finished run is appended there (JSON lines) and reused: an interrupted check resumes, and
+    ``analyse_only`` analyses the seeds whose runs are all there."""
     base = [f"backends.air.params.city.n={n}", f"backends.air.params.city.size_m={size_m}", f"duration={duration_s}",
             "backends.air.params.city.vertiports=20", "controllers.avoid.type=city_potential_field", *extra]
-    jobs = [(base + [f"backends.air.params.fidelity.mode={mode}"], s) for s in range(seeds) for mode in ("multi", "jsbsim")]
-    with ProcessPoolExecutor(workers) as ex:
-        rows = list(ex.map(one_run, *zip(*jobs, strict=True)))
-    multi, full = rows[0::2], rows[1::2]
-    print(f"fidelity bias: N={n}, {size_m:.0f} m city, {duration_s:.0f} s, {seeds} paired seeds "
-          "(multi-fidelity minus all-6-DOF; mean, 95 % t-interval, Wilcoxon p)")
+    modes = {"jsbsim": ["backends.air.params.fidelity.mode=jsbsim"],
+             **{name: ["backends.air.params.fidelity.mode=multi", *sets] for name, sets in variants.items()}}
+    done = _load_cache(cache)
+    todo = [(name, s) for s in range(seeds) for name in modes if (name, s) not in done]
+    if todo and not analyse_only:
+        with ProcessPoolExecutor(workers) as ex:
+            futures = {ex.submit(one_run_nn, base + modes[name], s): (name, s) for name, s in todo}
+            for fut in as_completed(futures):
+                name, s = futures[fut]
+                r = {k: v for k, v in fut.result().items() if k in (*BIAS_METRICS, "six_dof_share", "cpu_per_sim_s",
+                                                                      "nn")}
+                done[(name, s)] = r
+                if cache is not None:
+                    with cache.open("a") as f:
+                        f.write(json.dumps({**r, "variant": name, "seed": s, "nn": r["nn"].tolist()}) + "\n")
+    complete = [s for s in range(seeds) if all((name, s) in done for name in modes)]
+    full = [done[("jsbsim", s)] for s in complete]
+    for name in variants:
+        _bias_report(name, variants[name], [done[(name, s)] for s in complete], full, n, size_m, duration_s)
+    names = list(variants)
+    for name in names[1:]:  # what the boundary changes, the all-6-DOF runs aside
+        _contrast(name, names[0], [done[(name, s)] for s in complete], [done[(names[0], s)] for s in complete])
+
+
+def _contrast(name: str, ref: str, a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
+    """Paired differences between two multi-fidelity variants (mean, 95 % t-interval)."""
+    from scipy import stats
+
+    print(f"contrast {name} minus {ref} ({len(a)} paired seeds; mean, 95 % t-interval)")
+    for k in BIAS_METRICS:
+        x, y = np.array([r[k] for r in a], float), np.array([r[k] for r in b], float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        d = x[ok] - y[ok]
+        if len(d) < 2:
+            continue
+        half = float(stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)))
+        print(f"  {k:22s} {d.mean():+8.3f} [{d.mean() - half:+8.3f}, {d.mean() + half:+8.3f}]")
+
+
+def _bias_report(name: str, sets: list[str], multi: list[dict[str, Any]], full: list[dict[str, Any]], n: int,
+                 size_m: float, duration_s: float) -> None:
+    from scipy import stats
+
+    rng = np.random.default_rng(0)
+    print(f"fidelity bias [{name}: {' '.join(sets) or 'scenario boundaries'}]: N={n}, {size_m:.0f} m city, "
+          f"{duration_s:.0f} s, {len(multi)} paired seeds (multi-fidelity minus all-6-DOF; mean, 95 % t-interval, "
+          "95 % bootstrap interval over seeds, Wilcoxon signed-rank p)")
+    if len(multi) < 2:
+        print("  fewer than 2 complete seeds")
+        return
     for k in BIAS_METRICS:
         a, b = np.array([r[k] for r in multi], float), np.array([r[k] for r in full], float)
         ok = np.isfinite(a) & np.isfinite(b)
+        if ok.sum() < 2:
+            print(f"  {k:22s} fewer than 2 seeds with a value")
+            continue
         d = a[ok] - b[ok]
-        half = stats.t.ppf(0.975, len(d) - 1) * d.std(ddof=1) / np.sqrt(len(d)) if len(d) > 1 else np.nan
+        mean, half, blo, bhi = _paired(d, rng)
         p = stats.wilcoxon(d).pvalue if len(d) > 1 and np.any(d != 0) else 1.0
-        print(f"  {k:22s} multi {a[ok].mean():9.3f}  6-DOF {b[ok].mean():9.3f}  diff {d.mean():+8.3f} "
-              f"[{d.mean() - half:+8.3f}, {d.mean() + half:+8.3f}]  p={p:.2f}  "
-              f"{'holds 0' if abs(d.mean()) <= half or np.all(d == 0) else 'BIASED'}")
-    share = np.mean([r["six_dof_share"] for r in multi])
-    cpu = np.mean([r["cpu_per_sim_s"] for r in full]) / np.mean([r["cpu_per_sim_s"] for r in multi])
-    print(f"  6-DOF share (multi) {share:.3f}; CPU per simulated second all-6-DOF / multi = {cpu:.2f}")
+        holds = (abs(mean) <= half and blo <= 0.0 <= bhi) or bool(np.all(d == 0))
+        print(f"  {k:22s} multi {a[ok].mean():9.3f}  6-DOF {b[ok].mean():9.3f}  diff {mean:+8.3f} "
+              f"t [{mean - half:+8.3f}, {mean + half:+8.3f}]  boot [{blo:+8.3f}, {bhi:+8.3f}]  p={p:.2f}  "
+              f"{'holds 0' if holds else 'BIASED'}")
+    qrows, ks_d, ks_p = _nn_tests([r["nn"] for r in multi], [r["nn"] for r in full], rng)
+    print("  nearest approach per aircraft, pooled over seeds: quantile difference [m] (95 % interval, "
+          "seeds resampled in pairs)")
+    for q, e, lo, hi in qrows:
+        print(f"    q{q:<5} {e:+7.3f} [{lo:+7.3f}, {hi:+7.3f}]  {'holds 0' if lo <= 0.0 <= hi else 'BIASED'}")
+    print(f"    two-sample KS D = {ks_d:.4f}, paired permutation p = {ks_p:.3f}")
+    cpu_m, cpu_f = (np.mean([r["cpu_per_sim_s"] for r in rows]) for rows in (multi, full))
+    print(f"  6-DOF share (multi) {np.mean([r['six_dof_share'] for r in multi]):.3f}; CPU per simulated second "
+          f"all-6-DOF / multi = {cpu_f / cpu_m:.2f} (all-6-DOF {cpu_f:.3f} s, multi {cpu_m:.3f} s)", flush=True)
+
+
+def _variants(specs: list[str]) -> dict[str, list[str]]:
+    """``--variant name:key=value,key=value`` -> {name: [key=value, ...]} (default: the scenario's)."""
+    out: dict[str, list[str]] = {}
+    for spec in specs or ["multi:"]:
+        name, _, sets = spec.partition(":")
+        out[name] = [s for s in sets.split(",") if s]
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -135,13 +314,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--shards", type=int, nargs="+", help="shard counts to compare (wall time) at the first --n")
     ap.add_argument("--repeat", type=int, default=1, help="rounds of the shard comparison")
+    ap.add_argument("--variant", action="append", default=[], metavar="NAME:KEY=VALUE,...",
+                    help="a multi-fidelity variant of the bias check (repeatable; they share the all-6-DOF runs)")
+    ap.add_argument("--cache", type=Path, help="bias check: append every finished run here (JSON lines) and reuse it")
+    ap.add_argument("--analyse-only", action="store_true", help="bias check: analyse the cached runs, run nothing")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override for every run (repeatable), e.g. a fidelity boundary")
     a = ap.parse_args(argv)
     if a.shards:
         shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set)
     elif a.bias:
-        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set)
+        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set, _variants(a.variant), a.cache, a.analyse_only)
     else:
         cost_curve(a.n, a.duration, a.seed, a.set)
     return 0

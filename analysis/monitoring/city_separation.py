@@ -81,20 +81,23 @@ class CitySeparation(Component):
         if self.prev is None or len(self.prev) != len(pos):
             self.prev, self.nn = pos.copy(), np.full(len(pos), np.inf)
         self.quad_s += float(np.count_nonzero(~piloted)) * ctx.dt
-        i, j, d0, d1 = self._candidates(self.prev, pos, piloted)
-        self._nearest(pos)
+        i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
+        self._nearest(pos, tree, reach, np.concatenate([i, j]))
         if len(i):
             self._check(ctx, i, j, d0, d1, piloted, len(pos))
         self.prev = pos.copy()
 
     def _candidates(self, prev: np.ndarray, pos: np.ndarray, piloted: np.ndarray
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, cKDTree, float]:
+        """Candidate pairs (i, j, relative position at the last and this tick), the k-d tree of ``pos``
+        and the radius [m] within which every pair is a candidate."""
         p = self.params
         move = np.linalg.norm(pos - prev, axis=1)
         teleport = move > MAX_STEP_M
         step = float(move[~teleport].max(initial=0.0))
         tree = cKDTree(pos)
-        ij = [tree.query_pairs(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step, output_type="ndarray")]
+        reach = float(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step)
+        ij = [tree.query_pairs(reach, output_type="ndarray")]
         for k in np.flatnonzero(piloted):
             js = np.asarray(tree.query_ball_point(pos[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
                             dtype=np.int64)
@@ -105,15 +108,29 @@ class CitySeparation(Component):
         d1 = pos[i] - pos[j]
         ok = ~(teleport[i] | teleport[j])
         d0 = np.where(ok[:, None], prev[i] - prev[j], d1)
-        return i, j, d0, d1
+        return i, j, d0, d1, tree, reach
 
-    def _nearest(self, pos: np.ndarray) -> None:
-        """Per-aircraft and global minima at the tick (nearest neighbours, horizontal and 3-D)."""
-        d3, k3 = cKDTree(pos).query(pos, k=2)
-        self.nn = np.minimum(self.nn, d3[:, 1])
-        self.min_3d = min(self.min_3d, float(d3[:, 1].min()))
-        dh, _ = cKDTree(pos[:, :2]).query(pos[:, :2], k=2)
-        self.min_h = min(self.min_h, float(dh[:, 1].min()))
+    def _nearest(self, pos: np.ndarray, tree: cKDTree, reach_m: float, paired: np.ndarray) -> None:
+        """Per-aircraft and global minima at the tick (nearest neighbours, horizontal and 3-D).
+
+        Only what can lower a minimum is queried; the result equals a nearest-neighbour query of
+        every aircraft. 3-D: every pair within ``reach_m`` is a candidate pair (``paired``: the rows of
+        the candidate pairs), so an aircraft in none has its nearest neighbour beyond ``reach_m``,
+        which lowers its ``nn`` only if ``nn > reach_m``: the aircraft in a candidate pair and those
+        are queried (and ``min_3d <= min(nn)``). Horizontal: only a pair closer than ``min_h`` can
+        lower it, so once it is finite only the aircraft of such pairs are queried."""
+        far = np.union1d(np.flatnonzero(self.nn > reach_m), paired)
+        if len(far):
+            d3, _ = tree.query(pos[far], k=2)
+            self.nn[far] = np.minimum(self.nn[far], d3[:, 1])
+            self.min_3d = min(self.min_3d, float(d3[:, 1].min()))
+        xy = pos[:, :2]
+        tree_h = cKDTree(xy)
+        rows = (np.unique(tree_h.query_pairs(self.min_h, output_type="ndarray"))
+                if np.isfinite(self.min_h) else np.arange(len(xy)))
+        if len(rows):
+            dh, _ = tree_h.query(xy[rows], k=2)
+            self.min_h = min(self.min_h, float(dh[:, 1].min()))
 
     def _check(self, ctx: RunContext, i: np.ndarray, j: np.ndarray, d0: np.ndarray, d1: np.ndarray,
                piloted: np.ndarray, n: int) -> None:

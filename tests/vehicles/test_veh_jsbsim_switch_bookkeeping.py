@@ -74,3 +74,14 @@ def test_removed_fdms_go_back_to_their_groups_pool() -> None:
     assert f._fdms[-1] is not fdm_q1  # group 0 takes from its own pool
     f.spawn_in_flight("q8", np.array([0.0, 400.0, 60.0]), np.zeros(3), 0.0, 0.0, 0.0, group=1)
     assert f._fdms[-1] is fdm_q1
+
+
+def test_pool_growth_and_spawns_are_timed_apart() -> None:
+    """The cost curve's diagnostics: a spawn that grows the pool charges the growth (model loads,
+    spin-up) to ``warm_cpu_s``, not to ``spawn_cpu_s``; a spawn from a full pool only to the latter."""
+    f = _fleet(1)  # group 0's pool grown once: WARM_BATCH FDMs
+    warm, spawn = f.warm_cpu_s, f.spawn_cpu_s
+    assert warm > 0.0 and spawn > 0.0
+    assert warm > 5.0 * spawn  # loads and a 1 s hover of 8 FDMs against one initial-condition run
+    f.spawn_in_flight("q1", np.array([0.0, 300.0, 60.0]), np.zeros(3), 0.0, 0.0, 0.0, group=0)
+    assert f.warm_cpu_s == warm and f.spawn_cpu_s > spawn

@@ -110,3 +110,15 @@ def test_parameter_checks() -> None:
     sc = validate({"name": "t", "duration": 1.0, "dt": 0.1}, "test")
     with pytest.raises(ValueError, match="whole multiple"):
         MultiFidelityAirBackend("air", MultiFidelityAirBackend.Params(aircraft=PAIR, point_mass_period_s=0.25), sc)
+
+
+def test_converging_pair_is_demoted_once_it_parts(tmp_path: Path) -> None:
+    """``promote_on: converging``: the same head-on pair is promoted at the same boundary (it closes
+    from the start) and demoted at its closest approach (t ~ 30 s: the range stops shrinking), not
+    once 150 m apart again (t ~ 41 s)."""
+    _, ctx, m = fly(tmp_path, {**MULTI, "promote_on": "converging"})
+    prom, dem = ctx.events.of_kind("promote"), ctx.events.of_kind("demote")
+    assert sorted(e.data["uav"] for e in prom) == ["a", "b"] and sorted(e.data["uav"] for e in dem) == ["a", "b"]
+    assert 14.5 < prom[0].t < 17.5
+    assert 29.0 < dem[0].t < 32.0
+    assert m["six_dof_share"] < (32.0 - 14.5) / 60.0

@@ -44,3 +44,21 @@ def test_two_shards_give_the_one_shard_rows() -> None:
 def test_shard_count_is_checked() -> None:
     with pytest.raises(CorridorError, match="shards"):
         load(CITY, [*SMALL, f"backends.air.params.shards={POOL_GROUPS + 1}"])
+
+
+def test_exchange_is_timed_per_round_trip() -> None:
+    """The diagnostics ``benchmarks/uav_city.py --shards`` prints: one round trip per step (plus one at
+    start-up), their wall time, and the slowest shard's work inside it."""
+    from corridor.vehicles.air.jsbsim_shards import ShardedJSBSimFleet
+
+    fleet = ShardedJSBSimFleet((47.3769, 8.5417, 408.0), 2)
+    try:
+        fleet.spawn_in_flight("a", (0.0, 0.0, 60.0), (7.0, 0.0, 0.0), 0.0, 0.0, 0.0, group=0)
+        fleet.spawn_in_flight("b", (500.0, 0.0, 60.0), (-7.0, 0.0, 0.0), 3.14159, 0.0, 0.0, group=1)
+        for _ in range(5):
+            fleet.step(0.1)
+        assert fleet.rounds == 6
+        assert 0.0 < fleet.slowest_work_s < fleet.round_wall_s
+        assert sorted(fleet.ids) == ["a", "b"]
+    finally:
+        fleet.close()

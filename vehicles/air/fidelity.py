@@ -12,6 +12,12 @@ piloted aircraft always does). A 6-DOF quadcopter is demoted once no other aircr
 inside it within
 ``promote_ttca_s``, and it has flown 6-DOF for at least ``min_dwell_s``. Pairs are found with a k-d
 tree (``scipy.spatial.cKDTree``), so the test costs O(N log N), not O(N^2).
+
+``promote_on: converging`` counts only the pairs that close on each other: a pair is close when its
+range shrinks faster than ``closing_min_mps`` and its closest approach within ``promote_ttca_s`` is
+inside the boundary (the promotion radius to promote, the demotion radius to stay 6-DOF). Two
+aircraft flying side by side, or apart after their closest approach, stay (or go back to) point
+masses; the approach to every closest approach inside the boundary is flown 6-DOF.
 """
 
 from __future__ import annotations
@@ -35,6 +41,9 @@ class FidelityParams(BaseModel):
     promote_ttca_s: float = Field(5.0, ge=0.0)  # [s] look-ahead of the closest-approach test
     demote_radius_m: float = Field(120.0, gt=0.0)  # [m]
     min_dwell_s: float = Field(3.0, ge=0.0)  # [s] shortest 6-DOF spell
+    # proximity: every pair inside the boundary (or predicted inside it); converging: closing pairs only
+    promote_on: Literal["proximity", "converging"] = "proximity"
+    closing_min_mps: float = Field(0.5, ge=0.0)  # [m/s] converging: the range shrinks faster than this
     uav_speed_bound_mps: float = Field(20.0, gt=0.0)  # [m/s] bounds the pair search radius of UAVs
     piloted_speed_bound_mps: float = Field(80.0, gt=0.0)  # [m/s] same for piloted aircraft
 
@@ -47,9 +56,11 @@ class FidelityParams(BaseModel):
 
 
 def closest_approach_pairs(pos: np.ndarray, vel: np.ndarray, piloted: np.ndarray, radius_m: float, ttca_s: float,
-                           uav_speed_mps: float, piloted_speed_mps: float) -> tuple[np.ndarray, np.ndarray]:
-    """Every pair (K, 2) that can come within ``radius_m`` within ``ttca_s``, and its closest approach
-    [m] over [0, ttca_s] when both fly straight on at their current velocities."""
+                           uav_speed_mps: float, piloted_speed_mps: float
+                           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every pair (K, 2) that can come within ``radius_m`` within ``ttca_s``, its closest approach
+    [m] over [0, ttca_s] when both fly straight on at their current velocities, and its closing speed
+    [m/s] (minus the range rate: positive while the range shrinks)."""
     tree = cKDTree(pos)
     pairs = [tree.query_pairs(radius_m + 2.0 * uav_speed_mps * ttca_s, output_type="ndarray")]
     reach = radius_m + (uav_speed_mps + piloted_speed_mps) * ttca_s
@@ -61,8 +72,10 @@ def closest_approach_pairs(pos: np.ndarray, vel: np.ndarray, piloted: np.ndarray
     i, j = ij[:, 0], ij[:, 1]
     dp, dv = pos[j] - pos[i], vel[j] - vel[i]
     vv = np.einsum("kd,kd->k", dv, dv)
-    tca = np.clip(-np.einsum("kd,kd->k", dp, dv) / np.maximum(vv, 1e-12), 0.0, ttca_s)
-    return ij, np.linalg.norm(dp + dv * tca[:, None], axis=1)
+    pv = np.einsum("kd,kd->k", dp, dv)
+    tca = np.clip(-pv / np.maximum(vv, 1e-12), 0.0, ttca_s)
+    closing = -pv / np.maximum(np.linalg.norm(dp, axis=1), 1e-9)
+    return ij, np.linalg.norm(dp + dv * tca[:, None], axis=1), closing
 
 
 def close_rows(n: int, ij: np.ndarray, miss: np.ndarray, radius_m: float) -> np.ndarray:
@@ -91,8 +104,10 @@ class FidelityPolicy:
         if n < 2:
             return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
         stretch = np.array([1.0, 1.0, p.promote_radius_m / p.promote_vertical_m])
-        ij, miss = closest_approach_pairs(pos * stretch, vel * stretch, piloted, p.demote_radius_m, p.promote_ttca_s,
-                                          p.uav_speed_bound_mps, p.piloted_speed_bound_mps)
+        ij, miss, closing = closest_approach_pairs(pos * stretch, vel * stretch, piloted, p.demote_radius_m,
+                                                   p.promote_ttca_s, p.uav_speed_bound_mps, p.piloted_speed_bound_mps)
+        if p.promote_on == "converging":  # side by side or parting: no pair (the miss of the others holds)
+            miss = np.where(closing > p.closing_min_mps, miss, np.inf)
         hot, warm = close_rows(n, ij, miss, p.promote_radius_m), close_rows(n, ij, miss, p.demote_radius_m)
         promote = np.flatnonzero(hot & ~six_dof & ~piloted)
         demote = np.flatnonzero(six_dof & ~warm & ~piloted & (t_s - since_s >= p.min_dwell_s))

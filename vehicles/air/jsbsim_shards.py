@@ -40,6 +40,7 @@ class _Reply:
     loads: int  # [FDM] models loaded in the shard
     cpu_s: float  # [s] the shard process's CPU time
     finite: bool
+    work_s: float  # [s] wall time the shard spent on this message's calls and step
 
 
 def _shard_main(conn: Connection, origin: tuple[float, float, float], rate_hz: float, root: str | None,
@@ -51,6 +52,7 @@ def _shard_main(conn: Connection, origin: tuple[float, float, float], rate_hz: f
         if msg is None:
             return
         ops, dt_s = msg
+        t0 = time.perf_counter()
         try:
             for name, args in ops:
                 if name not in _FLEET_OPS:
@@ -58,7 +60,8 @@ def _shard_main(conn: Connection, origin: tuple[float, float, float], rate_hz: f
                 getattr(fleet, name)(*args)
             if dt_s:
                 fleet.step(dt_s)
-            conn.send(_Reply(fleet.state(), fleet.loads, time.process_time(), fleet.all_finite()))
+            state = fleet.state()
+            conn.send(_Reply(state, fleet.loads, time.process_time(), fleet.all_finite(), time.perf_counter() - t0))
         except Exception as exc:  # the parent raises it: a shard never dies silently
             conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
 
@@ -90,6 +93,9 @@ class ShardedJSBSimFleet:
         self._queue: list[list[tuple[str, tuple[Any, ...]]]] = [[] for _ in range(shards)]
         self._replies: list[_Reply] = []
         self._state = _empty_state()
+        # the exchange's cost (diagnostics, read by benchmarks/uav_city.py --shards): round trips, their
+        # wall time, and the wall time of the slowest shard's work in each (the rest is the exchange)
+        self.rounds, self.round_wall_s, self.slowest_work_s = 0, 0.0, 0.0
         ctx = mp.get_context("spawn")  # no fork of a process that may hold libsumo or threads
         self._conns: list[Connection] = []
         self._procs: list[Any] = []
@@ -165,6 +171,7 @@ class ShardedJSBSimFleet:
         return sum(r.cpu_s for r in self._replies)
 
     def _sync(self, dt_s: float) -> None:
+        t0 = time.perf_counter()
         for conn, ops in zip(self._conns, self._queue, strict=True):
             conn.send((ops, dt_s))
         self._queue = [[] for _ in self._conns]
@@ -176,6 +183,9 @@ class ShardedJSBSimFleet:
             replies.append(reply)
         self._replies = replies
         self._state = _concat([r.state for r in replies])
+        self.rounds += 1
+        self.round_wall_s += time.perf_counter() - t0
+        self.slowest_work_s += max(r.work_s for r in replies)
 
     def close(self) -> None:
         """Stop the shard processes (idempotent)."""

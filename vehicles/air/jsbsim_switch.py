@@ -18,6 +18,7 @@ demotions whichever process flies the group, and a fleet split into shards of wh
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -42,6 +43,8 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         self._spawn_group = 0  # the group the next pooled FDM comes from
         self.loads = 0  # [FDM] models loaded (the pool reuses removed ones)
         self._warming = False  # True in the helper fleet that spins FDMs up for the pool
+        self.warm_cpu_s = 0.0  # [s] CPU spent growing the pools (model loads + spin-up; diagnostics)
+        self.spawn_cpu_s = 0.0  # [s] CPU spent on in-flight spawns (pool growth excluded; diagnostics)
 
     def _new_fdm(self, model: str) -> Any:
         if model != "F450" or self._warming:
@@ -54,6 +57,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
 
     def _warm_up(self, pool: list[Any]) -> None:
         """WARM_BATCH hovering F450s far from the scene, flown WARM_S, their FDMs into the pool."""
+        t0 = time.process_time()
         warm = SwitchableJSBSimFleet((self.origin.lat_deg, self.origin.lon_deg, self.origin.h_m), self.rate_hz,
                                      self.root, self.quad_gains)
         warm._warming = True
@@ -62,6 +66,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         warm.step(WARM_S)
         self.loads += warm.loads
         pool.extend(reversed(warm._fdms))
+        self.warm_cpu_s += time.process_time() - t0
 
     def spawn_in_flight(self, id: str, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float,
                         roll_rad: float, pitch_rad: float, role: Role = Role.OTHER, integ_u_mps2: float = 0.0,
@@ -69,6 +74,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         """An F450 at ``p_enu`` [m] flying ``v_enu`` [m/s] with attitude (roll, pitch, ENU yaw) [rad]
         and the cascade's vertical integrator at ``integ_u_mps2``, its FDM from pool ``group``; its
         cascade holds the position until it is given a command."""
+        t0, warm0 = time.process_time(), self.warm_cpu_s
         self._spawn_group = group
         self.add(id, "F450", p_enu, yaw_rad, 0.0, role)
         self._group_of[id] = group
@@ -86,6 +92,7 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         for prop, value in zip(_INTEG, (0.0, 0.0, integ_u_mps2), strict=True):
             fdm[prop] = value
         self._raw[row] = self._read_row(row)
+        self.spawn_cpu_s += time.process_time() - t0 - (self.warm_cpu_s - warm0)
 
     def remove(self, id: str) -> None:
         """Take quadcopter ``id`` out of the fleet (its FDM goes to the pool)."""

@@ -188,7 +188,8 @@ class MultiFidelityAirBackend(AirBackend):
     # ---- stepping -------------------------------------------------------------------------------
     def tick(self, ctx: RunContext) -> None:
         if self._cpu_t0 is None:
-            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time() - self._shard_cpu_s()
+            self.shard_cpu_t0_s = self._shard_cpu_s()  # [s] the shards' CPU before the first tick (their set-up)
+            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time() - self.shard_cpu_t0_s
         if self.tick_count % self.pm_every == 0:
             self._switch(ctx)
             self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
