@@ -120,6 +120,9 @@ class CollisionMonitor(Component):
                 "first_collision_s": min(self.pairs.values()) if self.pairs else np.nan}
 
 
+_DENSE_PRECHECK_MAX = 20_000  # row pairs: above it _may_touch defers to the exact checks
+
+
 def _may_touch(prev: Poses | None, cur: Poses, rows: np.ndarray) -> bool:
     """False only if no pair with a row of ``rows`` can overlap now or have met since ``prev``.
 
@@ -127,6 +130,8 @@ def _may_touch(prev: Poses | None, cur: Poses, rows: np.ndarray) -> bool:
     of their bounding-sphere radii (half the 3-D diagonal, at least the plane's) plus both
     displacements since ``prev`` (the closest approach of the swept check lies within them)."""
     n = len(cur.ids)
+    if len(rows) * n > _DENSE_PRECHECK_MAX:
+        return True  # a city fleet: the dense pre-check would cost more than the k-d tree checks it saves
     step = np.zeros(n)
     if prev is not None and len(prev.ids):
         pr = _prev_rows(prev.ids, cur.ids)
