@@ -65,11 +65,17 @@ class PotentialFieldParams(BaseModel):
     piloted_cutoff_m: float | None = Field(None, gt=0.0)  # [m] same for the piloted aircraft
 
 
+# lowest exponent of the soft floor: deeper inside, exp() would underflow, 1/fc^2 overflow and the
+# repulsion turn to inf * 0 = NaN (a 50 m/s aircraft closing head-on within a few lookaheads); the
+# floor's value stays about 1e-131 * eps there, so the repulsion stays finite and saturates the command
+_FLOOR_EXP_MIN = -300.0
+
+
 def _soft_floor(f: float, eps: float) -> tuple[float, float]:
     """C1 positive floor of f and its derivative d f_c / d f."""
     if f >= eps:
         return f, 1.0
-    e = float(np.exp(f / eps - 1.0))
+    e = float(np.exp(max(f / eps - 1.0, _FLOOR_EXP_MIN)))
     return eps * e, e
 
 
@@ -143,7 +149,7 @@ def pair_repulsion(x: np.ndarray, v: np.ndarray, o_pos: np.ndarray, o_vel: np.nd
     f = d - radius - sigma - np.where(approaching, tau * closing, 0.0)
     grad_f = unit + np.where(approaching, tau / d, 0.0)[:, None] * (v_rel - unit * u_dot_v[:, None])
     soft = f < p.eps_m  # C1 positive floor (see _soft_floor)
-    e = np.exp(np.minimum(f, p.eps_m) / p.eps_m - 1.0)
+    e = np.exp(np.maximum(np.minimum(f, p.eps_m) / p.eps_m - 1.0, _FLOOR_EXP_MIN))
     fc, dfc = np.where(soft, p.eps_m * e, f), np.where(soft, e, 1.0)
     f0 = np.array([np.inf if c is None else c for c in (p.uav_cutoff_m, p.piloted_cutoff_m)])[piloted.astype(int)]
     # bounded support: -(w/fc^2 - w/f0^2) inside f0, zero beyond; 1/f tail when f0 is None (w/inf = 0)

@@ -72,6 +72,17 @@ def test_pf_command_respects_speed_limits() -> None:
     assert out.avoiding and out.vel_mps[0] < 0.0  # pushed back from an agent 20 m ahead
 
 
+def test_pf_fast_closing_piloted_aircraft_gives_a_finite_command() -> None:
+    """A piloted aircraft closing head-on at 60 m/s from 50 m puts f hundreds of eps below the soft
+    floor (lookahead 6 s x 68 m/s): the command still points away from it, saturated, not NaN."""
+    near = (TrackedAgent("m", np.array([50.0, 0.0, 50.0]), np.array([-60.0, 0.0, 0.0]), 0.0, True),)
+    out = PotentialFieldAvoidance().step(_obs(near))
+    assert np.all(np.isfinite(out.vel_mps)) and np.isfinite(out.info["repulsion_mps"])
+    assert out.avoiding and out.vel_mps[0] < 0.0 and np.hypot(*out.vel_mps[:2]) == pytest.approx(10.0)
+    flow, _ = PotentialFieldAvoidance(PotentialFieldParams(vortex_gain=0.0)).field(_obs(near))
+    assert np.all(np.isfinite(flow))
+
+
 def test_pf_piloted_aircraft_repels_more_than_uav() -> None:
     """UAVs give way: the same geometry repels more when the other is the piloted aircraft."""
     pos, vel = np.array([150.0, 0.0, 50.0]), np.array([-10.0, 0.0, 0.0])
