@@ -33,7 +33,6 @@ names their vehicles with ``vid_of(slot)``.
 from __future__ import annotations
 
 import copy
-import tempfile
 from pathlib import Path
 from typing import Any, Literal, Protocol, cast
 
@@ -45,8 +44,8 @@ from pettingzoo import ParallelEnv
 from corridor.batch import draws_for
 from corridor.engine import Simulation
 from corridor.errors import CorridorError
-from corridor.run import build, event_counts
-from corridor.scenario import apply_overrides, load, scenario_dir, validate
+from corridor.run import ScratchRun, event_counts
+from corridor.scenario import load
 from corridor.snapshot import WorldSnapshot
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
@@ -129,16 +128,14 @@ class EgoEnv(gym.Env):
         self.action_space: spaces.Space[Any] = (spaces.Discrete(5) if action_type == "discrete"
                                                 else spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32))
         self.sim: Simulation | None = None
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._run: ScratchRun | None = None
 
     # ------------------------------------------------------------------ the run
     def _start(self, seed: int) -> None:
         self._close_run()
         self.seed_, self.draws = seed, draws_for(self.sc, seed)
-        self._tmp = tempfile.TemporaryDirectory(prefix="corridor-env-")
-        with scenario_dir(self.path.parent):
-            sc = validate(apply_overrides(self.raw, {**self.overrides, **self.draws}), f"{self.path} [env]")
-            self.sim = build(sc, seed, Path(self._tmp.name))
+        self._run = ScratchRun(self.path, self.raw, {**self.overrides, **self.draws}, seed)
+        self.sim, sc = self._run.sim, self._run.sc
         self.sim.start()
         comp = self.sim.ctx.components[AGENT]
         if not all(hasattr(comp, a) for a in ("ego_id", "act", "outcome")):
@@ -181,12 +178,9 @@ class EgoEnv(gym.Env):
                 **{f"draw.{k}": v for k, v in self.draws.items()}}
 
     def _close_run(self) -> None:
-        if self.sim is not None:
-            self.sim.close()
-            self.sim = None
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
+        if self._run is not None:
+            self._run.close()
+        self.sim = self._run = None
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:

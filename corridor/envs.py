@@ -30,7 +30,6 @@ next, and ``close`` closes the current one.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -44,8 +43,8 @@ from corridor.ego_env import EgoParallelEnv
 from corridor.engine import Simulation
 from corridor.errors import CorridorError
 from corridor.objective import Expression, value, violations
-from corridor.run import build, event_counts
-from corridor.scenario import apply_overrides, load, scenario_dir, validate
+from corridor.run import ScratchRun, event_counts
+from corridor.scenario import load
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 FEATURES = 7  # presence, x, y, z, vx, vy, vz
@@ -69,7 +68,7 @@ class _Episode:
         self.objective = Expression(objective, "objective")
         self.constraints = tuple(Expression(c, "constraint") for c in constraints)
         self.sim: Simulation | None = None
-        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+        self._run: ScratchRun | None = None
         self.agents: list[str] = []
 
     def start(self, seed: int, draws: dict[str, Any] | None = None) -> None:
@@ -78,10 +77,8 @@ class _Episode:
         self.seed = seed
         self.draws = draws_for(self.sc, seed) if draws is None else dict(draws)
         overrides = {**self.variant_overrides, **self.draws}
-        self._tmp = tempfile.TemporaryDirectory(prefix="corridor-env-")
-        with scenario_dir(self.path.parent):
-            sc = validate(apply_overrides(self.raw, overrides), f"{self.path} [env]")
-            self.sim = build(sc, seed, Path(self._tmp.name))
+        self._run = ScratchRun(self.path, self.raw, overrides, seed)
+        self.sim, sc = self._run.sim, self._run.sc
         self.sim.start()
         self.ctrl = self.sim.ctx.components[self.controller]
         automata: dict[str, Any] | None = getattr(self.ctrl, "automata", None)
@@ -140,12 +137,9 @@ class _Episode:
         return np.clip(out, -BOUND, BOUND)
 
     def close(self) -> None:
-        if self.sim is not None:
-            self.sim.close()
-            self.sim = None
-        if self._tmp is not None:
-            self._tmp.cleanup()
-            self._tmp = None
+        if self._run is not None:
+            self._run.close()
+        self.sim = self._run = None
 
 
 def _observation_space(n_nearest: int) -> spaces.Box:

@@ -116,6 +116,26 @@ def switch_scores(ctx: RunContext) -> dict[str, float]:
     return out
 
 
+class ScratchRun:
+    """A run stepped from outside (the Gymnasium and PettingZoo environments): the scenario ``raw``
+    with ``overrides`` built for ``seed`` in its own scratch folder; ``close`` ends the simulation and
+    removes the folder together."""
+
+    def __init__(self, path: Path, raw: dict[str, Any], overrides: dict[str, Any], seed: int) -> None:
+        self._tmp = tempfile.TemporaryDirectory(prefix="corridor-env-")
+        try:
+            with scenario_dir(path.parent):
+                self.sc = validate(apply_overrides(raw, overrides), f"{path} [env]")
+                self.sim = build(self.sc, seed, Path(self._tmp.name))
+        except BaseException:
+            self._tmp.cleanup()
+            raise
+
+    def close(self) -> None:
+        self.sim.close()
+        self._tmp.cleanup()
+
+
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
     with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
