@@ -7,7 +7,8 @@ over the scenario's ``randomize`` distribution.  Positive parameters are searche
 
 - ``blrl`` (boundary-localised policy gradient, after Grudic & Ungar): a stage is ``RUNS_PER_STAGE``
   runs at the current theta with stochastic switching near the boundaries (``SwitchingParams``:
-  p = sigma(g / T), T annealed by ``ANNEAL`` per stage); each row carries the summed score
+  each decision as if theta were scaled by e^eps, eps logistic with scale T in log units, T starting
+  at CMA-ES's first step and annealed by ``ANNEAL`` per stage); each row carries the summed score
   d log pi / d theta of its draws, and the step is REINFORCE with a leave-one-out baseline,
   normalised to ``STEP`` in log space (shrinking per stage).  A stage whose runs drew no switch
   near the boundary has no gradient: theta stays (the method only learns where decisions are close).
@@ -44,7 +45,8 @@ from corridor.objective import Expression, value
 RUNS_PER_STAGE = 8  # blrl
 CMA_POPSIZE = 6
 MIN_STAGES = 2
-T0 = 0.1  # initial temperature (units of g)
+CMA_SIGMA0 = 0.5  # CMA-ES's first step [log units]
+T0 = CMA_SIGMA0  # blrl's initial temperature [log units of theta]: the same exploration width as CMA-ES
 ANNEAL = 0.8  # T per stage
 STEP = 0.4  # first blrl step [log units], then STEP / sqrt(1 + stage)
 METHODS = ("blrl", "cma", "ppo")
@@ -191,7 +193,7 @@ def blrl(pb: Problem, budget: int, seed: int, out: Path, run: Any) -> tuple[np.n
 def cma_es(pb: Problem, budget: int, seed: int, out: Path, run: Any) -> tuple[np.ndarray, list[dict[str, Any]]]:
     import cma
 
-    es = cma.CMAEvolutionStrategy(pb.u0().tolist(), 0.5, {"popsize": CMA_POPSIZE, "seed": seed + 1, "verbose": -9})
+    es = cma.CMAEvolutionStrategy(pb.u0().tolist(), CMA_SIGMA0, {"popsize": CMA_POPSIZE, "seed": seed + 1, "verbose": -9})
     curve = []
     for stage in range(budget // CMA_POPSIZE):
         us = np.array(es.ask())

@@ -87,17 +87,24 @@ class Transition:
 class SwitchingParams(BaseModel):
     """Boundary-localised stochastic switching (Grudic & Ungar's BLRL policy), off by default.
 
-    With a ``temperature`` T, a boundary whose value is within ``band`` x T of zero holds with
-    probability sigma(g / T) (a Bernoulli draw, once per boundary and time); farther away its sign
-    decides as usual.  Each draw is a ``switch_draw`` event carrying its score-function gradient
-    d log pi(a) / d theta_k = (a - p) / T x dg/d theta_k (dg/d theta by central differences), which the
-    run sums into its row (``blrl.score.<component>.<boundary>.<param>``) for the learner.
+    The temperature T is measured in the boundary's own parameters, not in the units of g: each
+    decision is taken as if the boundary's positive parameters were multiplied by e^eps, eps logistic
+    with scale T (log units, the space ``--learn`` steps in).  With c* the log-scale factor at which
+    g(x; theta e^c*) = 0, the guard holds with probability sigma(-c*/T) (sigma(c*/T) when g falls as
+    theta grows): a Bernoulli draw, once per boundary and time, where |c*| < ``band`` x T; farther
+    away (or where g is NaN, or the boundary has no positive parameter) its sign decides as usual.
+    So T reads the same for a g in metres, seconds or a ratio, and the band follows theta: around a
+    10 km range gate it spans ranges of 10 km x e^(+-band T), around 150 m ranges of 150 m x e^(+-band T).
+    Each draw is a ``switch_draw`` event carrying its score-function gradient
+    d log pi(a) / d theta_k = (a - p) x d logit / d theta_k (implicit differentiation of c*, the
+    derivatives of g by central differences), which the run sums into its row
+    (``blrl.score.<component>.<boundary>.<param>``) for the learner.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    temperature: float | None = Field(None, gt=0.0)  # T in units of g; None: deterministic switching
-    band: float = Field(4.0, gt=0.0)  # stochastic only where |g| < band x T (sigma(4) = 0.982)
+    temperature: float | None = Field(None, gt=0.0)  # T [log units of theta]; None: deterministic switching
+    band: float = Field(4.0, gt=0.0)  # stochastic only where |c*| < band x T (sigma(4) = 0.982)
 
 
 def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
@@ -105,6 +112,16 @@ def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
     if not (math.isfinite(g0) and math.isfinite(g1)) or g1 == g0:
         return t1
     return t0 + (t1 - t0) * (-g0) / (g1 - g0)
+
+
+def _scale(theta: Mapping[str, float], keys: Sequence[str], c: float) -> dict[str, float]:
+    """The parameters ``theta`` with those named in ``keys`` multiplied by e^c."""
+    return {k: float(v) * math.exp(c) if k in keys else float(v) for k, v in theta.items()}
+
+
+def _scaled_g(b: Boundary, x: Any, keys: Sequence[str], c: float) -> float:
+    """g(x; theta) with the parameters ``keys`` multiplied by e^c."""
+    return float(b.fn(x, _scale(b.theta, keys, c)))
 
 
 def _flatten(modes: Iterable[str | Mode], parent: str | None, out: dict[str, tuple[Mode, str | None]]) -> None:
@@ -195,29 +212,54 @@ class HybridAutomaton:
         g = self.g_now[tr.guard.name]
         holds = self.decided.get(tr.guard.name)
         if holds is None:
-            holds = self._draw(tr.guard, t, g, x) if self._near(g) else tr.guard.holds(g)
+            holds = self._draw(tr.guard, t, g, x) if self.switching is not None else tr.guard.holds(g)
         fires = holds and (tr.when is None or bool(tr.when(x)))
         t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
         crossed = tr.guard.holds(g) and not tr.guard.holds(g_prev)  # a stochastic switch may fire before g = 0
         t_cross = crossing_time(t_prev, g_prev, t, g) if crossed else t
         return fires, t_cross
 
-    def _near(self, g: float) -> bool:
-        sw = self.switching
-        return sw is not None and math.isfinite(g) and abs(g) < sw.band * sw.temperature  # type: ignore[operator]
-
     def _draw(self, b: Boundary, t: float, g: float, x: Any) -> bool:
-        """The stochastic switch near boundary ``b`` (one draw per boundary and time)."""
+        """The guard's outcome: a draw near boundary ``b`` (one per boundary and time), else g's sign."""
         last = self._drawn.get(b.name)
         if last is not None and last[0] == t:
             return last[1]
-        temp = float(self.switching.temperature)  # type: ignore[union-attr, arg-type]
-        p = 1.0 / (1.0 + math.exp(-g / temp))
+        near = self._near(b, x, g)
+        if near is None:
+            return b.holds(g)
+        logit, dlogit = near
+        p = 1.0 / (1.0 + math.exp(-logit))
         a = bool(self.rng.random() < p)  # type: ignore[union-attr]
         self._drawn[b.name] = (t, a)
-        score = {k: (float(a) - p) / temp * self._dg(b, x, k) for k in b.theta}
+        score = {k: (float(a) - p) * v for k, v in dlogit.items()}
         self.pending_draws.append({"boundary": b.name, "a": a, "p": p, "g": g, "score": score})
         return a
+
+    def _near(self, b: Boundary, x: Any, g: float) -> tuple[float, dict[str, float]] | None:
+        """(logit of p, d logit / d theta) near ``b``, else None (the switch is deterministic).
+
+        Near: a log-scale shift of b's positive parameters within band x T flips the guard at ``x``.
+        """
+        sw = self.switching
+        pos = [k for k, v in b.theta.items() if float(v) > 0.0]
+        if sw is None or not math.isfinite(g) or not pos:
+            return None
+        temp, span = float(sw.temperature), sw.band * float(sw.temperature)  # type: ignore[arg-type]
+        lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)
+        if not (math.isfinite(lo) and math.isfinite(hi)) or lo * hi >= 0.0:
+            return None
+        from scipy.optimize import brentq
+
+        c = float(brentq(lambda u: _scaled_g(b, x, pos, u), -span, span, xtol=1e-9))
+        up = 1.0 if hi > lo else -1.0  # g rises (+1) or falls (-1) with the scale of theta
+        shifted = Boundary(b.name, b.fn, _scale(b.theta, pos, c), b.strict)
+        dg = {k: self._dg(shifted, x, k) for k in b.theta}  # at theta e^c*
+        dg_dc = sum(dg[k] * float(shifted.theta[k]) for k in pos)
+        if dg_dc == 0.0:
+            return None
+        # logit = -up c* / T; implicit function: dc*/d theta_k = -dg_k m_k / dg_dc (m_k = e^c* if scaled)
+        dlogit = {k: up * dg[k] * (math.exp(c) if k in pos else 1.0) / (temp * dg_dc) for k in b.theta}
+        return -up * c / temp, dlogit
 
     @staticmethod
     def _dg(b: Boundary, x: Any, key: str) -> float:

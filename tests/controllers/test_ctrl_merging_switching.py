@@ -129,8 +129,9 @@ def test_theta_from_the_scenario_changes_the_decisions():
 
 
 def test_stochastic_switching_near_the_merging_boundaries_scores_their_theta():
-    """blrl's policy on the merging boundaries: draws near yield_enter/merge_enter (T = 1 m, |g| < 4 m),
-    their score-function gradients summed into the row per boundary parameter."""
-    row, ev, _ = _run(["switching.temperature=1.0"])
+    """blrl's policy on the merging boundaries: draws near yield_enter/merge_enter (T = 0.05 log units:
+    within 100 m x e^(+-0.2) = 82-122 m of the conflict point), their score-function gradients summed
+    into the row per boundary parameter."""
+    row, ev, _ = _run(["switching.temperature=0.05"])
     assert row["blrl.draws"] > 0
     assert row["blrl.score.merge.merge_enter.dist_m"] != 0.0 and row["blrl.score.merge.yield_enter.dist_m"] != 0.0

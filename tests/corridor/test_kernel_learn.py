@@ -28,35 +28,72 @@ def test_row_expressions() -> None:
         Expression("nmc == 0").check_columns(["nmac", "los"])
 
 
-def _automaton(temperature: float | None, seed: int = 0) -> HybridAutomaton:
-    b = Boundary("enter", lambda x, th: (th["dist_m"] - x) / th["dist_m"], {"dist_m": 100.0})
+def _automaton(temperature: float | None, seed: int = 0, fn: object = None, theta: dict[str, float] | None = None,
+               ) -> HybridAutomaton:
+    fn = fn or (lambda x, th: (th["dist_m"] - x) / th["dist_m"])
+    b = Boundary("enter", fn, theta or {"dist_m": 100.0})  # type: ignore[arg-type]
     return HybridAutomaton("uav", ["mission", "avoid"], "mission", [Transition("mission", "avoid", b, "threat")],
                            switching=SwitchingParams(temperature=temperature, band=4.0),
                            rng=np.random.default_rng(seed))
 
 
+def _sigma(z: float) -> float:
+    return 1.0 / (1.0 + math.exp(-z))
+
+
 def test_stochastic_switch_only_near_the_boundary_with_its_score() -> None:
-    """g = (100 - d) / 100, T = 0.05: at d = 300 (g = -2) the switch is deterministic (no draw); at
-    d = 103 (g = -0.03) it is a draw with p = sigma(-0.6) and score (a - p) / T x dg/d(dist_m)."""
+    """g = (100 - d) / 100, T = 0.05 log units (band 4 T = 0.2: d within 100 e^(+-0.2) = 82..122 m):
+    at d = 300 the switch is deterministic (no draw); at d = 103 it is a draw with
+    p = sigma(log(100 / 103) / T) and score (a - p) / (T dist_m)."""
     ha, ev = _automaton(0.05), EventLog()
     ha.update(0.0, 300.0, ev)
     assert ha.mode == "mission" and not ev.of_kind("switch_draw")
     ha.update(0.1, 103.0, ev)
     (d,) = ev.of_kind("switch_draw")
-    p = 1.0 / (1.0 + math.exp(0.6))
-    assert d.data["p"] == pytest.approx(p)
-    dg = 103.0 / 100.0**2  # d/d theta of (theta - x) / theta
-    assert d.data["score"]["dist_m"] == pytest.approx((float(d.data["a"]) - p) / 0.05 * dg, rel=1e-5)
+    p = _sigma(math.log(100.0 / 103.0) / 0.05)
+    assert d.data["p"] == pytest.approx(p, rel=1e-6)
+    assert d.data["score"]["dist_m"] == pytest.approx((float(d.data["a"]) - p) / (0.05 * 100.0), rel=1e-4)
     assert ha.mode == ("avoid" if d.data["a"] else "mission")
 
 
-def test_switch_probability_is_sigma_of_g_over_t() -> None:
+def test_the_temperature_reads_in_theta_whatever_the_units_of_g() -> None:
+    """The same gate written in metres, as a ratio, or falling instead of rising with theta: the same
+    p at the same state (p_enter + p_exit = 1), because T is a log-scale of theta, not of g.  With
+    T in units of g the metre version would switch with p = sigma(-3 m / 0.05) ~ 1e-26."""
+    ps = []
+    for fn in (lambda x, th: (th["dist_m"] - x) / th["dist_m"], lambda x, th: th["dist_m"] - x):
+        ha, ev = _automaton(0.05, fn=fn), EventLog()
+        ha.update(0.0, 103.0, ev)
+        ps.append(ev.of_kind("switch_draw")[0].data["p"])
+    ha, ev = _automaton(0.05, fn=lambda x, th: (x - th["dist_m"]) / th["dist_m"]), EventLog()  # the exit's sign
+    ha.update(0.0, 103.0, ev)
+    assert ps[0] == pytest.approx(ps[1], rel=1e-6)
+    assert ps[0] + ev.of_kind("switch_draw")[0].data["p"] == pytest.approx(1.0, rel=1e-6)
+
+
+def test_the_band_follows_theta_and_scores_every_scaled_parameter() -> None:
+    """g = a b - x (a, b > 0): both parameters are scaled, c* = log(x / (a b)) / 2, so
+    p = sigma(log(a b / x) / (2 T)) and d logit / d a = 1 / (2 T a).  A 10 km gate at T = 0.5 draws
+    for an aircraft 3 km away (inside 10 km x e^(+-2)); T in units of g = 0.1 did not."""
+    ha, ev = _automaton(0.5, fn=lambda x, th: th["a"] * th["b"] - x, theta={"a": 50.0, "b": 4.0}), EventLog()
+    ha.update(0.0, 300.0, ev)
+    (d,) = ev.of_kind("switch_draw")
+    assert d.data["p"] == pytest.approx(_sigma(math.log(200.0 / 300.0) / 1.0), rel=1e-6)
+    logit_a, logit_b = (d.data["score"][k] / (float(d.data["a"]) - d.data["p"]) for k in ("a", "b"))
+    assert logit_a == pytest.approx(1.0 / (2 * 0.5 * 50.0), rel=1e-4)
+    assert logit_b == pytest.approx(1.0 / (2 * 0.5 * 4.0), rel=1e-4)
+    ha, ev = _automaton(0.5, theta={"dist_m": 10000.0}), EventLog()
+    ha.update(0.0, 3000.0, ev)
+    assert ev.of_kind("switch_draw")[0].data["p"] == pytest.approx(_sigma(math.log(10000.0 / 3000.0) / 0.5))
+
+
+def test_switch_probability_is_sigma_of_the_log_distance_over_t() -> None:
     hits = 0
     for seed in range(400):
         ha = _automaton(0.05, seed)
         ha.update(0.0, 103.0)
         hits += ha.mode == "avoid"
-    assert hits / 400 == pytest.approx(1.0 / (1.0 + math.exp(0.6)), abs=0.06)
+    assert hits / 400 == pytest.approx(_sigma(math.log(100.0 / 103.0) / 0.05), abs=0.06)
 
 
 def test_deterministic_without_temperature() -> None:
@@ -119,3 +156,22 @@ def test_a_stochastic_switch_before_the_crossing_is_logged_at_its_own_time() -> 
             assert jump.data["t_cross"] == jump.t == 0.1 and jump.data["g"] < 0
             return
     raise AssertionError("no seed switched")
+
+
+def test_a_blrl_stage_at_todays_boundaries_draws_switches_and_has_a_gradient(tmp_path: Path) -> None:
+    """Today's gate (10 km) lies beyond the 3 km MAVLink range.  blrl's first stage there (8 full
+    runs at theta0, T0) must still draw switches and get a nonzero gradient: the band is a log-scale
+    of theta (10 km x e^(+-4 T0) reaches the tracked aircraft).  With T0 = 0.1 in units of g
+    (|g| < 0.4: predicted ranges of 6-14 km) no tracked aircraft was ever inside it: 0 draws, theta stayed."""
+    from corridor import learn
+
+    pb = learn.problem("uav_encounter", "avoid_enter.dist_m,avoid_exit.dist_m", "-path_ratio_mean",
+                       ["nmac == 0", "collisions == 0"], learn.min_budget("blrl"), "blrl", "potential_field", [])
+
+    def run(specs: list[object], stage: int) -> list[dict[str, object]]:
+        return learn._run(specs, tmp_path / f"{stage:03d}", "local", 2, None, False)
+
+    theta, (stage,) = learn.blrl(pb, learn.RUNS_PER_STAGE, 0, tmp_path, run)
+    assert stage["runs"] == learn.RUNS_PER_STAGE and stage["temperature"] == learn.T0
+    assert stage["draws"] > 0 and stage["grad_norm"] > 0.0
+    assert not np.allclose(theta, pb.theta0)
