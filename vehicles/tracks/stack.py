@@ -17,6 +17,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from corridor.vehicles.tracks.cv_kernel import cv_fuse_1d
+
+_NO_MATRICES = np.zeros((0, 2, 2))  # F and Q of a stack with nothing to predict
+
 
 def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Stacked F(dt) and Q(dt) (k, 2d, 2d) of the constant-velocity chain per axis for times ``dt_s``
@@ -42,6 +46,14 @@ def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np
     ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I. Returns the new (x, P).
     ``matrices(dt_s)``: the stacked (F, Q) (default :func:`cv_matrices`; a cache of it may be given)."""
     ahead = dt_s > 0.0
+    if dim == 1:  # compiled: the same bits (see cv_kernel), without ~20 numpy calls per stack
+        x, p = np.array(x, dtype=float), np.array(p, dtype=float)
+        if ahead.any():
+            f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
+        else:
+            f = qm = _NO_MATRICES
+        cv_fuse_1d(x, p, ahead, f, qm, np.asarray(z, dtype=float), np.asarray(r, dtype=float))
+        return x, p
     if ahead.any():
         f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
         x[ahead] = (f @ x[ahead][:, :, None])[:, :, 0]
