@@ -66,15 +66,15 @@ def _inv2(a00: float, a01: float, a10: float, a11: float) -> tuple[float, float,
     return x0a, x0b, x1a, x1b
 
 
-_SIG = "void(f8[:, :], f8[:, :, :], b1[:], f8[:, :, :], f8[:, :, :], f8[:, :], f8[:, :])"
+_SIG = "void(f8[:, :], f8[:, :, :], b1[:], f8[:], f8[:], f8[:], f8[:], f8[:, :], f8[:, :])"
 
 
 @njit(_SIG, cache=True)  # compiled at import (or loaded from numba's cache), not inside a run's ticks
-def cv_fuse_1d(x: np.ndarray, p: np.ndarray, ahead: np.ndarray, f: np.ndarray, q: np.ndarray,
-               z: np.ndarray, r: np.ndarray) -> None:
+def cv_fuse_1d(x: np.ndarray, p: np.ndarray, ahead: np.ndarray, dt: np.ndarray, q11: np.ndarray,
+               q12: np.ndarray, q22: np.ndarray, z: np.ndarray, r: np.ndarray) -> None:
     """In place, message by message: predict ``x`` (k, 2), ``p`` (k, 2, 2) where ``ahead`` (k,) with
-    the next F (m, 2, 2) = [[1, dt], [0, 1]] and Q (m, 2, 2) (m: the count of ``ahead``), then
-    update with ``z`` (k, 2) and covariance ``r`` (2, 2) (Joseph form):
+    the next F = [[1, dt], [0, 1]] and Q = [[q11, q12], [q12, q22]] (m,) (m: the count of ``ahead``;
+    ``stack.cv_terms``), then update with ``z`` (k, 2) and covariance ``r`` (2, 2) (Joseph form):
     :func:`~corridor.vehicles.tracks.stack.cv_fuse` for ``dim=1``."""
     r00, r01, r10, r11 = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
     j = 0
@@ -82,11 +82,11 @@ def cv_fuse_1d(x: np.ndarray, p: np.ndarray, ahead: np.ndarray, f: np.ndarray, q
         x0, x1 = x[i, 0], x[i, 1]
         p00, p01, p10, p11 = p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1]
         if ahead[i]:
-            f00, f01, f10, f11 = f[j, 0, 0], f[j, 0, 1], f[j, 1, 0], f[j, 1, 1]
-            x0, x1 = _mv(f00, f01, f10, f11, x0, x1)
-            a00, a01, a10, a11 = _mm(f00, f01, f10, f11, p00, p01, p10, p11)
-            b00, b01, b10, b11 = _mm(a00, a01, a10, a11, f00, f10, f01, f11)
-            p00, p01, p10, p11 = b00 + q[j, 0, 0], b01 + q[j, 0, 1], b10 + q[j, 1, 0], b11 + q[j, 1, 1]
+            d = dt[j]
+            x0, x1 = _mv(1.0, d, 0.0, 1.0, x0, x1)
+            a00, a01, a10, a11 = _mm(1.0, d, 0.0, 1.0, p00, p01, p10, p11)
+            b00, b01, b10, b11 = _mm(a00, a01, a10, a11, 1.0, 0.0, d, 1.0)
+            p00, p01, p10, p11 = b00 + q11[j], b01 + q12[j], b10 + q12[j], b11 + q22[j]
             j += 1
         s00, s01, s10, s11 = _inv2(p00 + r00, p01 + r01, p10 + r10, p11 + r11)
         k00, k01, k10, k11 = _mm(p00, p01, p10, p11, s00, s01, s10, s11)

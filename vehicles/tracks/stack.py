@@ -19,8 +19,6 @@ import numpy as np
 
 from corridor.vehicles.tracks.cv_kernel import cv_fuse_1d
 
-_NO_MATRICES = np.zeros((0, 2, 2))  # F and Q of a stack with nothing to predict
-
 
 def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Stacked F(dt) and Q(dt) (k, 2d, 2d) of the constant-velocity chain per axis for times ``dt_s``
@@ -38,6 +36,13 @@ def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.nd
     return f, qm
 
 
+def cv_terms(dt_s: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The entries of :func:`cv_matrices` in 1-D, computed the same way (the same bits): F = [[1, dt],
+    [0, 1]] and Q = [[q11, q12], [q12, q22]] for times ``dt_s`` (k,) [s] -> (dt, q11, q12, q22)."""
+    dt = np.round(np.asarray(dt_s, float) * 1e9) * 1e-9
+    return dt, q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+
+
 def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
             q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
             ) -> tuple[np.ndarray, np.ndarray]:
@@ -48,12 +53,17 @@ def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np
     ahead = dt_s > 0.0
     if dim == 1:  # compiled: the same bits (see cv_kernel), without ~20 numpy calls per stack
         x, p = np.array(x, dtype=float), np.array(p, dtype=float)
-        if ahead.any():
-            f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
-        else:
-            f = qm = _NO_MATRICES
-        cv_fuse_1d(x, p, ahead, f, qm, np.asarray(z, dtype=float), np.asarray(r, dtype=float))
+        dt, q11, q12, q22 = cv_terms(dt_s[ahead], q)
+        cv_fuse_1d(x, p, ahead, dt, q11, q12, q22, np.asarray(z, dtype=float), np.asarray(r, dtype=float))
         return x, p
+    return cv_fuse_stacked(x, p, dt_s, z, r, dim, q, matrices)
+
+
+def cv_fuse_stacked(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
+                    q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cv_fuse` in stacked numpy products (any ``dim``; the reference of the compiled 1-D fuse)."""
+    ahead = dt_s > 0.0
     if ahead.any():
         f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
         x[ahead] = (f @ x[ahead][:, :, None])[:, :, 0]
