@@ -510,10 +510,10 @@ class V2XMerging(Controller):
                      length: np.ndarray) -> VirtualGap:
         """``vid``'s V2X track of its predecessor, both projected on the conflict point (not known:
         never heard, or older than ``stale_after_s``)."""
-        known, est, ages = self.tracks.predict_states(vid, [pred], t)
-        if not known[0] or ages[0] > self.p.stale_after_s:
+        est = self.tracks.predict_one(vid, pred, t) if pred is not None else None
+        if est is None or est[2] > self.p.stale_after_s:
             return VirtualGap(False)
-        pos_lead, vel_lead, age_s = float(est[0, 0]), float(est[0, 1]), float(ages[0])
+        pos_lead, vel_lead, age_s = est
         lead_len = float(length[live[pred]]) if pred in live else 5.0
         gap = dist_m + pos_lead - lead_len  # > 0: the predecessor is ahead of the ego
         return VirtualGap(True, gap, vel_lead, age_s, lead_len)

@@ -154,6 +154,17 @@ class TrackPool:
             age[known] = a
         return known, x, age
 
+    def predict_one(self, rx: str, src: str, t_s: float) -> tuple[float, float, float] | None:
+        """``predict_states(rx, [src], t_s)`` of a 1-D pool in Python floats (the same operations, the
+        same bits, without the stacking): (position [m], velocity [m/s], age [s]), None if untracked."""
+        row = self._rows.get(rx, {}).get(src)
+        if row is None:
+            return None
+        age = max(0.0, t_s - float(self.t_s[row]))
+        dt = round(age * 1e9) * 1e-9  # cv_terms' rounding (half to even, as np.round)
+        x0, x1 = float(self.x[row, 0]), float(self.x[row, 1])
+        return x0 + dt * x1, x1 + 0.0 * x0, age
+
     def _matrices(self, dt_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``cv_matrices(dt_s)``, each distinct interval (to the nanosecond, as there) built once."""
         mats = [self._mats.get(key) or self._build(key) for key in np.round(np.asarray(dt_s, float) * 1e9).tolist()]
