@@ -328,14 +328,17 @@ class Channel:
         flat = [d for ds in dsts for d in ds]
         if None in flat:
             msg, counts, dst_idx, in_range = self._copies_mixed(src_idx, p_src, flat)
-        else:
-            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
-        n = len(msg)
-        # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
-        u = self._rng.random(2 * n)
-        start = np.cumsum(counts) - counts
-        pos_in_msg = np.arange(n) - start[msg]
-        u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
+            n = len(msg)
+            # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
+            u = self._rng.random(2 * n)
+            start = np.cumsum(counts) - counts
+            pos_in_msg = np.arange(n) - start[msg]
+            u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
+        else:  # a unicast is at most one copy: its loss and delay uniforms are the next two
+            msg, _, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
+            n = len(msg)
+            u = self._rng.random(2 * n)
+            u_loss, u_delay = u[0::2], u[1::2]
         lost = in_range & (u_loss < self.cfg.loss.p)
         keep = in_range & ~lost
         t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay
@@ -599,10 +602,9 @@ class Channel:
         )
 
     def _sample_aoi(self, t_s: float) -> None:
-        # only attached receivers hold received times (detach clears a node's row and column), so
-        # their rows give the same values in the same (row-major) order as the whole matrix
-        # only the columns of sources with a received time (``_has_col``) can hold one: gathering those
-        # alone keeps the values and their order (row-major) without copying whole rows of the matrix
+        # only attached receivers hold received times (detach clears a node's row and column), and only
+        # the columns of sources with a received time (``_has_col``): their block gives the same values
+        # in the same (row-major) order as the whole matrix
         rows = self._last_sent[np.ix_(np.flatnonzero(self._attached), np.flatnonzero(self._has_col))]
         known = rows[~np.isnan(rows)]
         if known.size == 0:
@@ -674,5 +676,7 @@ def _rows3(points: list[Any]) -> np.ndarray:
 
 def _as3(p: np.ndarray | Iterable[float]) -> np.ndarray:
     """A position as a float 3-vector (2-D positions get z = 0)."""
+    if type(p) is np.ndarray and p.shape == (3,) and p.dtype == np.float64 and p.flags.c_contiguous:
+        return p  # what the line below gives (a view of the same memory), without two calls
     a = np.asarray(p, dtype=float).ravel()
     return a if a.size == 3 else np.concatenate([a, np.zeros(3 - a.size)])

@@ -358,8 +358,9 @@ class V2XMerging(Controller):
         n = [b.dst_idx.size for b in batches]
         dst = [names[i] for i in np.concatenate([b.dst_idx for b in batches]).tolist()]
         src = [b.src for b, k in zip(batches, n, strict=True) for _ in range(k)]
+        rx, listen = set(self.tracks.receivers), self._listen  # _tracks_sender, inlined: one test per copy
         keep = [j for j, (d, sv) in enumerate(zip(dst, src, strict=True))
-                if d in self.tracks and self._tracks_sender(d, sv)]
+                if d in rx and (d == RSU or sv in listen.get(d, ()))]
         if not keep:
             return
         t_recv = np.concatenate([b.t_recv_s for b in batches])[keep]
