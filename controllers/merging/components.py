@@ -285,21 +285,21 @@ class V2XMerging(Controller):
         ids, dist = s["ids"], s["dist"]
         near = s["connected"] & (dist < zone_len + self.p.send_margin_m) & (dist > -self.p.release_after_m - 50)
         in_zone = s["connected"] & (dist <= zone_len) & (dist > -self.p.release_after_m)
-        for k in np.flatnonzero(in_zone):  # controlled vehicles listen
-            vid = ids[k]
+        listening = [ids[k] for k in np.flatnonzero(in_zone).tolist()]
+        for vid in listening:  # controlled vehicles listen
             if vid not in self.tracks:
                 self.channel.attach(vid)
                 self.tracks.add_receiver(vid)
-        listening = {ids[k] for k in np.flatnonzero(in_zone)}
-        for vid in [v for v in self.tracks.receivers if v != RSU and v not in listening]:
+        heard = set(listening)
+        for vid in [v for v in self.tracks.receivers if v != RSU and v not in heard]:
             self.channel.detach(vid)
             self.tracks.remove_receiver(vid)
             self.assigned.pop(vid, None)
         pos = s["pos"]
-        self.channel.set_positions({RSU: np.array([self.x_merge, self.y_rsu, 0.0]),
-                                    **{ids[k]: pos[k] for k in np.flatnonzero(near)}})
         idx = np.flatnonzero(near)
-        sel = [ids[k] for k in idx]
+        sel = [ids[k] for k in idx.tolist()]
+        self.channel.set_positions({RSU: np.array([self.x_merge, self.y_rsu, 0.0]),
+                                    **dict(zip(sel, pos[idx], strict=True))})
         due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
         # a CAM's content that its receivers use, as one row each: [position on the merge axis
         # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
