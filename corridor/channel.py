@@ -676,7 +676,5 @@ def _rows3(points: list[Any]) -> np.ndarray:
 
 def _as3(p: np.ndarray | Iterable[float]) -> np.ndarray:
     """A position as a float 3-vector (2-D positions get z = 0)."""
-    if type(p) is np.ndarray and p.shape == (3,) and p.dtype == np.float64 and p.flags.c_contiguous:
-        return p  # what the line below gives (a view of the same memory), without two calls
     a = np.asarray(p, dtype=float).ravel()
     return a if a.size == 3 else np.concatenate([a, np.zeros(3 - a.size)])
