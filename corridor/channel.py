@@ -211,6 +211,7 @@ class Channel:
         self._attached = np.zeros(0, dtype=bool)  # by node index
         self._ge_bad = np.zeros((0, 0), dtype=bool)  # [src, dst] Gilbert–Elliott state
         self._last_sent = np.zeros((0, 0))  # [dst, src] newest received send time, NaN = none
+        self._has_col = np.zeros(0, dtype=bool)  # [src] a column of _last_sent that may hold a time
         self._positions: dict[str, np.ndarray] = {}
         self._recv_idx = np.zeros(0, dtype=np.int64)  # attached receivers, attach order
         self._recv_row = np.zeros(0, dtype=np.int64)  # node index -> its row in _recv_idx (-1: none)
@@ -242,6 +243,7 @@ class Channel:
         self._attached[i] = False
         self._last_sent[i, :] = np.nan
         self._last_sent[:, i] = np.nan
+        self._has_col[i] = False
         self._recv_dirty = True
 
     @property
@@ -326,14 +328,17 @@ class Channel:
         flat = [d for ds in dsts for d in ds]
         if None in flat:
             msg, counts, dst_idx, in_range = self._copies_mixed(src_idx, p_src, flat)
-        else:
-            msg, counts, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
-        n = len(msg)
-        # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
-        u = self._rng.random(2 * n)
-        start = np.cumsum(counts) - counts
-        pos_in_msg = np.arange(n) - start[msg]
-        u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
+            n = len(msg)
+            # send() draws random(n_i) for loss, then random(n_i) for delay, message after message
+            u = self._rng.random(2 * n)
+            start = np.cumsum(counts) - counts
+            pos_in_msg = np.arange(n) - start[msg]
+            u_loss, u_delay = u[2 * start[msg] + pos_in_msg], u[2 * start[msg] + counts[msg] + pos_in_msg]
+        else:  # a unicast is at most one copy: its loss and delay uniforms are the next two
+            msg, _, dst_idx, in_range = self._copies_unicast(src_idx, p_src, cast(list[str], flat))
+            n = len(msg)
+            u = self._rng.random(2 * n)
+            u_loss, u_delay = u[0::2], u[1::2]
         lost = in_range & (u_loss < self.cfg.loss.p)
         keep = in_range & ~lost
         t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u_delay
@@ -500,6 +505,9 @@ class Channel:
         t_recv = np.concatenate([b.t_recv_s for b in pending])
         live = self._attached[dst]
         due = (t_recv <= t_s + _T_EPS_S) & live
+        if due.all():  # every copy in flight is due (a delay below the tick): no batch is cut
+            self._pending, self._n_in_flight = [], 0
+            return pending, [(b.dst_idx, b.t_recv_s) for b in pending]
         rest = ~due & live
         starts: np.ndarray = np.cumsum(sizes) - sizes
         n_due = np.add.reduceat(due, starts).tolist()
@@ -530,6 +538,7 @@ class Channel:
         src = np.repeat([b.src_idx for b in batches], counts)
         t_sent = np.repeat([b.t_sent_s for b in batches], counts)
         np.fmax.at(self._last_sent, (dst, src), t_sent)
+        self._has_col[src] = True
 
     def _materialise(
         self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]
@@ -593,9 +602,10 @@ class Channel:
         )
 
     def _sample_aoi(self, t_s: float) -> None:
-        # only attached receivers hold received times (detach clears a node's row and column), so
-        # their rows give the same values in the same (row-major) order as the whole matrix
-        rows = self._last_sent[self._attached]
+        # only attached receivers hold received times (detach clears a node's row and column), and only
+        # the columns of sources with a received time (``_has_col``): their block gives the same values
+        # in the same (row-major) order as the whole matrix
+        rows = self._last_sent[np.ix_(np.flatnonzero(self._attached), np.flatnonzero(self._has_col))]
         known = rows[~np.isnan(rows)]
         if known.size == 0:
             return
@@ -624,7 +634,10 @@ class Channel:
         ge[:n, :n] = self._ge_bad
         last = np.full((cap, cap), np.nan)
         last[:n, :n] = self._last_sent
+        has_col = np.zeros(cap, dtype=bool)
+        has_col[:n] = self._has_col
         self._attached, self._ge_bad, self._last_sent, self._cap = attached, ge, last, cap
+        self._has_col = has_col
 
     def _refresh_receivers(self) -> None:
         if not self._recv_dirty:

@@ -11,6 +11,7 @@ a fleet does not transmit in lock-step — real CAM generation is not synchronis
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -64,7 +65,7 @@ class CamGenerator:
             if t_s + _DUE_EPS_S >= nxt:
                 mask[k] = True
                 # next slot on the period grid, skipping missed slots (coarse ticks)
-                n_missed = np.floor((t_s + _DUE_EPS_S - nxt) / self.period_s)
+                n_missed = math.floor((t_s + _DUE_EPS_S - nxt) / self.period_s)  # np.floor's value
                 self._next_s[vid] = nxt + (n_missed + 1.0) * self.period_s
         return mask
 

@@ -285,21 +285,21 @@ class V2XMerging(Controller):
         ids, dist = s["ids"], s["dist"]
         near = s["connected"] & (dist < zone_len + self.p.send_margin_m) & (dist > -self.p.release_after_m - 50)
         in_zone = s["connected"] & (dist <= zone_len) & (dist > -self.p.release_after_m)
-        for k in np.flatnonzero(in_zone):  # controlled vehicles listen
-            vid = ids[k]
+        listening = [ids[k] for k in np.flatnonzero(in_zone).tolist()]
+        for vid in listening:  # controlled vehicles listen
             if vid not in self.tracks:
                 self.channel.attach(vid)
                 self.tracks.add_receiver(vid)
-        listening = {ids[k] for k in np.flatnonzero(in_zone)}
-        for vid in [v for v in self.tracks.receivers if v != RSU and v not in listening]:
+        heard = set(listening)
+        for vid in [v for v in self.tracks.receivers if v != RSU and v not in heard]:
             self.channel.detach(vid)
             self.tracks.remove_receiver(vid)
             self.assigned.pop(vid, None)
         pos = s["pos"]
-        self.channel.set_positions({RSU: np.array([self.x_merge, self.y_rsu, 0.0]),
-                                    **{ids[k]: pos[k] for k in np.flatnonzero(near)}})
         idx = np.flatnonzero(near)
-        sel = [ids[k] for k in idx]
+        sel = [ids[k] for k in idx.tolist()]
+        self.channel.set_positions({RSU: np.array([self.x_merge, self.y_rsu, 0.0]),
+                                    **dict(zip(sel, pos[idx], strict=True))})
         due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
         # a CAM's content that its receivers use, as one row each: [position on the merge axis
         # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
@@ -358,8 +358,9 @@ class V2XMerging(Controller):
         n = [b.dst_idx.size for b in batches]
         dst = [names[i] for i in np.concatenate([b.dst_idx for b in batches]).tolist()]
         src = [b.src for b, k in zip(batches, n, strict=True) for _ in range(k)]
+        rx, listen = set(self.tracks.receivers), self._listen  # _tracks_sender, inlined: one test per copy
         keep = [j for j, (d, sv) in enumerate(zip(dst, src, strict=True))
-                if d in self.tracks and self._tracks_sender(d, sv)]
+                if d in rx and (d == RSU or sv in listen.get(d, ()))]
         if not keep:
             return
         t_recv = np.concatenate([b.t_recv_s for b in batches])[keep]
@@ -510,10 +511,10 @@ class V2XMerging(Controller):
                      length: np.ndarray) -> VirtualGap:
         """``vid``'s V2X track of its predecessor, both projected on the conflict point (not known:
         never heard, or older than ``stale_after_s``)."""
-        known, est, ages = self.tracks.predict_states(vid, [pred], t)
-        if not known[0] or ages[0] > self.p.stale_after_s:
+        est = self.tracks.predict_one(vid, pred, t) if pred is not None else None
+        if est is None or est[2] > self.p.stale_after_s:
             return VirtualGap(False)
-        pos_lead, vel_lead, age_s = float(est[0, 0]), float(est[0, 1]), float(ages[0])
+        pos_lead, vel_lead, age_s = est
         lead_len = float(length[live[pred]]) if pred in live else 5.0
         gap = dist_m + pos_lead - lead_len  # > 0: the predecessor is ahead of the ego
         return VirtualGap(True, gap, vel_lead, age_s, lead_len)

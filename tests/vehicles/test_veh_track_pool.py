@@ -50,6 +50,10 @@ def test_pool_matches_filterpy_tables_bit_for_bit_in_1d() -> None:
             for i, s in enumerate(names):
                 if s in pred:
                     assert x[i, 0] == pred[s].pos[0] and x[i, 1] == pred[s].vel[0] and age[i] == pred[s].age_s
+                one = pool.predict_one(r, s, t_now + 0.05)  # the scalar path: the same bits
+                assert (one is None) == (s not in pred)
+                if one is not None:
+                    assert one == (x[i, 0], x[i, 1], age[i])
 
 
 def test_pool_rows_are_recycled_and_storage_grows() -> None:

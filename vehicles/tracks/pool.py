@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from corridor.vehicles.tracks.stack import cv_fuse, cv_matrices
+from corridor.vehicles.tracks.stack import cv_fuse, cv_matrices, cv_terms
 
 
 class TrackPool:
@@ -73,30 +73,43 @@ class TrackPool:
         given order per pair. Returns which measurements were used (False: older than the track)."""
         t_s, z = np.asarray(t_s, dtype=float), np.asarray(z, dtype=float).reshape(len(rx), 2 * self.dim)
         used = np.zeros(len(rx), dtype=bool)
+        rows, new = self._rows_of(rx, src)
+        if len(set(rows)) == len(rows):  # every pair once (the usual tick): one stacked pass
+            self._fuse_round(np.arange(len(rx)), np.array(rows, dtype=np.int64), np.array(new, dtype=bool),
+                             t_s, z, used)
+            return used
         rounds: list[list[int]] = []
-        seen: dict[tuple[str, str], int] = {}
-        for i, key in enumerate(zip(rx, src, strict=True)):  # a pair's n-th message goes in round n
-            n = seen.get(key, 0)
-            seen[key] = n + 1
+        seen: dict[int, int] = {}
+        for i, row in enumerate(rows):  # a pair's n-th message goes in round n
+            n = seen.get(row, 0)
+            seen[row] = n + 1
             if n == len(rounds):
                 rounds.append([])
             rounds[n].append(i)
-        for idx in rounds:
-            self._fuse_round(np.array(idx), rx, src, t_s, z, used)
+        first = np.array(new, dtype=bool)  # only a pair's first message can start its track
+        all_rows = np.array(rows, dtype=np.int64)
+        for n, idx in enumerate(rounds):
+            ix = np.array(idx)
+            self._fuse_round(ix, all_rows[ix], first[ix] if n == 0 else np.zeros(ix.size, dtype=bool), t_s, z, used)
         return used
 
-    def _fuse_round(self, idx: np.ndarray, rx: list[str], src: list[str], t_s: np.ndarray, z: np.ndarray,
-                    used: np.ndarray) -> None:
-        """One stacked pass over distinct pairs: start the new tracks, update the others."""
-        rows = np.empty(idx.size, dtype=np.int64)
-        new = np.zeros(idx.size, dtype=bool)
-        for j, i in enumerate(idx.tolist()):
-            table = self._rows[rx[i]]
-            row = table.get(src[i])
+    def _rows_of(self, rx: list[str], src: list[str]) -> tuple[list[int], list[bool]]:
+        """The row of each (receiver, source) pair, allocated on its first message (flagged new)."""
+        rows: list[int] = []
+        new: list[bool] = []
+        for r, s in zip(rx, src, strict=True):
+            table = self._rows[r]
+            row = table.get(s)
+            new.append(row is None)
             if row is None:
-                row = table[src[i]] = self._alloc()
-                new[j] = True
-            rows[j] = row
+                row = table[s] = self._alloc()
+            rows.append(row)
+        return rows, new
+
+    def _fuse_round(self, idx: np.ndarray, rows: np.ndarray, new: np.ndarray, t_s: np.ndarray, z: np.ndarray,
+                    used: np.ndarray) -> None:
+        """One stacked pass over distinct pairs ``rows`` (messages ``idx``): start the ``new`` tracks,
+        update the others."""
         t = t_s[idx]
         if new.any():
             r = rows[new]
@@ -132,10 +145,25 @@ class TrackPool:
         if known.any():
             r = np.array(rows)[known]
             a = np.maximum(0.0, t_s - self.t_s[r])
-            f, _ = self._matrices(a)
-            x[known] = (f @ self.x[r][:, :, None])[:, :, 0]
+            if self.dim == 1:  # F x with F = [[1, dt], [0, 1]] as BLAS dgemv rounds it (see cv_kernel)
+                dt, xr = cv_terms(a, self.q)[0], self.x[r]
+                x[known] = np.column_stack((xr[:, 0] + dt * xr[:, 1], xr[:, 1] + 0.0 * xr[:, 0]))
+            else:
+                f, _ = self._matrices(a)
+                x[known] = (f @ self.x[r][:, :, None])[:, :, 0]
             age[known] = a
         return known, x, age
+
+    def predict_one(self, rx: str, src: str, t_s: float) -> tuple[float, float, float] | None:
+        """``predict_states(rx, [src], t_s)`` of a 1-D pool in Python floats (the same operations, the
+        same bits, without the stacking): (position [m], velocity [m/s], age [s]), None if untracked."""
+        row = self._rows.get(rx, {}).get(src)
+        if row is None:
+            return None
+        age = max(0.0, t_s - float(self.t_s[row]))
+        dt = round(age * 1e9) * 1e-9  # cv_terms' rounding (half to even, as np.round)
+        x0, x1 = float(self.x[row, 0]), float(self.x[row, 1])
+        return x0 + dt * x1, x1 + 0.0 * x0, age
 
     def _matrices(self, dt_s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``cv_matrices(dt_s)``, each distinct interval (to the nanosecond, as there) built once."""

@@ -17,6 +17,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from corridor.vehicles.tracks.cv_kernel import cv_fuse_1d
+
 
 def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.ndarray]:
     """Stacked F(dt) and Q(dt) (k, 2d, 2d) of the constant-velocity chain per axis for times ``dt_s``
@@ -34,6 +36,13 @@ def cv_matrices(dt_s: np.ndarray, dim: int, q: float) -> tuple[np.ndarray, np.nd
     return f, qm
 
 
+def cv_terms(dt_s: np.ndarray, q: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The entries of :func:`cv_matrices` in 1-D, computed the same way (the same bits): F = [[1, dt],
+    [0, 1]] and Q = [[q11, q12], [q12, q22]] for times ``dt_s`` (k,) [s] -> (dt, q11, q12, q22)."""
+    dt = np.round(np.asarray(dt_s, float) * 1e9) * 1e-9
+    return dt, q * dt**3 / 3.0, q * dt**2 / 2.0, q * dt
+
+
 def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
             q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
             ) -> tuple[np.ndarray, np.ndarray]:
@@ -41,6 +50,19 @@ def cv_fuse(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np
     velocity], measurement covariance ``r`` (2d, 2d): the equations of filterpy's
     ``KalmanFilter.predict`` / ``update`` (Joseph form) with H = I. Returns the new (x, P).
     ``matrices(dt_s)``: the stacked (F, Q) (default :func:`cv_matrices`; a cache of it may be given)."""
+    ahead = dt_s > 0.0
+    if dim == 1:  # compiled: the same bits (see cv_kernel), without ~20 numpy calls per stack
+        x, p = np.array(x, dtype=float), np.array(p, dtype=float)
+        dt, q11, q12, q22 = cv_terms(dt_s[ahead], q)
+        cv_fuse_1d(x, p, ahead, dt, q11, q12, q22, np.asarray(z, dtype=float), np.asarray(r, dtype=float))
+        return x, p
+    return cv_fuse_stacked(x, p, dt_s, z, r, dim, q, matrices)
+
+
+def cv_fuse_stacked(x: np.ndarray, p: np.ndarray, dt_s: np.ndarray, z: np.ndarray, r: np.ndarray, dim: int,
+                    q: float, matrices: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`cv_fuse` in stacked numpy products (any ``dim``; the reference of the compiled 1-D fuse)."""
     ahead = dt_s > 0.0
     if ahead.any():
         f, qm = matrices(dt_s[ahead]) if matrices is not None else cv_matrices(dt_s[ahead], dim, q)
