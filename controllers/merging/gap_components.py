@@ -70,21 +70,20 @@ class MergePlan(RoadAhead):
 
 def arrival_accel(dist_m: float, v_mps: float, time_s: float, v_cross: float, accel: float, brake: float) -> float:
     """Acceleration [m/s²] now towards reaching ``dist_m`` ahead in ``time_s`` at ``v_cross``: hold a
-    cruise speed, then accelerate at ``accel`` to ``v_cross`` as late as possible.  Early (no cruise
-    speed fits: it would cover too much road) it slows down at ``brake``; late, it accelerates."""
+    cruise speed, then accelerate at ``accel`` to ``v_cross`` as late as possible.  Late (accelerating
+    now would not be early) it accelerates; early and no cruise speed fits (it would cover too much
+    road even at the slowest one) it slows down at ``brake``."""
     if time_s <= 0.5 or dist_m <= 0:
         return K_SPEED * (v_cross - v_mps)
-    if v_mps < v_cross and dist_m <= (v_cross * v_cross - v_mps * v_mps) / (2.0 * accel):
-        return accel  # the late acceleration has begun
+    if time_to_go(dist_m, v_mps, v_cross, accel) >= time_s:
+        return accel  # on time or late: the run to the line has begun
     # dist = v_c * time + (v_cross - v_c)^2 / (2 a), for v_c in [v_cross - a * time, v_cross]
     a_, b_, c_ = 1.0 / (2.0 * accel), time_s - v_cross / accel, v_cross * v_cross / (2.0 * accel) - dist_m
     disc = b_ * b_ - 4.0 * a_ * c_
     if disc < 0:
         return -brake  # early: even the slowest fitting cruise covers too much road
     v_c = (-b_ + math.sqrt(disc)) / (2.0 * a_)
-    if v_c > v_cross:
-        return accel  # late
-    if v_c < v_cross - accel * time_s:
+    if v_c < max(v_cross - accel * time_s, 0.0) or v_c > v_cross:
         return -brake
     return K_SPEED * (v_c - v_mps)
 
