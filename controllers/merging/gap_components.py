@@ -1,31 +1,37 @@
-"""Connected ramp vehicles that arrive at a created gap at speed (``v2x_merge_gaps``), over a lossy V2X channel.
+"""Connected ramp vehicles that cross Flow's merge junction at speed on a roadside unit's reservation
+(``v2x_merge_gaps``), over a lossy V2X channel.
 
-Why: at Flow's merge (a priority junction, no acceleration lane) SUMO's junction model lets a ramp
-driver standing at the yield line go only when it can *lead* the next highway vehicle: that vehicle
-must reach the junction later than the ramp vehicle leaves it plus ``jmTimegapMinor`` (1 s), and must
-be able to brake behind it (``MSLink::unsafeMergeSpeeds``: the leader's v²/b must exceed the
-follower's arrival-speed-when-braking²/b).  From a stop the ramp vehicle leaves the junction slowly
-(~8 m/s after ~5 s), so the next highway vehicle must be about 150 m away (or able to stop short of
-the junction at its 2 m/s²): a 1.8 s-headway stream never offers that, and the ramp queue grows.  A
-ramp vehicle that arrives at nearly the stream's speed needs only the time gaps: about 4 s between
-the arrivals of the highway vehicles in front of and behind it.
+Why: SUMO's junction model lets a ramp vehicle on the minor link lead an approaching highway vehicle
+only if that vehicle arrives more than ``jmTimegapMinor`` (1 s) after the ramp vehicle leaves the
+junction and ``MSLink::unsafeMergeSpeeds`` does not hold (the ramp vehicle's leave speed²/decel must
+exceed the highway vehicle's arrival-speed-when-braking²/decel).  SUMO's ramp drivers slow to a few
+m/s at the minor link whatever the traffic, so they start from rest, and from rest the next highway
+vehicle must be able to stop short of the junction: ~150 m away at 24 m/s with the calibrated humans'
+2 m/s².  A 1.8 s-headway stream never offers that.  A ramp vehicle that arrives at speed needs only
+time gaps: about 2 s after the highway vehicle ahead and 2 s before the one behind.
 
 What (per road step, on top of the wave-damping law of ``v2x_wave_damping`` for connected highway
 vehicles):
-1. *coordinate* (RSU, every ``rsu_period_s``): every connected ramp vehicle gets a partner, the
-   nearest connected highway vehicle not yet paired that is behind the ramp vehicle's position
-   projected on the highway (its distance to the junction along the ramp, from the junction back
-   along the highway; at most ``pair_slack_m`` ahead of it), within ``pair_zone_m`` of the junction.
-   The RSU broadcasts, per pair, its noisy measurement of the highway vehicle just ahead of the
-   partner (the ramp vehicle's virtual leader) and of the ramp vehicle (the partner's virtual leader).
-2. *decide*: the ramp vehicle drives towards the stream's speed at the junction, bounded by a
-   constant-time-gap rule (``ramp_time_gap_s``) behind its virtual leader, so it reaches the junction
-   in the gap at speed instead of stopping; unpaired, it rolls at ``wait_speed_mps`` until an opener
-   is found.  The partner keeps ``open_time_gap_s`` behind the projected ramp vehicle (it opens the
-   gap early and smoothly, at most ``b_comfort_mps2``).  Every command passes the safety layer against
-   the vehicle's physical leader (sensed on board), SUMO's own safe-speed and right-of-way checks stay
-   on (speed mode 27), and a vehicle whose newest message is older than ``stale_after_s`` is handed
-   back to its driver model.
+1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle, in its
+   order on the ramp, gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
+   the predicted arrival of the highway vehicle ahead of the follower and no earlier than it can make
+   it.  The follower is the first highway vehicle that can arrive ``open_time_gap_s`` later: a
+   connected *partner*, which then opens the gap (never slower than ``partner_min_speed_mps``), or a
+   human whose predicted arrival already leaves the gap.  A slot holds once given; a pair whose ramp
+   vehicle cannot make its slot, or whose follower no longer fits, is dropped before the run starts.
+2. *decide*: the ramp vehicle holds a cruise speed and accelerates to the crossing speed as late as
+   possible so as to reach the junction at its slot at speed (``arrival_accel``); without a slot it
+   waits where its run-up still fits, not at the yield line.  ``commit_m`` plus its braking distance
+   before the line it takes the go / no-go: it commits if its virtual leader (the highway vehicle
+   ahead of the slot, projected onto the ramp) is ahead with a safe gap and the follower can stay
+   behind it braking comfortably, and then crosses in ``reserved_speed_mode`` (the reservation, not
+   the yield sign, keeps the gap); if the leader's gap closes it drops back to SUMO's yield rule.  The
+   partner arrives no earlier than its slot and keeps a safe gap behind the projected ramp vehicle on
+   its run.  Every command passes the safety layer (``safety_layer.safe_accel``) against the physical
+   leader (sensed on board) and the virtual one; a vehicle whose newest message is older than
+   ``stale_after_s`` is handed back to its driver model.
+
+Measured on ``scenarios/flow_merge.yaml`` (variant ``cal_all10_ramp``): docs/guide/flow-merge.md.
 """
 
 from __future__ import annotations
@@ -107,8 +113,8 @@ class GapMerging(WaveDamping):
         restart_gap_s: float = Field(5.0, ge=0)  # [s] follower gap for a ramp vehicle starting from rest
         restart_partner_speed_mps: float = Field(15.0, ge=0)  # [m/s] a partner slows to no less for a restart
         min_run_speed_mps: float = Field(3.0, ge=0)  # [m/s] slower near the stop line: a start from rest
-        min_ramp_speed_mps: float = Field(3.0, ge=0)  # [m/s] a paired ramp vehicle's plan never asks for less
-        wait_speed_mps: float = Field(6.0, ge=0)  # [m/s] an unpaired ramp vehicle rolls at most this fast
+        wait_speed_mps: float = Field(6.0, ge=0)  # [m/s] an unpaired ramp vehicle rolls at most this fast (and
+        #   stops where its run-up still fits); a partner keeps a gap only behind a faster ramp vehicle
         plan_accel_mps2: float = Field(1.2, gt=0)  # [m/s²] a ramp vehicle's planned acceleration to the crossing
         commit_m: float = Field(60.0, ge=0)  # [m] the go / no-go is taken this far plus the braking distance
         #   before the stop line
