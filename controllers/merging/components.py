@@ -204,9 +204,11 @@ class V2XMerging(Controller):
         self.x_merge = nose + self.p.merge_point_frac * (end - nose)
         self.y_rsu = -float(lm.lane_width_m) * float(lm.mainline_lanes)
         self.cos_ramp = np.cos(np.radians(lm.ramp_angle_deg))
-        # per lane code: a ramp lane / the mainline lane that ramp vehicles join (filled as lanes appear)
+        # per lane code: a ramp lane / the mainline lane that ramp vehicles join / a mainline lane past
+        # the nose (a ramp vehicle there has merged) (filled as lanes appear)
         self._on_ramp_lane = np.zeros(0, dtype=bool)
         self._joins_lane = np.zeros(0, dtype=bool)
+        self._merged_lane = np.zeros(0, dtype=bool)
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
@@ -262,21 +264,27 @@ class V2XMerging(Controller):
         pos, size, heading = snap.position[sl], snap.size[sl], snap.heading[sl]
         front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
         ramp = tb.role[r.uid] == Role.RAMP  # on the ramp route
+        # a ramp vehicle on a mainline lane past the nose has merged: out of the conflict, like a
+        # mainline vehicle that moved to the left lane (its route alone kept it under ramp control)
+        merged = ramp & self._merged_lane[r.lane]
         dist = self.x_merge - front_x
         dist[ramp & self._on_ramp_lane[r.lane]] /= self.cos_ramp  # along the inclined ramp
         return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
-                "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
+                "merged": merged, "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
                 "heading": heading, "lane": r.lane, "length": size[:, 0], "leader": lane_leaders(r.lane, r.lane_pos),
                 "lane_pos": r.lane_pos, "row": dict(zip(ids, range(len(ids))))}
 
     def _classify_lanes(self, tb: RoadTables) -> None:
-        """Per lane code, once per lane: on the ramp edge; the mainline lane that ramp vehicles join."""
+        """Per lane code, once per lane: on the ramp edge; the mainline lane that ramp vehicles join; a
+        mainline lane past the nose."""
         done = len(self._on_ramp_lane)
         if done == tb.n_lanes:
             return
         new = tb.lane_names[done:]
-        self._on_ramp_lane = np.concatenate([self._on_ramp_lane, [self.landmarks.is_ramp_lane(n) for n in new]])
-        self._joins_lane = np.concatenate([self._joins_lane, [self.landmarks.joins_mainline(n) for n in new]])
+        lm = self.landmarks
+        self._on_ramp_lane = np.concatenate([self._on_ramp_lane, [lm.is_ramp_lane(n) for n in new]])
+        self._joins_lane = np.concatenate([self._joins_lane, [lm.joins_mainline(n) for n in new]])
+        self._merged_lane = np.concatenate([self._merged_lane, [lm.past_nose_mainline(n) for n in new]])
 
     def _communicate(self, t: float, s: dict[str, Any]) -> list[tuple[str, Any, np.ndarray, list[str]]]:
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
@@ -381,7 +389,7 @@ class V2XMerging(Controller):
         returns the zone (vehicle -> row) and the assignments to send."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
-        candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"])
+        candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"]) & ~s["merged"]
         cand = np.flatnonzero(candidates).tolist()
         heard, est, _ = self.tracks.predict_states(RSU, [ids[k] for k in cand], t)
         heard, est = heard.tolist(), est.tolist()
@@ -447,11 +455,13 @@ class V2XMerging(Controller):
             k = live.get(vid)
             if k is None or dist[k] < 0:
                 continue
-            if not (s["ramp"][k] or s["right"][k]):  # changed to the left lane: out of the conflict
+            # changed to the left lane, or a ramp vehicle that moved over: out of the conflict
+            if not (s["ramp"][k] or s["right"][k]) or s["merged"][k]:
                 if vid in self.controlled:
                     self.controlled.discard(vid)
                     cmds.append(Release(vid))
                 del self.assigned[vid]
+                self.automata.pop(vid, None)
                 continue
             if t - a.t_sent_s > self.p.stale_after_s:  # the RSU went quiet: onboard car-following
                 self._fallback(t, vid, cmds)

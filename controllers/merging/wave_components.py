@@ -156,8 +156,7 @@ class WaveDamping(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
-        zone = s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m) & (s["front"] < self.merge_x + self.p.release_after_m)
-        members = {s["ids"][k] for k in np.flatnonzero(zone)}
+        members = {s["ids"][k] for k in np.flatnonzero(self._receivers(s))}
         for vid in members - set(self.channel.receivers):
             self.channel.attach(vid)
         for vid in set(self.channel.receivers) - members:
@@ -170,6 +169,11 @@ class WaveDamping(Controller):
         for d in self.channel.deliver(t):
             if d.dst in members:
                 self.latest[d.dst] = d.payload
+
+    def _receivers(self, s: dict[str, Any]) -> np.ndarray:
+        """Mask of the vehicles that listen to the RSU: the connected highway vehicles in the zone."""
+        return (s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m)
+                & (s["front"] < self.merge_x + self.p.release_after_m))
 
     def _measure(self, t: float, s: dict[str, Any]) -> RoadAhead:
         """The RSU's noisy view: mean speed per cell on the highway, ramp vehicles' arrival times."""

@@ -78,3 +78,50 @@ def test_ramp_vehicles_merge_at_speed_without_collisions(variant: str, hold: boo
     ctl_point = V2XMerging.Params().merge_point_frac * 200.0  # x the 200 m acceleration lane
     # held until released at the merge point (the front passes it; the position is the centre)
     assert np.percentile(xs, 10) > ctl_point - 15.0
+
+
+def _ramp_control_after_merging(duration_s: float, seed: int) -> tuple[int, int]:
+    """Run ``v2x_cps``; (ramp vehicles seen on a mainline lane past the nose, vehicle-ticks in which
+    one that was already on such a lane at the controller's previous tick was still driven as a ramp
+    vehicle: commanded with its automaton in a ``ramp`` mode)."""
+    from corridor.run import build
+    from corridor.scenario import apply_overrides, load, validate
+    from corridor.snapshot import Role
+
+    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
+    sim = build(validate(apply_overrides(raw, sc.sweep["v2x_cps"]), "v2x_cps"), seed, Path(tempfile.mkdtemp()))
+    ctx = sim.ctx
+    for c in ctx.components.values():
+        c.setup(ctx)
+    ctl = ctx.components["merge"]
+    merged_before: set[str] = set()
+    seen: set[str] = set()
+    wrong = 0
+    for _ in range(round(duration_s / ctx.dt)):
+        sim.step()
+        road = ctx.snapshot.road
+        merged_now: set[str] = set()
+        for k, vid in enumerate(ctx.snapshot.ids[road.sl]):
+            lane = road.tables.lane_names[road.lane[k]]
+            if road.tables.role[road.uid[k]] == Role.RAMP and lane.startswith("merge_") and lane != "merge_0":
+                merged_now.add(vid)
+                ha = ctl.automata.get(vid)
+                if vid in merged_before and vid in ctl.controlled and ha is not None and ha.in_mode("ramp"):
+                    wrong += 1
+        seen |= merged_now
+        merged_before = merged_now
+    for c in ctx.components.values():
+        c.finish(ctx)
+        c.close()
+    return len(seen), wrong
+
+
+def test_a_ramp_vehicle_that_moved_onto_the_mainline_leaves_ramp_control() -> None:
+    """A ramp vehicle's road is where it drives, not its route: once it is on a mainline lane past the
+    nose it is no longer driven as a ramp vehicle (before the fix 118 vehicle-ticks in 90 s, seed 1:
+    ramp vehicles that changed lanes right at the nose were still commanded behind a virtual leader,
+    and held their ramp slot in the RSU's order, until their front passed the conflict point)."""
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        n_merged, wrong = pool.submit(_ramp_control_after_merging, 90.0, 1).result()
+    assert n_merged >= 10
+    assert wrong == 0

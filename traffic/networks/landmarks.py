@@ -59,6 +59,12 @@ class OnrampLandmarks(Landmarks):
         """The mainline lane that ramp vehicles join (or the junction interior at the nose)."""
         return lane in self.join_lanes or lane.startswith(":" + self.merge_junction)
 
+    def past_nose_mainline(self, lane: str) -> bool:
+        """A mainline lane past the nose (the merge edge but its acceleration lane, the downstream edge):
+        a ramp vehicle there has merged."""
+        edge = lane.rsplit("_", 1)[0]
+        return (edge == self.merge_edge and lane != self.accel_lane) or edge == self.downstream_edge
+
 
 class RuralLandmarks(Landmarks):
     """``rural_two_lane``: one lane per direction; lateral geometry measured on the built network."""

@@ -1,0 +1,367 @@
+"""Connected ramp vehicles that cross Flow's merge junction at speed on a roadside unit's reservation
+(``v2x_merge_gaps``), over a lossy V2X channel.
+
+Why: SUMO's junction model lets a ramp vehicle on the minor link lead an approaching highway vehicle
+only if that vehicle arrives more than ``jmTimegapMinor`` (1 s) after the ramp vehicle leaves the
+junction and ``MSLink::unsafeMergeSpeeds`` does not hold (the ramp vehicle's leave speed²/decel must
+exceed the highway vehicle's arrival-speed-when-braking²/decel).  SUMO's ramp drivers slow to a few
+m/s at the minor link whatever the traffic, so they start from rest, and from rest the next highway
+vehicle must be able to stop short of the junction: ~150 m away at 24 m/s with the calibrated humans'
+2 m/s².  A 1.8 s-headway stream never offers that.  A ramp vehicle that arrives at speed needs only
+time gaps: about 2 s after the highway vehicle ahead and 2 s before the one behind.
+
+What (per road step, on top of the wave-damping law of ``v2x_wave_damping`` for connected highway
+vehicles):
+1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle, in its
+   order on the ramp, gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
+   the predicted arrival of the highway vehicle ahead of the follower and no earlier than it can make
+   it.  The follower is the first highway vehicle that can arrive ``open_time_gap_s`` later: a
+   connected *partner*, which then opens the gap (never slower than ``partner_min_speed_mps``), or a
+   human whose predicted arrival already leaves the gap.  A slot holds once given; a pair whose ramp
+   vehicle cannot make its slot, or whose follower no longer fits, is dropped before the run starts.
+2. *decide*: the ramp vehicle holds a cruise speed and accelerates to the crossing speed as late as
+   possible so as to reach the junction at its slot at speed (``arrival_accel``); without a slot it
+   waits where its run-up still fits, not at the yield line.  ``commit_m`` plus its braking distance
+   before the line it takes the go / no-go: it commits if its virtual leader (the highway vehicle
+   ahead of the slot, projected onto the ramp) is ahead with a safe gap and the follower can stay
+   behind it braking comfortably, and then crosses in ``reserved_speed_mode`` (the reservation, not
+   the yield sign, keeps the gap); if the leader's gap closes it drops back to SUMO's yield rule.  The
+   partner arrives no earlier than its slot and keeps a safe gap behind the projected ramp vehicle on
+   its run.  Every command passes the safety layer (``safety_layer.safe_accel``) against the physical
+   leader (sensed on board) and the virtual one; a vehicle whose newest message is older than
+   ``stale_after_s`` is handed back to its driver model.
+
+Measured on ``scenarios/flow_merge.yaml`` (variant ``cal_all10_ramp``): docs/guide/flow-merge.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+from pydantic import Field
+
+from corridor.controllers.merging.safety_layer import safe_accel
+from corridor.controllers.merging.trajectory import time_to_go
+from corridor.controllers.merging.wave_components import RSU, RoadAhead, WaveDamping
+from corridor.engine import Metric, RunContext
+from corridor.traffic.sumo.commands import SetSpeed
+
+K_SPEED = 0.7  # [1/s] gain of the speed hold of an unpaired ramp vehicle
+
+
+@dataclass(frozen=True, slots=True)
+class Slot:
+    """The RSU's plan for one pair: when the ramp vehicle is to reach the junction [s] and its partner no
+    earlier than [s]; the ramp vehicle's virtual leader (the highway vehicle ahead of the partner) and
+    the partner, as the RSU measured them (x [m] on the highway, speed [m/s], length [m]; None: none)."""
+
+    t_ramp_s: float
+    t_partner_s: float
+    lead: tuple[float, float, float] | None
+    partner: tuple[float, float, float]
+    ramp: tuple[float, float, float]
+
+
+@dataclass(frozen=True, slots=True)
+class MergePlan(RoadAhead):
+    """``RoadAhead`` plus the RSU's slots (by ramp vehicle and by partner) and the speed [m/s] to cross at."""
+
+    slots: dict[str, Slot] = field(default_factory=dict)
+    partners: dict[str, str] = field(default_factory=dict)  # partner -> the ramp vehicle it lets in
+    cross_speed_mps: float = 15.0
+
+
+def arrival_accel(dist_m: float, v_mps: float, time_s: float, v_cross: float, accel: float, brake: float) -> float:
+    """Acceleration [m/s²] now towards reaching ``dist_m`` ahead in ``time_s`` at ``v_cross``: hold a
+    cruise speed, then accelerate at ``accel`` to ``v_cross`` as late as possible.  Late (accelerating
+    now would not be early) it accelerates; early and no cruise speed fits (it would cover too much
+    road even at the slowest one) it slows down at ``brake``."""
+    if time_s <= 0.5 or dist_m <= 0:
+        return K_SPEED * (v_cross - v_mps)
+    if time_to_go(dist_m, v_mps, v_cross, accel) >= time_s:
+        return accel  # on time or late: the run to the line has begun
+    # dist = v_c * time + (v_cross - v_c)^2 / (2 a), for v_c in [v_cross - a * time, v_cross]
+    a_, b_, c_ = 1.0 / (2.0 * accel), time_s - v_cross / accel, v_cross * v_cross / (2.0 * accel) - dist_m
+    disc = b_ * b_ - 4.0 * a_ * c_
+    if disc < 0:
+        return -brake  # early: even the slowest fitting cruise covers too much road
+    v_c = (-b_ + math.sqrt(disc)) / (2.0 * a_)
+    if v_c < max(v_cross - accel * time_s, 0.0) or v_c > v_cross:
+        return -brake
+    return K_SPEED * (v_c - v_mps)
+
+
+class GapMerging(WaveDamping):
+    """Wave damping for connected highway vehicles, plus RSU-paired gap creation and reserved crossings
+    for connected ramp vehicles (see the module's docstring)."""
+
+    metrics: ClassVar[tuple[Metric, ...]] = (
+        *WaveDamping.metrics,
+        Metric('v2x_reserved_crossings', '1', 'Connected ramp vehicles that crossed the junction on a reservation.'),
+    )
+
+    class Params(WaveDamping.Params):
+        ramp_time_gap_s: float = Field(1.5, ge=0)  # [s] the ramp vehicle's arrival after its virtual leader's
+        open_time_gap_s: float = Field(2.0, ge=0)  # [s] the partner's arrival after the ramp vehicle's
+        cross_speed_mps: float = Field(15.0, gt=0)  # [m/s] highest crossing speed (the ramp's curve: 15.7 m/s)
+        pair_zone_m: float = Field(600.0, gt=0)  # [m] partners are chosen this close to the junction
+        partner_min_speed_mps: float = Field(15.0, ge=0)  # [m/s] a partner never slows below this for its slot
+        human_margin_s: float = Field(0.0, ge=0)  # [s] a human follower (a natural gap) must arrive this much later
+        restart_gap_s: float = Field(5.0, ge=0)  # [s] follower gap for a ramp vehicle starting from rest
+        restart_partner_speed_mps: float = Field(15.0, ge=0)  # [m/s] a partner slows to no less for a restart
+        min_run_speed_mps: float = Field(3.0, ge=0)  # [m/s] slower near the stop line: a start from rest
+        wait_speed_mps: float = Field(6.0, ge=0)  # [m/s] an unpaired ramp vehicle rolls at most this fast (and
+        #   stops where its run-up still fits); a partner keeps a gap only behind a faster ramp vehicle
+        plan_accel_mps2: float = Field(1.2, gt=0)  # [m/s²] a ramp vehicle's planned acceleration to the crossing
+        commit_m: float = Field(60.0, ge=0)  # [m] the go / no-go is taken this far plus the braking distance
+        #   before the stop line
+        reserved_speed_mode: int = Field(0, ge=0, le=127)  # SUMO speed mode of a ramp vehicle with a
+        #   reserved crossing: the RSU, not the yield sign, keeps the gap, and the safety layer (physical
+        #   and virtual leader) is the only speed bound; with SUMO's safe speed on (19: 27 without the
+        #   right-of-way bit) the minor link's approach rule still slowed it to a stop at the line
+        ramp_sensor_noise_m: float = Field(1.0, ge=0)  # [m] RSU position sensing
+
+    def __init__(self, name: str, params: Params, scenario: Any) -> None:
+        super().__init__(name, params, scenario)
+        self.gp: GapMerging.Params = params
+        self.pairs: dict[str, str] = {}  # ramp vehicle -> its partner on the highway
+        self.committed: set[str] = set()  # ramp vehicles crossing on their reservation
+        self._t_slot: dict[str, float] = {}  # ramp vehicle -> its slot at the junction [s]
+        self._dropped: set[str] = set()  # ramp vehicles that missed their slot this broadcast
+        self.reserved_crossings = 0
+
+    def setup(self, ctx: RunContext) -> None:
+        super().setup(ctx)
+        self.pos_rng = ctx.rng(f"{self.name}.position")
+        self.cross_x = float(self.lm.past_merge_x)  # [m] where the ramp's lane joins the highway's
+
+    # ------------------------------------------------------------------ geometry
+    def _projected(self, s: dict[str, Any]) -> np.ndarray:
+        """x [m] of every vehicle on the highway line: a ramp vehicle's distance to the junction along
+        the ramp, laid back from the junction along the highway; the others' own front x."""
+        x = s["front"].copy()
+        on = s["on_ramp"]
+        x[on] = self.merge_x - (self.merge_x - x[on]) / self.cos_ramp
+        return x
+
+    # ------------------------------------------------------------------ communicate
+    def _receivers(self, s: dict[str, Any]) -> np.ndarray:
+        """The connected highway vehicles in the zone, the partners, and the connected ramp vehicles
+        before the junction's end."""
+        ramp = s["connected"] & s["ramp"] & (s["front"] < self.cross_x)
+        partner = np.isin(np.asarray(s["ids"], dtype=object), list(self.pairs.values()))
+        return super()._receivers(s) | ramp | partner
+
+    def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
+        base = super()._measure(t, s)
+        near = np.isfinite(base.cell_speed_mps) & (base.cell_x_m < self.merge_x) & (base.cell_x_m > self.merge_x - 100.0)
+        v_merge = float(np.mean(base.cell_speed_mps[near])) if near.any() else self.p.u_max_mps
+        v_cross = min(v_merge, self.gp.cross_speed_mps)
+        slots = self._slots(t, s, v_cross)
+        connected = {vid for vid, c in zip(s["ids"], s["connected"], strict=True) if c}
+        return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
+                         slots, {c: r for r, c in self.pairs.items() if r in slots and c in connected}, v_cross)
+
+    def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
+        """Pair the connected ramp vehicles, then per pair: the ramp vehicle's arrival at the junction,
+        ``ramp_time_gap_s`` after the predicted arrival of the highway vehicle just ahead of its partner
+        (and no earlier than it can make it), its partner's ``open_time_gap_s`` later (RSU sensing: noisy)."""
+        p = self.gp
+        x = self._projected(s) + self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, len(s["front"]))
+        v = np.maximum(s["speed"] + self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"])), 0.0)
+        eta = t + np.maximum(self.merge_x - x, 0.0) / np.maximum(v, 1.0)  # [s] at today's speed
+        earliest = np.array([t + time_to_go(max(self.merge_x - xi, 0.0), float(vi), v_cross, p.plan_accel_mps2)
+                             for xi, vi in zip(x, v, strict=True)])
+        dist = np.maximum(self.merge_x - x, 0.0)
+        self._pair(t, s, eta, earliest, dist)
+        row = {vid: k for k, vid in enumerate(s["ids"])}
+        state = lambda j: (float(x[j]), float(v[j]), float(s["length"][j]))  # noqa: E731
+        out: dict[str, Slot] = {}
+        for r, c in self.pairs.items():
+            kr, kc = row[r], row[c]
+            # the slot holds once given (a ramp vehicle that follows its plan keeps its earliest arrival
+            # at the slot; re-planning from it each time let the slot, and the partner, drift later)
+            t_slot = self._t_slot.get(r, float(earliest[kr]))
+            running = (v[kr] >= p.min_run_speed_mps  # on its run to the junction: the pair is kept
+                       and dist[kr] <= v[kr] ** 2 / (2.0 * p.b_comfort_mps2) + p.commit_m)
+            if earliest[kr] > t_slot + p.ramp_time_gap_s and not running:  # it cannot make it: free again
+                self._dropped.add(r)
+                continue
+            j = self._lead_of(s, kc)
+            lead = None
+            if j is not None:
+                lead = state(j)
+                t_slot = max(t_slot, float(eta[j]) + p.ramp_time_gap_s)
+            h2 = self._follow_gap(float(v[kr]), float(dist[kr]))
+            if not running and not self._fits(s, kc, t, t_slot, eta, x, h2):
+                self._dropped.add(r)  # the follower would arrive too early (a partner: slow too much)
+                continue
+            self._t_slot[r] = t_slot
+            out[r] = Slot(t_slot, t_slot + h2, lead, state(kc), state(kr))
+        for r in self._dropped:
+            self.pairs.pop(r, None)
+            self._t_slot.pop(r, None)
+        self._dropped.clear()
+        self._t_slot = {r: v for r, v in self._t_slot.items() if r in self.pairs}
+        return out
+
+    def _pair(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
+        """Keep the pairs whose ramp vehicle has not crossed and whose partner has not reached the
+        junction; give every other connected ramp vehicle (in their order on the ramp) the first
+        connected highway vehicle that can arrive ``open_time_gap_s`` after it without slowing below
+        ``partner_min_speed_mps`` (the ramp vehicle arriving ``ramp_time_gap_s`` after the highway
+        vehicle ahead of that partner, and no earlier than it can)."""
+        ids, front = s["ids"], s["front"]
+        row = {vid: k for k, vid in enumerate(ids)}
+        self.pairs = {r: c for r, c in self.pairs.items() if r in row and c in row
+                      and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
+        taken = set(self.pairs.values())
+        ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]) if ids[k] not in self.pairs]
+        # followers: connected highway vehicles (partners, they open the gap) and, with a natural gap
+        # ahead of them, human ones
+        hw = np.flatnonzero(~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x - 10.0)
+                            & (front > self.merge_x - self.gp.pair_zone_m))
+        p = self.gp
+        t_prev = max([self._t_slot.get(r, -math.inf) for r in self.pairs], default=-math.inf)
+        for k in sorted(ramp, key=lambda j: dist[j]):  # in their order on the ramp
+            best = None
+            for j in sorted((j for j in hw if ids[j] not in taken), key=lambda i: eta[i]):
+                lead = self._lead_of(s, j)
+                t_ramp = max(earliest[k], t_prev + p.open_time_gap_s,
+                             eta[lead] + p.ramp_time_gap_s if lead is not None else -math.inf)
+                if self._fits(s, j, t, t_ramp, eta, front, self._follow_gap(float(s["speed"][k]), float(dist[k]))):
+                    best = (j, t_ramp)
+                    break
+            if best is None:
+                continue
+            j, t_ramp = best
+            self.pairs[ids[k]] = ids[j]
+            self._t_slot[ids[k]] = float(t_ramp)
+            taken.add(ids[j])
+            t_prev = t_ramp
+            self.events.emit(t, self.name, "gap_pair", f"{ids[j]} opens a gap for {ids[k]}", vehicle=ids[k])
+
+    def _follow_gap(self, v_mps: float, dist_m: float) -> float:
+        """[s] between the ramp vehicle's arrival and its follower's: ``restart_gap_s`` for one that
+        stands near the stop line (it starts from rest: the follower must be able to stop behind it)."""
+        p = self.gp
+        return p.restart_gap_s if v_mps < p.min_run_speed_mps and dist_m <= p.commit_m else p.open_time_gap_s
+
+    def _fits(self, s: dict[str, Any], j: int, t: float, t_ramp: float, eta: np.ndarray, x: np.ndarray,
+              h2: float) -> bool:
+        """Highway vehicle ``j`` can follow a ramp vehicle that reaches the junction at ``t_ramp`` [s]:
+        a connected one (a partner) without slowing below ``partner_min_speed_mps``, a human one at
+        today's speed with ``human_margin_s`` to spare."""
+        p = self.gp
+        if s["connected"][j]:
+            v_min = p.partner_min_speed_mps if h2 <= p.open_time_gap_s else p.restart_partner_speed_mps
+            return t + (self.merge_x - x[j]) / v_min >= t_ramp + h2
+        return bool(h2 <= p.open_time_gap_s and eta[j] >= t_ramp + h2 + p.human_margin_s)  # no restart behind a human
+
+    def _lead_of(self, s: dict[str, Any], j: int) -> int | None:
+        """The highway vehicle just ahead of vehicle ``j`` on the highway line (None: none)."""
+        line = np.flatnonzero(~s["on_ramp"] & ~s["ramp"] & (s["front"] > s["front"][j] + 0.1))
+        return int(line[np.argmin(s["front"][line])]) if len(line) else None
+
+    # ------------------------------------------------------------------ decide
+    def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
+        cmds = super()._decide(t, s)
+        ids, front = s["ids"], s["front"]
+        x = self._projected(s)
+        for k in np.flatnonzero(s["connected"] & s["ramp"]):
+            vid = ids[k]
+            if front[k] >= self.cross_x or not (s["on_ramp"][k] or vid in self.committed):
+                self.committed.discard(vid)
+                self._release(vid, cmds)  # joined the highway (or entered the junction on its own)
+                continue
+            msg = self.latest.get(vid)
+            if not isinstance(msg, MergePlan) or t - msg.t_sent_s > self.p.stale_after_s:
+                if vid in self.controlled:
+                    self.fallbacks += 1
+                self.committed.discard(vid)
+                self._release(vid, cmds)
+                continue
+            v_cmd, mode = self._ramp_command(t, msg, s, k, x)
+            cmds.append(SetSpeed(vid, v_cmd, mode))
+            self.controlled.add(vid)
+            self.commands_sent += 1
+        return cmds
+
+    def _ramp_command(self, t: float, msg: MergePlan, s: dict[str, Any], k: int, x: np.ndarray) -> tuple[float, int]:
+        """Speed and speed mode of a connected ramp vehicle: its arrival plan, the safety layer against
+        its virtual leader and its physical leader; a reserved crossing once the go / no-go holds."""
+        p, v, vid = self.gp, float(s["speed"][k]), s["ids"][k]
+        dist = max(self.merge_x - float(x[k]), 0.0)  # [m] to the junction along the ramp
+        slot = msg.slots.get(vid)
+        age = t - msg.t_sent_s
+        if vid in self.committed:  # crossing: on at the crossing speed (the safety layer still bounds it)
+            a = K_SPEED * (msg.cross_speed_mps - v)
+        elif slot is None:  # wait for a partner where the run-up to the crossing speed still fits
+            run_up = msg.cross_speed_mps ** 2 / (2.0 * p.plan_accel_mps2) + p.commit_m
+            room = max(dist - run_up, 0.0)
+            a = K_SPEED * (min(p.wait_speed_mps, math.sqrt(2.0 * p.b_comfort_mps2 * room)) - v)
+        else:
+            a = arrival_accel(dist, v, slot.t_ramp_s - t, msg.cross_speed_mps, p.plan_accel_mps2, p.b_comfort_mps2)
+        a = float(np.clip(a, -p.b_comfort_mps2, p.a_max_mps2))
+        lead_ok = True
+        if slot is not None and slot.lead is not None:
+            x_l, v_l, len_l = slot.lead
+            gap = x_l + v_l * age - len_l - float(x[k])
+            if gap > 0.0:  # projected ahead: keep a safe gap behind it (behind: the slot waits for it)
+                a = safe_accel(gap, v, v_l, a, self.safety)
+            lead_ok = gap > 0.0 and a > -p.b_comfort_mps2
+        gap, v_lead = self._ramp_leader(s, k)
+        if math.isfinite(gap):
+            a = safe_accel(gap, v, v_lead, a, self.safety)
+        v_next = max(0.0, v + a * self.period)
+        if vid not in self.committed and slot is not None and lead_ok and self._partner_ok(slot, age, x[k], v):
+            if dist <= v * v / (2.0 * p.b_comfort_mps2) + p.commit_m:
+                self.committed.add(vid)
+                self.reserved_crossings += 1
+                self.events.emit(t, self.name, "reserved_crossing", f"{vid}: crosses on its reservation", vehicle=vid)
+        if vid in self.committed and not lead_ok:  # the gap closed: back to the yield sign
+            self.committed.discard(vid)
+        return v_next, (p.reserved_speed_mode if vid in self.committed else self.p.command_speed_mode)
+
+    def _partner_ok(self, slot: Slot, age: float, x_r: float, v_r: float) -> bool:
+        """The partner can stay behind the ramp vehicle braking at most comfortably (RSU's measurement)."""
+        x_c, v_c, _ = slot.partner
+        gap = x_r - slot.ramp[2] - (x_c + v_c * age)
+        return gap > 0.0 and safe_accel(gap, v_c, v_r, 0.0, self.safety) > -self.gp.b_comfort_mps2
+
+    def _ramp_leader(self, s: dict[str, Any], k: int) -> tuple[float, float]:
+        """The physical leader on the ramp (gap [m], its speed [m/s]); (inf, 0) when none."""
+        on = np.flatnonzero(s["on_ramp"] & (s["front"] > s["front"][k] + 1e-6))
+        if not len(on):
+            return math.inf, 0.0
+        j = int(on[np.argmin(s["front"][on])])
+        gap = (s["front"][j] - s["front"][k]) / self.cos_ramp - s["length"][j]
+        return float(gap), float(s["speed"][j])
+
+    def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
+        """The wave-damping speed; for a partner capped to reach the junction no earlier than its slot
+        and bounded by the safety layer behind the projected ramp vehicle."""
+        v_cmd = super()._speed(t, msg, x, v, gap, v_lead, vid)
+        if not isinstance(msg, MergePlan) or vid not in msg.partners:
+            return v_cmd
+        slot = msg.slots[msg.partners[vid]]
+        age = t - msg.t_sent_s
+        v_floor = (self.gp.partner_min_speed_mps if slot.t_partner_s - slot.t_ramp_s <= self.gp.open_time_gap_s
+                   else self.gp.restart_partner_speed_mps)
+        v_cap = max((self.merge_x - x) / max(slot.t_partner_s - t, 1e-3),  # [m/s] arrive at (or after) the slot
+                    min(v_floor, v))
+        a = max((v_cap - v) / self.period, -self.gp.b_comfort_mps2)
+        x_r, v_r, len_r = slot.ramp
+        g = x_r + v_r * age - len_r - x
+        if g > 0 and v_r > self.gp.wait_speed_mps:  # a ramp vehicle on its run to the junction
+            a = safe_accel(g, v, v_r, a, self.safety)
+        return max(0.0, min(v_cmd, v + a * self.period))
+
+    def finish(self, ctx: RunContext) -> dict[str, Any]:
+        return {**super().finish(ctx), "v2x_reserved_crossings": self.reserved_crossings}
+
+
+__all__ = ["RSU", "GapMerging", "MergePlan", "Slot", "arrival_accel"]
