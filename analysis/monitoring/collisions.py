@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict
 from corridor.analysis.ccd import Poses, _prev_rows, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
 from corridor.engine import Component, Metric, Phase, RunContext
+from corridor.shards import Strips
 from corridor.snapshot import Kind, Role
 
 # plain ints: numpy compares an IntEnum member ~100x slower than an int (it probes the enum class)
@@ -58,6 +59,8 @@ class CollisionMonitor(Component):
         # role and kind arrays of the last tick with only backend-driven road rows (a road backend
         # publishes the same read-only arrays while its vehicles stay the same): no check needed
         self._plain: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        self._strips: Strips | None = None  # a sharded run's regions (corridor.shards)
+        self._how: dict[tuple[str, str], str] = {}  # a sharded run: how each pair was found
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -76,6 +79,8 @@ class CollisionMonitor(Component):
             self._plain = (s.role, s.kind)
             return  # only backend-driven road vehicles: their backend reports collisions
         special = np.flatnonzero(self._posed_rows(s) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
+        if ctx.shard is not None:  # a sharded run: the pairs with a special row in this rank's strip
+            special = self._own(ctx.shard, s, special)
         if not len(special):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
         cur = Poses.of(s)
@@ -109,13 +114,37 @@ class CollisionMonitor(Component):
             ctrl[lane_driven] = False
         return ctrl
 
+    def _own(self, comm: Any, s: Any, special: np.ndarray) -> np.ndarray:
+        """The special rows in this rank's strip (a pair is found by a rank that owns one of its rows;
+        ``finish`` takes the union over the ranks)."""
+        if self._strips is None:
+            self._strips = Strips(s.position[:, 0], comm.size)
+        return special[self._strips.within(s.position[special, 0], comm.rank)]
+
     def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:
         key = (a, b) if a < b else (b, a)
         if key not in self.pairs:
             self.pairs[key] = t
+            if ctx.shard is None:
+                ctx.events.emit(t, self.name, "collision", f"{key[0]} x {key[1]} [{how}]", a=key[0], b=key[1])
+            else:  # logged at the end, once the ranks agree on the first contact
+                self._how[key] = how
+
+    def _combine(self, ctx: RunContext) -> None:
+        """A sharded run: the union of the ranks' pairs, each at its first contact, logged by every rank
+        (the merged log keeps one)."""
+        first: dict[tuple[str, str], tuple[float, str]] = {}
+        for pairs, how in ctx.shard.allgather((self.pairs, self._how)):
+            for key, t in pairs.items():
+                if key not in first or t < first[key][0]:
+                    first[key] = (t, how[key])
+        self.pairs = {key: t for key, (t, _) in first.items()}
+        for key, (t, how) in sorted(first.items(), key=lambda kv: kv[1][0]):
             ctx.events.emit(t, self.name, "collision", f"{key[0]} x {key[1]} [{how}]", a=key[0], b=key[1])
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        if ctx.shard is not None:
+            self._combine(ctx)
         return {"collisions": len(self.pairs),
                 "first_collision_s": min(self.pairs.values()) if self.pairs else np.nan}
 
