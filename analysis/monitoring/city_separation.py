@@ -34,14 +34,17 @@ from corridor.snapshot import Kind
 
 @dataclass(frozen=True)
 class Region:
-    """A rank's part of the separation checks in a sharded run: the rows in its strip (``owned``; it
-    counts the LoS / NMAC entries of the pairs whose lower row it owns, and queries their nearest
-    neighbours) and the rows whose pairs it checks (``checked``: the strip widened by the halo, the
-    piloted aircraft). The halo is wider than any aircraft moves in a tick, so the pairs a rank takes
-    over from its neighbour were checked by it one tick before: it knows whether they were inside."""
+    """A rank's part of the separation checks in a sharded run (``corridor.shards``): the rows in its
+    strip (``owned``: it counts the LoS / NMAC entries of the pairs whose lower row it owns and
+    queries their nearest neighbours), the rows whose pairs it checks (``checked``: the strip widened
+    by the halo, and the piloted aircraft) and the rows of its k-d trees (``local``: the strip
+    widened by ``region_margin_m``). The halo is wider than any aircraft moves in a tick, so a pair a
+    rank takes over from its neighbour was checked by it one tick before: it knows whether the pair
+    was inside. The margin holds every partner within the candidate radius of a checked row."""
 
     owned: np.ndarray  # (N,) bool
     checked: np.ndarray  # (N,) bool
+    local: np.ndarray  # (L,) rows, ascending
 
 
 class CitySeparation(Component):
@@ -74,6 +77,7 @@ class CitySeparation(Component):
         los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
         backend: str | None = "air"
         halo_mps: float = Field(150.0, gt=0.0)  # [m/s] sharded runs: the halo is halo_mps * dt wide
+        region_margin_m: float = Field(500.0, gt=0.0)  # [m] sharded runs: a rank's trees reach this far out of its strip
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -98,62 +102,120 @@ class CitySeparation(Component):
         if self.prev is None or len(self.prev) != len(pos):
             self.prev, self.nn = pos.copy(), np.full(len(pos), np.inf)
         self.quad_s += float(np.count_nonzero(~piloted)) * ctx.dt
-        region = self._region(ctx, pos, piloted)
-        i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted, region)
-        self._nearest(pos, tree, reach, np.concatenate([i, j]), region)
-        if len(i) or region is not None:  # a rank with no pair of its own still forgets the pairs that left
-            self._check(ctx, i, j, d0, d1, piloted, len(pos), region)
+        if ctx.shard is not None:
+            self._tick_region(ctx, pos, piloted)
+        else:
+            i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
+            self._nearest(pos, tree, reach, np.concatenate([i, j]))
+            if len(i):
+                self._check(ctx, i, j, d0, d1, piloted, len(pos))
         self.prev = pos.copy()
 
-    def _region(self, ctx: RunContext, pos: np.ndarray, piloted: np.ndarray) -> Region | None:
-        """A sharded run (``corridor.shards``): this rank's rows (its strip of the city) and the rows
-        whose pairs it checks (the strip and a halo, see :class:`Region`); None in one process."""
-        comm = ctx.shard
-        if comm is None:
-            return None
+    # ---- a sharded run: this rank's region ---------------------------------------------------------------
+    def _region(self, comm: ShardComm, pos: np.ndarray, piloted: np.ndarray, teleport: np.ndarray,
+                reach_m: float) -> Region:
         if self.strips is None:
             self.strips = Strips(pos[:, 0], comm.size)
+        if self.params.region_margin_m < self.halo_m + reach_m:
+            raise ValueError(f"{self.name}: params.region_margin_m ({self.params.region_margin_m} m) must cover the halo "
+                             f"and the candidate radius ({self.halo_m + reach_m:.1f} m)")
+        x, always = pos[:, 0], piloted | teleport
+        return Region(owned=self.strips.within(x, comm.rank),
+                      checked=self.strips.within(x, comm.rank, self.halo_m) | always,
+                      local=np.flatnonzero(self.strips.within(x, comm.rank, self.params.region_margin_m) | always))
+
+    def _tick_region(self, ctx: RunContext, pos: np.ndarray, piloted: np.ndarray) -> None:
+        """The one-process tick's checks for the pairs whose lower row this rank checks, on k-d trees
+        of its local rows only; the same candidate radius (from every aircraft's move) as one process."""
+        p = self.params
         move = np.linalg.norm(pos - self.prev, axis=1)
         teleport = move > MAX_STEP_M
         step = float(move[~teleport].max(initial=0.0))
         if step > self.halo_m:
             raise ValueError(f"{self.name}: an aircraft moved {step:.1f} m in one tick, more than the shards' halo "
                              f"({self.halo_m:.1f} m = halo_mps * dt): raise params.halo_mps")
-        owned = self.strips.within(pos[:, 0], comm.rank)
-        checked = self.strips.within(pos[:, 0], comm.rank, self.halo_m) | piloted | teleport
-        return Region(owned=owned, checked=checked)
+        reach = float(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step)
+        reg = self._region(ctx.shard, pos, piloted, teleport, reach)
+        lp = pos[reg.local]
+        tree = cKDTree(lp)
+        ij = [tree.query_pairs(reach, output_type="ndarray")]
+        for k in np.flatnonzero(piloted[reg.local]):
+            js = np.asarray(tree.query_ball_point(lp[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
+                            dtype=np.int64)
+            js = js[js != k]
+            ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
+        pairs = reg.local[np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64), axis=0)]  # (i, j) order kept
+        pairs = pairs[reg.checked[pairs[:, 0]]]
+        i, j = pairs[:, 0], pairs[:, 1]
+        d1 = pos[i] - pos[j]
+        ok = ~(teleport[i] | teleport[j])
+        d0 = np.where(ok[:, None], self.prev[i] - self.prev[j], d1)
+        self._nearest_region(pos, reg, tree, reach, np.concatenate([i, j]))
+        self._check(ctx, i, j, d0, d1, piloted, len(pos), reg.owned)
 
-    def _candidates(self, prev: np.ndarray, pos: np.ndarray, piloted: np.ndarray, region: Region | None = None
+    def _nearest_region(self, pos: np.ndarray, reg: Region, tree: cKDTree, reach_m: float, paired: np.ndarray) -> None:
+        """``_nearest`` for this rank's rows, on its local trees. A local nearest neighbour within the
+        margin W is the true one (every other row is farther than W from an owned row); a farther one
+        can only matter while a minimum is above W, and then the whole fleet's tree answers. The
+        minima over the ranks are the one-process ones: every value a rank adds is a real distance
+        that the one-process run also takes, or one above the minimum it updates."""
+        w = self.params.region_margin_m
+        local_of = np.full(len(pos), -1)
+        local_of[reg.local] = np.arange(len(reg.local))
+        far = np.union1d(np.flatnonzero(self.nn > reach_m), paired)
+        far = far[reg.owned[far]]
+        if len(far):
+            d3 = tree.query(pos[far], k=2)[0][:, 1]
+            out = (d3 > w) & ((self.nn[far] > w) | (self.min_3d > w))
+            if out.any():
+                d3[out] = cKDTree(pos).query(pos[far[out]], k=2)[0][:, 1]
+            self.nn[far] = np.minimum(self.nn[far], d3)
+            self.min_3d = min(self.min_3d, float(d3.min()))
+        xy = pos[reg.local, :2]
+        tree_h = cKDTree(xy)
+        if np.isfinite(self.min_h) and self.min_h <= w:
+            rows = np.unique(tree_h.query_pairs(self.min_h, output_type="ndarray"))
+            rows = rows[reg.owned[reg.local[rows]]]
+        else:
+            rows = local_of[np.flatnonzero(reg.owned)]
+        if len(rows):
+            dh = tree_h.query(xy[rows], k=2)[0][:, 1]
+            out = dh > w
+            if out.any() and self.min_h > w:
+                dh[out] = cKDTree(pos[:, :2]).query(xy[rows[out]], k=2)[0][:, 1]
+            self.min_h = min(self.min_h, float(dh.min()))
+
+    def _combine(self, comm: ShardComm) -> None:
+        """Every rank's counts and minima (collectives: the one-process run's values on every rank)."""
+        self.los, self.nmac = round(comm.sum(self.los)), round(comm.sum(self.nmac))
+        self.min_h, self.min_3d = (float(v) for v in comm.min_array(np.array([self.min_h, self.min_3d])))
+        if self.nn is not None:
+            self.nn = comm.min_array(self.nn)
+
+    def _candidates(self, prev: np.ndarray, pos: np.ndarray, piloted: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, cKDTree, float]:
         """Candidate pairs (i, j, relative position at the last and this tick), the k-d tree of ``pos``
-        and the radius [m] within which every pair is a candidate; with a region, the pairs whose
-        lower row it checks."""
+        and the radius [m] within which every pair is a candidate."""
         p = self.params
         move = np.linalg.norm(pos - prev, axis=1)
         teleport = move > MAX_STEP_M
         step = float(move[~teleport].max(initial=0.0))
         tree = cKDTree(pos)
         reach = float(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step)
-        if region is None:
-            ij = [tree.query_pairs(reach, output_type="ndarray")]
-        else:
-            ij = [_lower_pairs(tree, pos, np.flatnonzero(region.checked), reach)]
+        ij = [tree.query_pairs(reach, output_type="ndarray")]
         for k in np.flatnonzero(piloted):
             js = np.asarray(tree.query_ball_point(pos[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
                             dtype=np.int64)
             js = js[js != k]
             ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
         pairs = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64), axis=0)
-        if region is not None:
-            pairs = pairs[region.checked[pairs[:, 0]]]
         i, j = pairs[:, 0], pairs[:, 1]
         d1 = pos[i] - pos[j]
         ok = ~(teleport[i] | teleport[j])
         d0 = np.where(ok[:, None], prev[i] - prev[j], d1)
         return i, j, d0, d1, tree, reach
 
-    def _nearest(self, pos: np.ndarray, tree: cKDTree, reach_m: float, paired: np.ndarray,
-                 region: Region | None = None) -> None:
+    def _nearest(self, pos: np.ndarray, tree: cKDTree, reach_m: float, paired: np.ndarray) -> None:
         """Per-aircraft and global minima at the tick (nearest neighbours, horizontal and 3-D).
 
         Only what can lower a minimum is queried; the result equals a nearest-neighbour query of
@@ -161,32 +223,24 @@ class CitySeparation(Component):
         the candidate pairs), so an aircraft in none has its nearest neighbour beyond ``reach_m``,
         which lowers its ``nn`` only if ``nn > reach_m``: the aircraft in a candidate pair and those
         are queried (and ``min_3d <= min(nn)``). Horizontal: only a pair closer than ``min_h`` can
-        lower it, so once it is finite only the aircraft of such pairs are queried. With a region,
-        only its own rows are queried (each row by its owner: the minima over the ranks are the
-        one-process ones; a rank's own minima are never below them, so it queries at least the rows
-        the one-process run does)."""
+        lower it, so once it is finite only the aircraft of such pairs are queried."""
         far = np.union1d(np.flatnonzero(self.nn > reach_m), paired)
-        if region is not None:
-            far = far[region.owned[far]]
         if len(far):
             d3, _ = tree.query(pos[far], k=2)
             self.nn[far] = np.minimum(self.nn[far], d3[:, 1])
             self.min_3d = min(self.min_3d, float(d3[:, 1].min()))
         xy = pos[:, :2]
         tree_h = cKDTree(xy)
-        if region is None:
-            rows = (np.unique(tree_h.query_pairs(self.min_h, output_type="ndarray"))
-                    if np.isfinite(self.min_h) else np.arange(len(xy)))
-        else:
-            rows = np.flatnonzero(region.owned)
-            if np.isfinite(self.min_h) and len(rows):
-                rows = rows[tree_h.query_ball_point(xy[rows], self.min_h, return_length=True) > 1]
+        rows = (np.unique(tree_h.query_pairs(self.min_h, output_type="ndarray"))
+                if np.isfinite(self.min_h) else np.arange(len(xy)))
         if len(rows):
             dh, _ = tree_h.query(xy[rows], k=2)
             self.min_h = min(self.min_h, float(dh[:, 1].min()))
 
     def _check(self, ctx: RunContext, i: np.ndarray, j: np.ndarray, d0: np.ndarray, d1: np.ndarray,
-               piloted: np.ndarray, n: int, region: Region | None = None) -> None:
+               piloted: np.ndarray, n: int, owned: np.ndarray | None = None) -> None:
+        """The pairs' minima and LoS / NMAC entries; ``owned`` (a sharded run): count and log only the
+        entries of pairs whose lower row is in it (the others are another rank's)."""
         p = self.params
         _, dh_min = closest_approach(d0[:, :2], d1[:, :2])
         _, d3_min = closest_approach(d0, d1)
@@ -200,21 +254,14 @@ class CitySeparation(Component):
         nmac = _passes(d0, d1, p.nmac_h_m, p.nmac_v_m)
         self.in_los, new_los = _entries(key, los, self.in_los)
         self.in_nmac, new_nmac = _entries(key, nmac, self.in_nmac)
-        if region is not None:  # a pair is counted by the owner of its lower row; the halo kept its past
-            new_los, new_nmac = new_los[region.owned[new_los // n]], new_nmac[region.owned[new_nmac // n]]
+        if owned is not None:
+            new_los, new_nmac = new_los[owned[new_los // n]], new_nmac[owned[new_nmac // n]]
         self.los += len(new_los)
         self.nmac += len(new_nmac)
         for kind, new in (("los", new_los), ("nmac", new_nmac)):
             for k in new.tolist():
                 a, b = str(self.ids[k // n]), str(self.ids[k % n])
                 ctx.events.emit(ctx.t, self.name, kind, f"{a} - {b}: {kind}", pair=(a, b))
-
-    def _combine(self, comm: ShardComm) -> None:
-        """Every rank's counts and minima (collectives: the one-process run's values on every rank)."""
-        self.los, self.nmac = round(comm.sum(self.los)), round(comm.sum(self.nmac))
-        self.min_h, self.min_3d = (float(v) for v in comm.min_array(np.array([self.min_h, self.min_3d])))
-        if self.nn is not None:
-            self.nn = comm.min_array(self.nn)
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         if ctx.shard is not None:
@@ -233,17 +280,6 @@ class CitySeparation(Component):
             out.update({"missions_done": len(d), "mission_delay_mean_s": float(d.mean()) if len(d) else float("nan"),
                         "mission_delay_p95_s": float(np.quantile(d, 0.95)) if len(d) else float("nan")})
         return out
-
-
-def _lower_pairs(tree: cKDTree, pos: np.ndarray, rows: np.ndarray, r: float) -> np.ndarray:
-    """Every pair (i, j), i < j, within ``r`` [m] whose lower row i is in ``rows``, as ``query_pairs``
-    restricted to them gives it."""
-    if len(rows) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    m = cKDTree(pos[rows]).sparse_distance_matrix(tree, r, output_type="ndarray")
-    i, j = rows[m["i"]], m["j"].astype(np.int64)
-    keep = i < j
-    return np.column_stack([i[keep], j[keep]])
 
 
 def _passes(d0: np.ndarray, d1: np.ndarray, r_h: np.ndarray | float, r_v: np.ndarray | float) -> np.ndarray:

@@ -7,7 +7,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.analysis.ccd import Poses, _prev_rows, swept_overlaps
+from corridor.analysis.ccd import MAX_STEP_M, Poses, _prev_rows, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
 from corridor.engine import Component, Metric, Phase, RunContext
 from corridor.shards import Strips
@@ -79,26 +79,52 @@ class CollisionMonitor(Component):
             self._plain = (s.role, s.kind)
             return  # only backend-driven road vehicles: their backend reports collisions
         special = np.flatnonzero(self._posed_rows(s) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
-        if ctx.shard is not None:  # a sharded run: the pairs with a special row in this rank's strip
-            special = self._own(ctx.shard, s, special)
         if not len(special):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
         cur = Poses.of(s)
         if not _may_touch(prev, cur, special):  # no box of a special row can reach another's: nothing to find
             self._prev = cur
             return
-        pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
-                                  s.position[:, 2], s.size[:, 2], involving=special)
+        if ctx.shard is None:
+            self._boxes(ctx, prev, cur, special)
+        else:  # a sharded run: the pairs with a special row in this rank's strip, on its rows near the strip
+            self._boxes(ctx, *self._local(ctx.shard, prev, cur, special))
+        self._prev = cur
+
+    def _boxes(self, ctx: RunContext, prev: Poses | None, cur: Poses, special: np.ndarray) -> None:
+        """The box checks of the pairs of ``cur`` with a row of ``special``: overlap now, or met since ``prev``."""
+        ids = cur.ids
+        pairs = obb_overlap_pairs(cur.position[:, :2], cur.heading, cur.size[:, 0], cur.size[:, 1],
+                                  cur.position[:, 2], cur.size[:, 2], involving=special)
         now: set[tuple[int, int]] = set()
         for i, j in pairs.tolist():  # every pair has a special row
             now.add((i, j))
-            self._add(ctx, ctx.t, str(s.ids[i]), str(s.ids[j]), "box overlap")
+            self._add(ctx, ctx.t, str(ids[i]), str(ids[j]), "box overlap")
         if prev is not None and ctx.t > prev.t:
             for i, j, frac in zip(*swept_overlaps(prev, cur, special), strict=True):
                 if (int(i), int(j)) not in now:
                     t_hit = prev.t + float(frac) * (ctx.t - prev.t)
-                    self._add(ctx, t_hit, str(s.ids[i]), str(s.ids[j]), "box overlap between ticks")
-        self._prev = cur
+                    self._add(ctx, t_hit, str(ids[i]), str(ids[j]), "box overlap between ticks")
+
+    def _local(self, comm: Any, prev: Poses | None, cur: Poses, special: np.ndarray
+               ) -> tuple[Poses | None, Poses, np.ndarray]:
+        """This rank's part: the special rows in its strip, and the rows within reach of the strip
+        (the largest two box radii plus twice the largest move since ``prev``: every partner of a
+        pair with a row in the strip). Returns (prev, cur, special) restricted to those rows
+        (``prev`` as is when its rows differ from ``cur``'s: matched by id)."""
+        x = cur.position[:, 0]
+        if self._strips is None:
+            self._strips = Strips(x, comm.size)
+        same = prev is not None and len(prev.ids) == len(cur.ids) and bool(np.all(prev.ids == cur.ids))
+        move = np.linalg.norm(cur.position - prev.position, axis=1) if same and prev is not None else np.zeros(len(x))
+        step = float(move[move <= MAX_STEP_M].max(initial=0.0)) if same else MAX_STEP_M
+        reach = float(np.linalg.norm(cur.size, axis=1).max()) + 2.0 * step + 1.0  # [m]
+        rows = np.flatnonzero(self._strips.within(x, comm.rank, reach))
+        owned = np.zeros(len(x), dtype=bool)
+        owned[special] = True
+        owned &= self._strips.within(x, comm.rank)
+        sub = _rows(cur, rows)
+        return (_rows(prev, rows) if same and prev is not None else prev), sub, np.flatnonzero(owned[rows])
 
     @staticmethod
     def _posed_rows(s: Any) -> np.ndarray:
@@ -150,6 +176,10 @@ class CollisionMonitor(Component):
 
 
 _DENSE_PRECHECK_MAX = 20_000  # row pairs: above it _may_touch defers to the exact checks
+
+
+def _rows(p: Poses, rows: np.ndarray) -> Poses:
+    return Poses(p.t, p.ids[rows], p.position[rows], p.heading[rows], p.size[rows])
 
 
 def _may_touch(prev: Poses | None, cur: Poses, rows: np.ndarray) -> bool:

@@ -5,8 +5,8 @@ fidelity decisions, the commands), so every rank makes the same calls on its 6-D
 :class:`PeerJSBSimFleet` takes them all and flies only its rank's aircraft, in a local
 :class:`~corridor.vehicles.air.jsbsim_switch.SwitchableJSBSimFleet`: a quadcopter of pool group g
 flies on rank ``g % size`` (a group's FDM pool lives on one rank, so the FDMs an aircraft gets, and
-its trajectory, are those of the one-process fleet: see ``jsbsim_switch``), a piloted aircraft on
-rank 0. After each step the ranks exchange their aircraft's states: one float array per rank (10
+its trajectory, are those of the one-process fleet: see ``jsbsim_switch``), the k-th aircraft added
+with ``add`` (the piloted ones) on rank ``k % size``. After each step the ranks exchange their aircraft's states: one float array per rank (10
 values per aircraft, in the rank's fleet order, which is the one-process order restricted to the
 rank's aircraft), so every rank then holds the whole fleet's state in the one-process fleet's order.
 A state read after a change and before the next step (the backend's fidelity check at the first
@@ -49,10 +49,13 @@ class PeerJSBSimFleet:
                                  roll=np.zeros(0), pitch=np.zeros(0), airspeed=np.zeros(0))
         self._finite = True
         self._changed = True
+        self._added = 0  # aircraft added with ``add`` so far
+        self._rows_of: list[np.ndarray] = []  # per rank: its aircraft's rows in the fleet order (cached)
 
     # ---- calls every rank makes; the owner acts -------------------------------------------------------
     def add(self, id: str, model: str, *args: Any) -> None:
-        self._track(id, model, 0)
+        self._track(id, model, self._added % self.comm.size)
+        self._added += 1
         if self._mine(id):
             self.local.add(id, model, *args)
 
@@ -76,14 +79,14 @@ class PeerJSBSimFleet:
             self.local.remove(id)
         self._order.remove(id)
         del self._owner[id], self._model[id]
-        self._changed = True
+        self._changed, self._rows_of = True, []
 
     def _track(self, id: str, model: str, rank: int) -> None:
         if id in self._owner:
             raise ValueError(f"duplicate aircraft id {id!r}")
         self._order.append(id)
         self._owner[id], self._model[id] = rank, model
-        self._changed = True
+        self._changed, self._rows_of = True, []
 
     def _mine(self, id: str) -> bool:
         try:
@@ -123,16 +126,17 @@ class PeerJSBSimFleet:
     def _exchange(self) -> None:
         mine = _pack(self.local.state()) if self.local.ids else np.zeros((0, _COLS))
         parts = self.comm.allgather((mine, self.local.all_finite()))
+        if not self._rows_of:  # the fleet changed: rebuild the per-rank rows and the fixed columns
+            owner = np.array([self._owner[i] for i in self._order], dtype=int)
+            self._rows_of = [np.flatnonzero(owner == r) for r in range(self.comm.size)]
+            self._ids = np.array(self._order, dtype=object)
+            self._models = np.array([self._model[i] for i in self._order], dtype=object)
         rows = np.zeros((len(self._order), _COLS))
-        owner = np.array([self._owner[i] for i in self._order], dtype=int)
         for r, (a, _) in enumerate(parts):
-            at = owner == r
-            if int(at.sum()) != len(a):
-                raise RuntimeError(f"shard {r} flies {len(a)} aircraft, the fleet's bookkeeping says {int(at.sum())}")
-            rows[at] = a
+            if len(self._rows_of[r]) != len(a):
+                raise RuntimeError(f"shard {r} flies {len(a)} aircraft, the fleet's bookkeeping says {len(self._rows_of[r])}")
+            rows[self._rows_of[r]] = a
         self._finite = all(f for _, f in parts)
-        self._state = FleetState(ids=np.array(self._order, dtype=object),
-                                 model=np.array([self._model[i] for i in self._order], dtype=object),
-                                 position=rows[:, 0:3], velocity=rows[:, 3:6], yaw=rows[:, 6], roll=rows[:, 7],
-                                 pitch=rows[:, 8], airspeed=rows[:, 9])
+        self._state = FleetState(ids=self._ids, model=self._models, position=rows[:, 0:3], velocity=rows[:, 3:6],
+                                 yaw=rows[:, 6], roll=rows[:, 7], pitch=rows[:, 8], airspeed=rows[:, 9])
         self._changed = False
