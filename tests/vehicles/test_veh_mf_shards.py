@@ -159,3 +159,42 @@ def test_the_halo_sees_a_pair_converging_across_the_strip_edge() -> None:
         for k in ("los", "nmac", "sep_min_h_m", "sep_min_3d_m", "sep_nn_median_m", "sep_nn_p05_m"):
             assert m[k] == one[0][k], k
     assert sorted(msgs2[0] + msgs2[1]) == sorted(msgs1[0])
+
+
+def test_a_collision_across_the_strip_edge_is_counted_once() -> None:
+    """The collision monitor in two ranks (each checks the pairs with a row in its strip, on its rows
+    within box reach of it): a head-on collision across x = 0, found by both ranks, is one collision
+    at the one-process contact time, logged once."""
+    from corridor.analysis.monitoring.collisions import CollisionMonitor
+
+    pair = np.array([[-8.0, 0.0, 60.0], [8.0, 0.1, 60.0]])
+    start = np.vstack([pair, _bystanders([-900.0, -300.0, 300.0, 900.0])])
+    vel = np.zeros_like(start)
+    vel[0, 0], vel[1, 0] = 7.0, -7.0  # [m/s]: they meet at t = 1.14 s, between ticks
+    tracks = _tracks(start, vel, 20)
+    import multiprocessing as mp
+
+    a, b = mp.Pipe()
+    runs: list[tuple[CollisionMonitor, RunContext]] = []
+    for shard in (None, ShardComm(0, 2, {1: a}), ShardComm(1, 2, {0: b})):
+        ctx = RunContext(run_seed=0, dt=DT, duration=2.0)
+        ctx.shard = shard
+        runs.append((CollisionMonitor("collisions", CollisionMonitor.Params(), None), ctx))
+    for s in _snapshots(tracks):
+        for mon, ctx in runs:
+            ctx.snapshot, ctx.t = s, s.t
+            mon.tick(ctx)
+    out: list[dict[str, Any]] = [{} for _ in runs]
+
+    def finish(k: int) -> None:
+        out[k] = runs[k][0].finish(runs[k][1])
+
+    threads = [threading.Thread(target=finish, args=(k,)) for k in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=30)
+    assert out[0]["collisions"] == 1 and 1.0 < out[0]["first_collision_s"] < 1.2
+    assert out[1] == out[0] and out[2] == out[0]
+    logs = [[(e.t, e.message) for e in ctx.events.events] for _, ctx in runs]
+    assert logs[1] == logs[0] and logs[2] == logs[0]  # every rank logs the union; the merged log keeps one
