@@ -90,7 +90,7 @@ class CitySeparation(Component):
         self.nn: np.ndarray | None = None
         self.quad_s = 0.0  # [s] quadcopter flight time
         self.strips: Strips | None = None  # a sharded run's regions (corridor.shards)
-        self.halo_m = params.halo_mps * scenario.dt  # [m]
+        self.halo_m = 0.0  # [m] a sharded run's halo: halo_mps * dt
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -128,6 +128,7 @@ class CitySeparation(Component):
         """The one-process tick's checks for the pairs whose lower row this rank checks, on k-d trees
         of its local rows only; the same candidate radius (from every aircraft's move) as one process."""
         p = self.params
+        self.halo_m = p.halo_mps * ctx.dt
         move = np.linalg.norm(pos - self.prev, axis=1)
         teleport = move > MAX_STEP_M
         step = float(move[~teleport].max(initial=0.0))
