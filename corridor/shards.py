@@ -68,7 +68,8 @@ class ShardComm:
 
     def min_array(self, a: np.ndarray) -> np.ndarray:
         """The elementwise minimum over the ranks."""
-        return np.minimum.reduce(self.allgather(np.asarray(a)))
+        out: np.ndarray = np.minimum.reduce(self.allgather(np.asarray(a)))
+        return out
 
     def cpu_gather(self) -> float:
         """[s] the CPU time of every rank's process (kept in ``peer_cpu_s``); returns their sum."""
