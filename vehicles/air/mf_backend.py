@@ -22,6 +22,11 @@ are in a :class:`SwitchableJSBSimFleet`. Each tick (the scenario's ``dt``):
 
 Commands reach the point-mass row always (its targets stay current) and the JSBSim aircraft while it
 flies 6-DOF. :class:`FleetVelocityCommand` commands many aircraft in one bus item.
+
+``shards: K`` splits the run over K processes (``corridor.shards``): every rank steps the point
+masses, the fidelity check and the missions of the whole fleet (the same on every rank), and flies
+the JSBSim aircraft of its pool groups (:class:`~corridor.vehicles.air.jsbsim_shards.PeerJSBSimFleet`);
+``cpu_per_sim_s`` sums the ranks' CPU.
 """
 
 from __future__ import annotations
