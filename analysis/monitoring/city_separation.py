@@ -145,7 +145,9 @@ class CitySeparation(Component):
                             dtype=np.int64)
             js = js[js != k]
             ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
-        pairs = reg.local[np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64), axis=0)]  # (i, j) order kept
+        m = len(reg.local)
+        key = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64) @ np.array([m, 1], dtype=np.int64))
+        pairs = reg.local[np.column_stack([key // m, key % m])]  # sorted (i, j), as np.unique(axis=0) gives them
         pairs = pairs[reg.checked[pairs[:, 0]]]
         i, j = pairs[:, 0], pairs[:, 1]
         d1 = pos[i] - pos[j]
@@ -163,8 +165,9 @@ class CitySeparation(Component):
         w = self.params.region_margin_m
         local_of = np.full(len(pos), -1)
         local_of[reg.local] = np.arange(len(reg.local))
-        far = np.union1d(np.flatnonzero(self.nn > reach_m), paired)
-        far = far[reg.owned[far]]
+        far_mask = self.nn > reach_m  # the one-process union1d(nn > reach, paired), as a mask
+        far_mask[paired] = True
+        far = np.flatnonzero(far_mask & reg.owned)
         if len(far):
             d3 = tree.query(pos[far], k=2)[0][:, 1]
             out = (d3 > w) & ((self.nn[far] > w) | (self.min_3d > w))
