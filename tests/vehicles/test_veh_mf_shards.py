@@ -44,12 +44,18 @@ def _same(a: Any, b: Any) -> bool:
 
 
 def test_two_shards_give_the_one_shard_rows() -> None:
-    rows, logs = {}, {}
+    rows, logs, ctxs = {}, {}, {}
     for k in (1, 2):
         sc, _ = load(CITY, [*SMALL, f"backends.air.params.shards={k}"])
-        rows[k], ctx, _ = simulate(sc, 0)
-        logs[k] = sorted((e.t, e.source, e.kind, e.message) for e in ctx.events.events)
+        rows[k], ctxs[k], _ = simulate(sc, 0)
+        logs[k] = sorted((e.t, e.source, e.kind, e.message) for e in ctxs[k].events.events)
     one, two = rows[1], rows[2]
+    # hand-overs: aircraft that changed strips end where they end in one process (bit for bit)
+    edge = float(ctxs[2].components["separation"].strips.edges[0])
+    start_x = np.array([a.start_enu[0] for a in ctxs[2].components["air"].aircraft])
+    end = ctxs[2].snapshot.position
+    assert np.count_nonzero((start_x < edge) != (end[:, 0] < edge)) >= 5
+    assert np.array_equal(end, ctxs[1].snapshot.position)
     assert one["promotions"] >= 20 and one["demotions"] >= 1  # the 6-DOF fleets change during the run
     assert one["los"] >= 10 and one["nmac"] >= 1  # pairs to split between the ranks
     differ = {k: (one[k], two[k]) for k in sorted(set(one) - MACHINE) if not _same(one[k], two[k])}
