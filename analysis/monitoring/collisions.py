@@ -61,6 +61,7 @@ class CollisionMonitor(Component):
         self._plain: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
         self._strips: Strips | None = None  # a sharded run's regions (corridor.shards)
         self._how: dict[tuple[str, str], str] = {}  # a sharded run: how each pair was found
+        self._prev_ids: np.ndarray | None = None  # a sharded run: the previous snapshot's ids array
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -83,13 +84,13 @@ class CollisionMonitor(Component):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
         cur = Poses.of(s)
         if not _may_touch(prev, cur, special):  # no box of a special row can reach another's: nothing to find
-            self._prev = cur
+            self._prev, self._prev_ids = cur, s.ids
             return
         if ctx.shard is None:
             self._boxes(ctx, prev, cur, special)
         else:  # a sharded run: the pairs with a special row in this rank's strip, on its rows near the strip
-            self._boxes(ctx, *self._local(ctx.shard, prev, cur, special))
-        self._prev = cur
+            self._boxes(ctx, *self._local(ctx.shard, prev, cur, special, s.ids is self._prev_ids))
+        self._prev, self._prev_ids = cur, s.ids
 
     def _boxes(self, ctx: RunContext, prev: Poses | None, cur: Poses, special: np.ndarray) -> None:
         """The box checks of the pairs of ``cur`` with a row of ``special``: overlap now, or met since ``prev``."""
@@ -106,16 +107,17 @@ class CollisionMonitor(Component):
                     t_hit = prev.t + float(frac) * (ctx.t - prev.t)
                     self._add(ctx, t_hit, str(ids[i]), str(ids[j]), "box overlap between ticks")
 
-    def _local(self, comm: Any, prev: Poses | None, cur: Poses, special: np.ndarray
+    def _local(self, comm: Any, prev: Poses | None, cur: Poses, special: np.ndarray, same_ids: bool = False
                ) -> tuple[Poses | None, Poses, np.ndarray]:
         """This rank's part: the special rows in its strip, and the rows within reach of the strip
         (the largest two box radii plus twice the largest move since ``prev``: every partner of a
         pair with a row in the strip). Returns (prev, cur, special) restricted to those rows
-        (``prev`` as is when its rows differ from ``cur``'s: matched by id)."""
+        (``prev`` as is when its rows differ from ``cur``'s: matched by id). ``same_ids``: the snapshot's
+        ids are the previous tick's array (published arrays are never written again), so the rows match."""
         x = cur.position[:, 0]
         if self._strips is None:
             self._strips = Strips(x, comm.size)
-        same = prev is not None and len(prev.ids) == len(cur.ids) and bool(np.all(prev.ids == cur.ids))
+        same = prev is not None and (same_ids or (len(prev.ids) == len(cur.ids) and bool(np.all(prev.ids == cur.ids))))
         move = np.linalg.norm(cur.position - prev.position, axis=1) if same and prev is not None else np.zeros(len(x))
         step = float(move[move <= MAX_STEP_M].max(initial=0.0)) if same else MAX_STEP_M
         reach = float(np.linalg.norm(cur.size, axis=1).max()) + 2.0 * step + 1.0  # [m]
@@ -124,7 +126,9 @@ class CollisionMonitor(Component):
         owned[special] = True
         owned &= self._strips.within(x, comm.rank)
         sub = _rows(cur, rows)
-        return (_rows(prev, rows) if same and prev is not None else prev), sub, np.flatnonzero(owned[rows])
+        if same and prev is not None:  # the same ids row by row: one array for both
+            prev = Poses(prev.t, sub.ids, prev.position[rows], prev.heading[rows], prev.size[rows])
+        return prev, sub, np.flatnonzero(owned[rows])
 
     @staticmethod
     def _posed_rows(s: Any) -> np.ndarray:
