@@ -51,16 +51,28 @@ class ShardComm:
         out: list[Any] = [None] * self.size
         out[self.rank] = obj
         for peer in sorted(self.conns):
-            conn = self.conns[peer]
             if self.rank < peer:
-                conn.send(obj)
-                out[peer] = _checked(conn.recv(), peer)
+                self._send(peer, obj)
+                out[peer] = self._recv(peer)
             else:
-                out[peer] = _checked(conn.recv(), peer)
-                conn.send(obj)
+                out[peer] = self._recv(peer)
+                self._send(peer, obj)
         self.rounds += 1
         self.wait_s += time.perf_counter() - t0
         return out
+
+    def _send(self, peer: int, obj: Any) -> None:
+        try:
+            self.conns[peer].send(obj)
+        except OSError:  # the peer is gone: its last word (a failure) may still be in the pipe
+            self._recv(peer)
+            raise RuntimeError(f"shard {peer} ended during a collective") from None
+
+    def _recv(self, peer: int) -> Any:
+        try:
+            return _checked(self.conns[peer].recv(), peer)
+        except (EOFError, OSError):
+            raise RuntimeError(f"shard {peer} ended during a collective") from None
 
     def sum(self, value: float) -> float:
         """The sum over the ranks (in rank order: the same float on every rank)."""
