@@ -24,11 +24,12 @@ and a two-sample KS statistic with a paired permutation p-value. Also printed: t
     python benchmarks/uav_city.py --bias --seeds 50 --duration 30 \
         --variant default: --variant converging:backends.air.params.fidelity.promote_on=converging
 
-Shards (``--shards 1 2``): the same run with the 6-DOF aircraft in 1, 2, ... shard processes
-(``backends.air.params.shards``), ``--repeat`` times each, interleaved; printed per run: wall time
-of the run loop (from the backend's first tick; the machine is shared: the load average is printed
-beside it), the speed-up against the one-shard run of the same round, the CPU of all processes per
-simulated second, and whether the rows equal the one-shard run's.
+Shards (``--shards 1 2``): the same run split over 1, 2, ... processes (``backends.air.params.shards``,
+``corridor.shards``), ``--repeat`` times each, interleaved; printed per run: wall time of the run
+loop (from the backend's first tick; the machine is shared: the load average is printed beside it),
+the speed-up against the one-shard run of the same round, the CPU per simulated second of all
+ranks and of each, the speed-up the CPU split allows and the replicated (serial) share (both from
+CPU times: fair under load), and whether the rows equal the one-shard run's.
 
     python benchmarks/uav_city.py --shards 1 2 --n 2000 --duration 30 --repeat 2
 """
@@ -76,24 +77,22 @@ def one_run_switch_cost(sets: list[str], seed: int) -> dict[str, Any]:
 
 
 def one_run_exchange(sets: list[str], seed: int) -> dict[str, Any]:
-    """``one_run`` plus, for a sharded run, where its CPU went: ``main_cpu_per_sim_s`` (the run's own
-    process: point masses, fidelity check, link, controllers, monitors, the exchange's sending side),
-    ``shard_cpu_per_sim_s`` (all shard processes), and per tick the exchange's round trips, their wall
-    time and what of it the slowest shard's work does not explain (``exchange_ms_per_round``)."""
+    """``one_run`` plus, for a sharded run, where its CPU went: ``rank_cpu_per_sim_s`` (each rank's
+    process from the first tick: rank 0 is the run's own process), and per tick the collectives
+    (``rounds_per_tick``) and rank 0's wall time inside them (``wait_ms_per_tick``: the exchange plus
+    waiting for the slower rank)."""
     from corridor.run import simulate
     from corridor.scenario import load
 
     sc, _ = load(CITY, sets)
     m, ctx, _ = simulate(sc, seed)
     air, sim_s = ctx.components["air"], sc.duration
-    js = air.js
-    if not hasattr(js, "rounds"):
-        return {**m, "main_cpu_per_sim_s": m["cpu_per_sim_s"], "shard_cpu_per_sim_s": 0.0}
-    shard = (js.shard_cpu_s() - air.shard_cpu_t0_s) / sim_s
+    comm = ctx.shard
+    if comm is None:
+        return {**m, "rank_cpu_per_sim_s": [m["cpu_per_sim_s"]]}
     ticks = round(sim_s / sc.dt)
-    return {**m, "main_cpu_per_sim_s": m["cpu_per_sim_s"] - shard, "shard_cpu_per_sim_s": shard,
-            "rounds_per_tick": js.rounds / ticks, "round_ms_per_tick": 1e3 * js.round_wall_s / ticks,
-            "exchange_ms_per_round": 1e3 * (js.round_wall_s - js.slowest_work_s) / max(js.rounds, 1)}
+    return {**m, "rank_cpu_per_sim_s": [c / sim_s for c in air.rank_cpu_s], "rounds_per_tick": comm.rounds / ticks,
+            "wait_ms_per_tick": 1e3 * comm.wait_s / ticks}
 
 
 def timed_run(sets: list[str], seed: int, duration_s: float, fn: Any = one_run) -> dict[str, Any]:
@@ -119,11 +118,17 @@ def cost_curve(ns: list[int], duration_s: float, seed: int, extra: list[str]) ->
 
 
 def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str]) -> None:
-    machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s", "main_cpu_per_sim_s", "shard_cpu_per_sim_s",
-               "rounds_per_tick", "round_ms_per_tick", "exchange_ms_per_round"}
+    """Per run: the wall of the run loop and its speed-up against the round's one-shard run (fair on
+    an idle machine only), the CPU per simulated s of all ranks and of each, the speed-up the CPU
+    allows (one-shard CPU / the busiest rank's CPU: the wall speed-up with a free core per rank and
+    no waiting), the replicated share (what every rank computes: (sum of the ranks' CPU - one-shard
+    CPU) / (K - 1), over the one-shard CPU; Amdahl's serial part), whether the rows equal the
+    one-shard run's, the load, and the collectives per tick."""
+    machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s", "rank_cpu_per_sim_s", "rounds_per_tick",
+               "wait_ms_per_tick"}
     print(f"N={n}, {duration_s:.0f} s, potential field; wall of the run loop (rtf: simulated s per wall s)")
-    print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'main':>7} "
-          f"{'shards':>7} {'6-DOF share':>12} {'rows = 1 shard':>15} {'load avg (1 min)':>17}  exchange")
+    print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'per rank':>16} "
+          f"{'CPU bound':>10} {'replicated':>11} {'6-DOF share':>12} {'rows = 1 shard':>15} {'load (1 min)':>13}  exchange")
     for r in range(repeat):
         ref: dict[str, Any] | None = None
         for k in shards:
@@ -133,11 +138,14 @@ def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repea
             wall = duration_s / m["rtf"]
             ref = ref or {**m, "wall": wall}
             same = all(_same(m[c], ref[c]) for c in m if c not in machine)
-            ex = (f"{m['rounds_per_tick']:.2f} round trips/tick, {m['round_ms_per_tick']:.2f} ms/tick, "
-                  f"{m['exchange_ms_per_round']:.2f} ms/round beyond the slowest shard" if "rounds_per_tick" in m else "")
+            ranks = m["rank_cpu_per_sim_s"]
+            bound = ref["cpu_per_sim_s"] / max(ranks)
+            repl = (sum(ranks) - ref["cpu_per_sim_s"]) / (k - 1) / ref["cpu_per_sim_s"] if k > 1 else float("nan")
+            ex = (f"{m['rounds_per_tick']:.2f} collectives/tick, rank 0 waits {m['wait_ms_per_tick']:.2f} ms/tick"
+                  if "rounds_per_tick" in m else "")
             print(f"{r:>5} {k:>6} {wall:>13.1f} {ref['wall'] / wall:>9.2f} {m['cpu_per_sim_s']:>10.3f} "
-                  f"{m['main_cpu_per_sim_s']:>7.3f} {m['shard_cpu_per_sim_s']:>7.3f} {m['six_dof_share']:>12.3f} "
-                  f"{str(same):>15} {os.getloadavg()[0]:>17.2f}  {ex}", flush=True)
+                  f"{' / '.join(f'{c:.3f}' for c in ranks):>16} {bound:>10.2f} {repl:>11.2f} {m['six_dof_share']:>12.3f} "
+                  f"{str(same):>15} {os.getloadavg()[0]:>13.2f}  {ex}", flush=True)
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -123,6 +123,7 @@ class RunContext:
     workdir: Any = None  # a per-run scratch directory (pathlib.Path)
     out_dir: Path | None = None  # the batch's output folder (--out); None: files go to workdir
     run_id: str = "run"  # e.g. "none-s0"; part of every per-run file name
+    shard: Any = None  # a sharded run's corridor.shards.ShardComm (this process's rank); None: one process
 
     def output_path(self, rel: str | Path, per_run: bool = True) -> Path:
         """Where a component writes the file ``rel`` (relative, checked by ``relative_output_path``).
@@ -224,6 +225,9 @@ class Component:
     period_override: float | None = None  # [s] the scenario's ``period:`` of this component
     # the columns ``finish`` writes (report glossary and verdict); None: not declared, () : none
     metrics: ClassVar[tuple[Metric, ...] | None] = None
+    # processes the run asks for (corridor.shards: every rank steps the world, sharded components
+    # divide their work); the run takes the largest of its components'
+    shard_count: int = 1
 
     def __init__(self, name: str) -> None:
         self.name = name

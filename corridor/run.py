@@ -11,6 +11,7 @@ import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -18,8 +19,10 @@ import numpy as np
 
 from corridor.engine import Component, RunContext, Simulation, path_inside
 from corridor.errors import CorridorError
+from corridor.events import Event, EventLog
 from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, scenario_dir, validate
+from corridor.shards import ShardComm, run_sharded
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
 # added last when the scenario declares ``specs``: evaluates them on the recorded signals at the end
@@ -136,11 +139,36 @@ class ScratchRun:
         self._tmp.cleanup()
 
 
+def _run_rank(sim: Simulation, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+    """One rank of a sharded run (``corridor.shards``)."""
+    sim.ctx.shard = comm
+    return sim.run(), sim.ctx.events.events
+
+
+def _spawned_rank(sc: Scenario, seed: int, run_id: str, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+    """Ranks 1.. of a sharded run: the same scenario and seed, no recorder, no output files."""
+    with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
+        return _run_rank(build(sc, seed, Path(tmp), run_id=run_id), comm)
+
+
+def _run(sim: Simulation, sc: Scenario, seed: int, run_id: str) -> dict[str, Any]:
+    """The simulation's metrics; in ``shard_count`` processes when a component asks for shards."""
+    size = max(c.shard_count for c in sim.ctx.components.values())
+    if size <= 1:
+        return sim.run()
+    metrics, events, comm = run_sharded(partial(_run_rank, sim), partial(_spawned_rank, sc, seed, run_id), size)
+    log = EventLog()
+    for e in events:
+        log.emit(e.t, e.source, e.kind, e.message, **e.data)
+    sim.ctx.events = log
+    return metrics
+
+
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
              rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
     with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
-        metrics = sim.run()
+        metrics = _run(sim, sc, seed, run_id)
     metrics.update(event_counts(sim.ctx))
     metrics.update(switch_scores(sim.ctx))
     if out_dir and sc.outputs.signals:

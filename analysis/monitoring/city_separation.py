@@ -19,6 +19,7 @@ deliveries the air backend's missions logged (flown minus nominal time).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
 import numpy as np
@@ -27,7 +28,23 @@ from scipy.spatial import cKDTree
 
 from corridor.analysis.ccd import MAX_STEP_M, closest_approach, interval_below
 from corridor.engine import Component, Metric, Need, Phase, RunContext
+from corridor.shards import ShardComm, Strips
 from corridor.snapshot import Kind
+
+
+@dataclass(frozen=True)
+class Region:
+    """A rank's part of the separation checks in a sharded run (``corridor.shards``): the rows in its
+    strip (``owned``: it counts the LoS / NMAC entries of the pairs whose lower row it owns and
+    queries their nearest neighbours), the rows whose pairs it checks (``checked``: the strip widened
+    by the halo, and the piloted aircraft) and the rows of its k-d trees (``local``: the strip
+    widened by ``region_margin_m``). The halo is wider than any aircraft moves in a tick, so a pair a
+    rank takes over from its neighbour was checked by it one tick before: it knows whether the pair
+    was inside. The margin holds every partner within the candidate radius of a checked row."""
+
+    owned: np.ndarray  # (N,) bool
+    checked: np.ndarray  # (N,) bool
+    local: np.ndarray  # (L,) rows, ascending
 
 
 class CitySeparation(Component):
@@ -59,6 +76,8 @@ class CitySeparation(Component):
         los_piloted_h_m: float = Field(609.6, gt=0.0)  # [m] 2000 ft
         los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
         backend: str | None = "air"
+        halo_mps: float = Field(150.0, gt=0.0)  # [m/s] sharded runs: the halo is halo_mps * dt wide
+        region_margin_m: float = Field(500.0, gt=0.0)  # [m] sharded runs: a rank's trees reach this far out of its strip
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name)
@@ -70,6 +89,8 @@ class CitySeparation(Component):
         self.in_nmac: np.ndarray = np.zeros(0, dtype=np.int64)
         self.nn: np.ndarray | None = None
         self.quad_s = 0.0  # [s] quadcopter flight time
+        self.strips: Strips | None = None  # a sharded run's regions (corridor.shards)
+        self.halo_m = 0.0  # [m] a sharded run's halo: halo_mps * dt
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -81,11 +102,99 @@ class CitySeparation(Component):
         if self.prev is None or len(self.prev) != len(pos):
             self.prev, self.nn = pos.copy(), np.full(len(pos), np.inf)
         self.quad_s += float(np.count_nonzero(~piloted)) * ctx.dt
-        i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
-        self._nearest(pos, tree, reach, np.concatenate([i, j]))
-        if len(i):
-            self._check(ctx, i, j, d0, d1, piloted, len(pos))
+        if ctx.shard is not None:
+            self._tick_region(ctx, pos, piloted)
+        else:
+            i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
+            self._nearest(pos, tree, reach, np.concatenate([i, j]))
+            if len(i):
+                self._check(ctx, i, j, d0, d1, piloted, len(pos))
         self.prev = pos.copy()
+
+    # ---- a sharded run: this rank's region ---------------------------------------------------------------
+    def _region(self, comm: ShardComm, pos: np.ndarray, piloted: np.ndarray, teleport: np.ndarray,
+                reach_m: float) -> Region:
+        if self.strips is None:
+            self.strips = Strips(pos[:, 0], comm.size)
+        if self.params.region_margin_m < self.halo_m + reach_m:
+            raise ValueError(f"{self.name}: params.region_margin_m ({self.params.region_margin_m} m) must cover the halo "
+                             f"and the candidate radius ({self.halo_m + reach_m:.1f} m)")
+        x, always = pos[:, 0], piloted | teleport
+        return Region(owned=self.strips.within(x, comm.rank),
+                      checked=self.strips.within(x, comm.rank, self.halo_m) | always,
+                      local=np.flatnonzero(self.strips.within(x, comm.rank, self.params.region_margin_m) | always))
+
+    def _tick_region(self, ctx: RunContext, pos: np.ndarray, piloted: np.ndarray) -> None:
+        """The one-process tick's checks for the pairs whose lower row this rank checks, on k-d trees
+        of its local rows only; the same candidate radius (from every aircraft's move) as one process."""
+        p = self.params
+        self.halo_m = p.halo_mps * ctx.dt
+        move = np.linalg.norm(pos - self.prev, axis=1)
+        teleport = move > MAX_STEP_M
+        step = float(move[~teleport].max(initial=0.0))
+        if step > self.halo_m:
+            raise ValueError(f"{self.name}: an aircraft moved {step:.1f} m in one tick, more than the shards' halo "
+                             f"({self.halo_m:.1f} m = halo_mps * dt): raise params.halo_mps")
+        reach = float(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step)
+        reg = self._region(ctx.shard, pos, piloted, teleport, reach)
+        lp = pos[reg.local]
+        tree = cKDTree(lp)
+        ij = [tree.query_pairs(reach, output_type="ndarray")]
+        for k in np.flatnonzero(piloted[reg.local]):
+            js = np.asarray(tree.query_ball_point(lp[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
+                            dtype=np.int64)
+            js = js[js != k]
+            ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
+        m = len(reg.local)
+        key = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64) @ np.array([m, 1], dtype=np.int64))
+        pairs = reg.local[np.column_stack([key // m, key % m])]  # sorted (i, j), as np.unique(axis=0) gives them
+        pairs = pairs[reg.checked[pairs[:, 0]]]
+        i, j = pairs[:, 0], pairs[:, 1]
+        d1 = pos[i] - pos[j]
+        ok = ~(teleport[i] | teleport[j])
+        d0 = np.where(ok[:, None], self.prev[i] - self.prev[j], d1)
+        self._nearest_region(pos, reg, tree, reach, np.concatenate([i, j]))
+        self._check(ctx, i, j, d0, d1, piloted, len(pos), reg.owned)
+
+    def _nearest_region(self, pos: np.ndarray, reg: Region, tree: cKDTree, reach_m: float, paired: np.ndarray) -> None:
+        """``_nearest`` for this rank's rows, on its local trees. A local nearest neighbour within the
+        margin W is the true one (every other row is farther than W from an owned row); a farther one
+        can only matter while a minimum is above W, and then the whole fleet's tree answers. The
+        minima over the ranks are the one-process ones: every value a rank adds is a real distance
+        that the one-process run also takes, or one above the minimum it updates."""
+        w = self.params.region_margin_m
+        local_of = np.full(len(pos), -1)
+        local_of[reg.local] = np.arange(len(reg.local))
+        far_mask = self.nn > reach_m  # the one-process union1d(nn > reach, paired), as a mask
+        far_mask[paired] = True
+        far = np.flatnonzero(far_mask & reg.owned)
+        if len(far):
+            d3 = tree.query(pos[far], k=2)[0][:, 1]
+            out = (d3 > w) & ((self.nn[far] > w) | (self.min_3d > w))
+            if out.any():
+                d3[out] = cKDTree(pos).query(pos[far[out]], k=2)[0][:, 1]
+            self.nn[far] = np.minimum(self.nn[far], d3)
+            self.min_3d = min(self.min_3d, float(d3.min()))
+        xy = pos[reg.local, :2]
+        tree_h = cKDTree(xy)
+        if np.isfinite(self.min_h) and self.min_h <= w:
+            rows = np.unique(tree_h.query_pairs(self.min_h, output_type="ndarray"))
+            rows = rows[reg.owned[reg.local[rows]]]
+        else:
+            rows = local_of[np.flatnonzero(reg.owned)]
+        if len(rows):
+            dh = tree_h.query(xy[rows], k=2)[0][:, 1]
+            out = dh > w
+            if out.any() and self.min_h > w:
+                dh[out] = cKDTree(pos[:, :2]).query(xy[rows[out]], k=2)[0][:, 1]
+            self.min_h = min(self.min_h, float(dh.min()))
+
+    def _combine(self, comm: ShardComm) -> None:
+        """Every rank's counts and minima (collectives: the one-process run's values on every rank)."""
+        self.los, self.nmac = round(comm.sum(self.los)), round(comm.sum(self.nmac))
+        self.min_h, self.min_3d = (float(v) for v in comm.min_array(np.array([self.min_h, self.min_3d])))
+        if self.nn is not None:
+            self.nn = comm.min_array(self.nn)
 
     def _candidates(self, prev: np.ndarray, pos: np.ndarray, piloted: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, cKDTree, float]:
@@ -133,12 +242,14 @@ class CitySeparation(Component):
             self.min_h = min(self.min_h, float(dh[:, 1].min()))
 
     def _check(self, ctx: RunContext, i: np.ndarray, j: np.ndarray, d0: np.ndarray, d1: np.ndarray,
-               piloted: np.ndarray, n: int) -> None:
+               piloted: np.ndarray, n: int, owned: np.ndarray | None = None) -> None:
+        """The pairs' minima and LoS / NMAC entries; ``owned`` (a sharded run): count and log only the
+        entries of pairs whose lower row is in it (the others are another rank's)."""
         p = self.params
         _, dh_min = closest_approach(d0[:, :2], d1[:, :2])
         _, d3_min = closest_approach(d0, d1)
-        self.min_h = min(self.min_h, float(dh_min.min()))
-        self.min_3d = min(self.min_3d, float(d3_min.min()))
+        self.min_h = min(self.min_h, float(dh_min.min(initial=np.inf)))
+        self.min_3d = min(self.min_3d, float(d3_min.min(initial=np.inf)))
         np.minimum.at(self.nn, i, d3_min)
         np.minimum.at(self.nn, j, d3_min)
         mixed = piloted[i] | piloted[j]
@@ -147,6 +258,8 @@ class CitySeparation(Component):
         nmac = _passes(d0, d1, p.nmac_h_m, p.nmac_v_m)
         self.in_los, new_los = _entries(key, los, self.in_los)
         self.in_nmac, new_nmac = _entries(key, nmac, self.in_nmac)
+        if owned is not None:
+            new_los, new_nmac = new_los[owned[new_los // n]], new_nmac[owned[new_nmac // n]]
         self.los += len(new_los)
         self.nmac += len(new_nmac)
         for kind, new in (("los", new_los), ("nmac", new_nmac)):
@@ -155,6 +268,8 @@ class CitySeparation(Component):
                 ctx.events.emit(ctx.t, self.name, kind, f"{a} - {b}: {kind}", pair=(a, b))
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        if ctx.shard is not None:
+            self._combine(ctx.shard)
         fh = self.quad_s / 3600.0
         nn = self.nn if self.nn is not None else np.zeros(0)
         out = {"nmac": self.nmac, "los": self.los,

@@ -7,9 +7,10 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from corridor.analysis.ccd import Poses, _prev_rows, swept_overlaps
+from corridor.analysis.ccd import MAX_STEP_M, Poses, _prev_rows, swept_overlaps
 from corridor.analysis.safety import obb_overlap_pairs
 from corridor.engine import Component, Metric, Phase, RunContext
+from corridor.shards import Strips
 from corridor.snapshot import Kind, Role
 
 # plain ints: numpy compares an IntEnum member ~100x slower than an int (it probes the enum class)
@@ -58,6 +59,9 @@ class CollisionMonitor(Component):
         # role and kind arrays of the last tick with only backend-driven road rows (a road backend
         # publishes the same read-only arrays while its vehicles stay the same): no check needed
         self._plain: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        self._strips: Strips | None = None  # a sharded run's regions (corridor.shards)
+        self._how: dict[tuple[str, str], str] = {}  # a sharded run: how each pair was found
+        self._prev_ids: np.ndarray | None = None  # a sharded run: the previous snapshot's ids array
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -80,20 +84,51 @@ class CollisionMonitor(Component):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions
         cur = Poses.of(s)
         if not _may_touch(prev, cur, special):  # no box of a special row can reach another's: nothing to find
-            self._prev = cur
+            self._prev, self._prev_ids = cur, s.ids
             return
-        pairs = obb_overlap_pairs(s.position[:, :2], s.heading, s.size[:, 0], s.size[:, 1],
-                                  s.position[:, 2], s.size[:, 2], involving=special)
+        if ctx.shard is None:
+            self._boxes(ctx, prev, cur, special)
+        else:  # a sharded run: the pairs with a special row in this rank's strip, on its rows near the strip
+            self._boxes(ctx, *self._local(ctx.shard, prev, cur, special, s.ids is self._prev_ids))
+        self._prev, self._prev_ids = cur, s.ids
+
+    def _boxes(self, ctx: RunContext, prev: Poses | None, cur: Poses, special: np.ndarray) -> None:
+        """The box checks of the pairs of ``cur`` with a row of ``special``: overlap now, or met since ``prev``."""
+        ids = cur.ids
+        pairs = obb_overlap_pairs(cur.position[:, :2], cur.heading, cur.size[:, 0], cur.size[:, 1],
+                                  cur.position[:, 2], cur.size[:, 2], involving=special)
         now: set[tuple[int, int]] = set()
         for i, j in pairs.tolist():  # every pair has a special row
             now.add((i, j))
-            self._add(ctx, ctx.t, str(s.ids[i]), str(s.ids[j]), "box overlap")
+            self._add(ctx, ctx.t, str(ids[i]), str(ids[j]), "box overlap")
         if prev is not None and ctx.t > prev.t:
             for i, j, frac in zip(*swept_overlaps(prev, cur, special), strict=True):
                 if (int(i), int(j)) not in now:
                     t_hit = prev.t + float(frac) * (ctx.t - prev.t)
-                    self._add(ctx, t_hit, str(s.ids[i]), str(s.ids[j]), "box overlap between ticks")
-        self._prev = cur
+                    self._add(ctx, t_hit, str(ids[i]), str(ids[j]), "box overlap between ticks")
+
+    def _local(self, comm: Any, prev: Poses | None, cur: Poses, special: np.ndarray, same_ids: bool = False
+               ) -> tuple[Poses | None, Poses, np.ndarray]:
+        """This rank's part: the special rows in its strip, and the rows within reach of the strip
+        (the largest two box radii plus twice the largest move since ``prev``: every partner of a
+        pair with a row in the strip). Returns (prev, cur, special) restricted to those rows
+        (``prev`` as is when its rows differ from ``cur``'s: matched by id). ``same_ids``: the snapshot's
+        ids are the previous tick's array (published arrays are never written again), so the rows match."""
+        x = cur.position[:, 0]
+        if self._strips is None:
+            self._strips = Strips(x, comm.size)
+        same = prev is not None and (same_ids or (len(prev.ids) == len(cur.ids) and bool(np.all(prev.ids == cur.ids))))
+        move = np.linalg.norm(cur.position - prev.position, axis=1) if same and prev is not None else np.zeros(len(x))
+        step = float(move[move <= MAX_STEP_M].max(initial=0.0)) if same else MAX_STEP_M
+        reach = float(np.linalg.norm(cur.size, axis=1).max()) + 2.0 * step + 1.0  # [m]
+        rows = np.flatnonzero(self._strips.within(x, comm.rank, reach))
+        owned = np.zeros(len(x), dtype=bool)
+        owned[special] = True
+        owned &= self._strips.within(x, comm.rank)
+        sub = _rows(cur, rows)
+        if same and prev is not None:  # the same ids row by row: one array for both
+            prev = Poses(prev.t, sub.ids, prev.position[rows], prev.heading[rows], prev.size[rows])
+        return prev, sub, np.flatnonzero(owned[rows])
 
     @staticmethod
     def _posed_rows(s: Any) -> np.ndarray:
@@ -109,18 +144,46 @@ class CollisionMonitor(Component):
             ctrl[lane_driven] = False
         return ctrl
 
+    def _own(self, comm: Any, s: Any, special: np.ndarray) -> np.ndarray:
+        """The special rows in this rank's strip (a pair is found by a rank that owns one of its rows;
+        ``finish`` takes the union over the ranks)."""
+        if self._strips is None:
+            self._strips = Strips(s.position[:, 0], comm.size)
+        return special[self._strips.within(s.position[special, 0], comm.rank)]
+
     def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:
         key = (a, b) if a < b else (b, a)
         if key not in self.pairs:
             self.pairs[key] = t
+            if ctx.shard is None:
+                ctx.events.emit(t, self.name, "collision", f"{key[0]} x {key[1]} [{how}]", a=key[0], b=key[1])
+            else:  # logged at the end, once the ranks agree on the first contact
+                self._how[key] = how
+
+    def _combine(self, ctx: RunContext) -> None:
+        """A sharded run: the union of the ranks' pairs, each at its first contact, logged by every rank
+        (the merged log keeps one)."""
+        first: dict[tuple[str, str], tuple[float, str]] = {}
+        for pairs, how in ctx.shard.allgather((self.pairs, self._how)):
+            for key, t in pairs.items():
+                if key not in first or t < first[key][0]:
+                    first[key] = (t, how[key])
+        self.pairs = {key: t for key, (t, _) in first.items()}
+        for key, (t, how) in sorted(first.items(), key=lambda kv: kv[1][0]):
             ctx.events.emit(t, self.name, "collision", f"{key[0]} x {key[1]} [{how}]", a=key[0], b=key[1])
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
+        if ctx.shard is not None:
+            self._combine(ctx)
         return {"collisions": len(self.pairs),
                 "first_collision_s": min(self.pairs.values()) if self.pairs else np.nan}
 
 
 _DENSE_PRECHECK_MAX = 20_000  # row pairs: above it _may_touch defers to the exact checks
+
+
+def _rows(p: Poses, rows: np.ndarray) -> Poses:
+    return Poses(p.t, p.ids[rows], p.position[rows], p.heading[rows], p.size[rows])
 
 
 def _may_touch(prev: Poses | None, cur: Poses, rows: np.ndarray) -> bool:

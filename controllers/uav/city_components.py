@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 from corridor.controllers.uav.potential_field import PotentialFieldParams
 from corridor.controllers.uav.potential_field_fleet import fleet_commands, goal_flow
 from corridor.engine import Controller, Metric, Need, RunContext
+from corridor.shards import Strips
 from corridor.vehicles.air.mf_backend import FleetVelocityCommand, MultiFidelityAirBackend
 
 
@@ -66,6 +67,8 @@ class CityNone(Controller):
         spec = b.params.city
         self.pf = self.params.potential_field.model_copy(update={"max_speed_h_mps": spec.speed_mps})
         self.avoiding = np.zeros(len(self.rows), dtype=bool)
+        self.comm = ctx.shard  # a sharded run (corridor.shards): each rank decides for its strip's drones
+        self.strips: Strips | None = None
         super().setup(ctx)
 
     def observe(self, ctx: RunContext) -> tuple[float, np.ndarray, np.ndarray, np.ndarray] | None:
@@ -74,7 +77,11 @@ class CityNone(Controller):
             return None
         return ctx.t, s.position[self.rows], s.velocity[self.rows], self.backend.missions.goal
 
-    def commands(self, t: float, x: np.ndarray, v: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def commands(self, t: float, x: np.ndarray, v: np.ndarray, goal: np.ndarray, egos: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Commands and avoid flags of the drones ``egos`` (rows of ``x``; None: all)."""
+        if egos is not None:
+            x, goal = x[egos], goal[egos]
         g = goal_flow(x, goal, self.pf)
         h = np.hypot(g[:, 0], g[:, 1])
         g[:, :2] *= np.minimum(1.0, self.pf.max_speed_h_mps / np.maximum(h, 1e-12))[:, None]
@@ -85,10 +92,21 @@ class CityNone(Controller):
         if obs is None:
             return []
         t, x, v, goal = obs
-        cmd, avoiding = self.commands(t, x, v, goal)
+        cmd, avoiding = self.commands(t, x, v, goal) if self.comm is None else self._gathered(t, x, v, goal)
         cmd = self.fence(x, cmd)
         self._track_modes(t, avoiding)
         return [FleetVelocityCommand(self.rows, cmd)]
+
+    def _gathered(self, t: float, x: np.ndarray, v: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A sharded run: this rank's drones (its strip of the city) decided here, the others' commands
+        from their ranks (each drone's command depends on its own pairs only: the one-process values)."""
+        if self.strips is None:
+            self.strips = Strips(x[:, 0], self.comm.size)
+        own = np.flatnonzero(self.strips.within(x[:, 0], self.comm.rank))
+        cmd, avoiding = np.zeros_like(x), np.zeros(len(x), dtype=bool)
+        for rows, c, a in self.comm.allgather((own, *self.commands(t, x, v, goal, own))):
+            cmd[rows], avoiding[rows] = c, a
+        return cmd, avoiding
 
     def fence(self, x: np.ndarray, cmd: np.ndarray) -> np.ndarray:
         p = self.params
@@ -123,15 +141,20 @@ class CityPotentialField(CityNone):
         self.reach_uav_m = (pf.uav_safety_radius_m + (pf.uav_cutoff_m or pf.influence_m)
                             + 2.0 * pf.uav_lookahead_s * p.speed_bound_mps + p.relevance_margin_m)
 
-    def commands(self, t: float, x: np.ndarray, v: np.ndarray, goal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def commands(self, t: float, x: np.ndarray, v: np.ndarray, goal: np.ndarray, egos: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
         pic = self.link.picture(t)
-        ego, src = self._pairs(x, pic)
+        rows = self.rows
+        if egos is not None:
+            x, v, goal, rows = x[egos], v[egos], goal[egos], rows[egos]
+        ego, src = self._pairs(x, pic, rows)
         out = fleet_commands(x, v, goal, ego, pic.pos[src], pic.vel[src], pic.sigma_m[src], self.piloted_src[src],
                              self.pf)
         return out.v_cmd, out.avoiding
 
-    def _pairs(self, x: np.ndarray, pic: Any) -> tuple[np.ndarray, np.ndarray]:
-        """(ego row, source row) of every relevant report: never the ego itself, stale ones dropped."""
+    def _pairs(self, x: np.ndarray, pic: Any, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(ego row, source row) of every relevant report: never the ego itself (``rows``: each ego's
+        snapshot row), stale ones dropped."""
         reach = min(self.reach_uav_m, pic.range_m)
         uav_src = np.flatnonzero(pic.valid & ~self.piloted_src)
         e, s = _ball_pairs(x, pic.pos[uav_src], reach)
@@ -143,7 +166,7 @@ class CityPotentialField(CityNone):
             ego.append(e)
             src.append(pil_src[s])
         ego_a, src_a = np.concatenate(ego), np.concatenate(src)
-        keep = self.rows[ego_a] != src_a
+        keep = rows[ego_a] != src_a
         return ego_a[keep], src_a[keep]
 
 

@@ -22,6 +22,11 @@ are in a :class:`SwitchableJSBSimFleet`. Each tick (the scenario's ``dt``):
 
 Commands reach the point-mass row always (its targets stay current) and the JSBSim aircraft while it
 flies 6-DOF. :class:`FleetVelocityCommand` commands many aircraft in one bus item.
+
+``shards: K`` splits the run over K processes (``corridor.shards``): every rank steps the point
+masses, the fidelity check and the missions of the whole fleet (the same on every rank), and flies
+the JSBSim aircraft of its pool groups (:class:`~corridor.vehicles.air.jsbsim_shards.PeerJSBSimFleet`);
+``cpu_per_sim_s`` sums the ranks' CPU.
 """
 
 from __future__ import annotations
@@ -40,7 +45,7 @@ from corridor.vehicles.air.backend import AirBackend, AircraftCommand
 from corridor.vehicles.air.city import CitySpec, Missions, city_fleet
 from corridor.vehicles.air.fidelity import FidelityParams, FidelityPolicy
 from corridor.vehicles.air.jsbsim_fleet import SIZE_M
-from corridor.vehicles.air.jsbsim_shards import ShardedJSBSimFleet
+from corridor.vehicles.air.jsbsim_shards import PeerJSBSimFleet
 from corridor.vehicles.air.jsbsim_switch import POOL_GROUPS, SwitchableJSBSimFleet
 from corridor.vehicles.air.point_mass_fleet import PointMassFleet
 
@@ -69,7 +74,7 @@ class MultiFidelityAirBackend(AirBackend):
         fidelity: FidelityParams = Field(default_factory=FidelityParams)
         point_mass_period_s: float = Field(0.5, gt=0.0)  # [s]
         city: CitySpec | None = None
-        shards: int = Field(1, ge=1, le=POOL_GROUPS)  # processes the 6-DOF aircraft are split into
+        shards: int = Field(1, ge=1, le=POOL_GROUPS)  # processes the run is split into (corridor.shards)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -78,6 +83,7 @@ class MultiFidelityAirBackend(AirBackend):
             raise ValueError(f"{name}.params.point_mass_period_s: {params.point_mass_period_s} s must be a whole "
                              f"multiple of dt = {scenario.dt} s")
         self.pm_every = round(every)
+        self.shard_count = params.shards
         self.policy = FidelityPolicy(params.fidelity)
         self.missions: Missions | None = None
 
@@ -98,11 +104,9 @@ class MultiFidelityAirBackend(AirBackend):
         self.kind = np.where(self.is_quad, Kind.UAV, Kind.AIRCRAFT).astype(np.int8)
         self.size = np.array([SIZE_M[a.model] for a in self.aircraft], dtype=float).reshape(-1, 3)
         self.pm = PointMassFleet()
-        self.js: SwitchableJSBSimFleet | ShardedJSBSimFleet
-        if p.shards > 1:
-            self.js = ShardedJSBSimFleet(self.origin, p.shards, rate_hz=p.rate_hz)
-        else:
-            self.js = SwitchableJSBSimFleet(self.origin, rate_hz=p.rate_hz)
+        self.js: SwitchableJSBSimFleet | PeerJSBSimFleet = SwitchableJSBSimFleet(self.origin, rate_hz=p.rate_hz)
+        if ctx.shard is not None:  # this rank flies its pool groups' aircraft, every rank sees all states
+            self.js = PeerJSBSimFleet(self.js, ctx.shard)
         self.fleet = self.js
         for a in self.aircraft:
             if a.model == "F450":
@@ -188,8 +192,7 @@ class MultiFidelityAirBackend(AirBackend):
     # ---- stepping -------------------------------------------------------------------------------
     def tick(self, ctx: RunContext) -> None:
         if self._cpu_t0 is None:
-            self.shard_cpu_t0_s = self._shard_cpu_s()  # [s] the shards' CPU before the first tick (their set-up)
-            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time() - self.shard_cpu_t0_s
+            self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time()
         if self.tick_count % self.pm_every == 0:
             self._switch(ctx)
             self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
@@ -201,15 +204,6 @@ class MultiFidelityAirBackend(AirBackend):
         self.tick_count += 1
         self.t_s = self.tick_count * self.period
         self.six_dof_quad_s += float(np.count_nonzero(self.six[self.quad_rows])) * self.period
-
-    def _shard_cpu_s(self) -> float:
-        """[s] CPU time of the shard processes (0 when the fleet runs in this process)."""
-        return self.js.shard_cpu_s() if isinstance(self.js, ShardedJSBSimFleet) else 0.0
-
-    def close(self) -> None:
-        if isinstance(getattr(self, "js", None), ShardedJSBSimFleet):
-            self.js.close()
-        super().close()
 
     def _check_finite(self) -> None:
         if len(self.js.ids) and not self.js.all_finite():
@@ -264,13 +258,17 @@ class MultiFidelityAirBackend(AirBackend):
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
         sim_s = self.t_s
-        cpu = time.process_time() + self._shard_cpu_s() - self._cpu_t0 if self._cpu_t0 is not None else float("nan")
+        cpu = time.process_time() - self._cpu_t0 if self._cpu_t0 is not None else float("nan")
+        loads = self.js.loads
+        if isinstance(self.js, PeerJSBSimFleet):  # every rank's CPU and loads (collectives)
+            self.rank_cpu_s = ctx.shard.allgather(cpu)  # [s] per rank, from its first tick (diagnostics)
+            cpu, loads = float(sum(self.rank_cpu_s)), self.js.total_loads()
         wall = time.perf_counter() - self._wall_t0 if self._wall_t0 is not None else float("nan")
         quad_s = len(self.quad_rows) * sim_s
         out = {"aircraft": len(self.aircraft), "air_commands": self.commands_applied,
                "rtf": sim_s / wall if wall > 0 else float("nan"),
                "six_dof_share": self.six_dof_quad_s / quad_s if quad_s > 0 else float("nan"),
-               "promotions": self.promotions, "demotions": self.demotions, "jsbsim_loads": self.js.loads,
+               "promotions": self.promotions, "demotions": self.demotions, "jsbsim_loads": loads,
                "cpu_per_sim_s": cpu / sim_s if sim_s > 0 else float("nan"), "flight_hours": quad_s / 3600.0}
         return out
 

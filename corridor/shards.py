@@ -1,0 +1,199 @@
+"""One run split over shard processes that each step the whole world and divide the work.
+
+A component asks for shards with its ``shard_count`` (the multi-fidelity air backend's
+``params.shards``). :func:`run_sharded` then runs the simulation in ``K`` processes (rank 0 is the
+calling process, ranks 1..K-1 are spawned), each from the same scenario and seed, each with a
+:class:`ShardComm` as ``ctx.shard``. Every rank steps the same replicated state (cheap per-aircraft
+arrays stay identical because every rank computes them from the same inputs); the expensive work is
+divided: a component that supports shards does only its rank's part (the JSBSim aircraft of its
+pool groups, the separation and collision checks of the pairs in its region of the world, see
+:class:`Strips`) and exchanges the results it shares (``allgather``: numpy arrays through pipes,
+once per tick, never an object per aircraft). At the end each sharded component combines its
+partial metrics over the ranks itself (``allreduce`` of counts, minima, per-aircraft arrays), so
+every rank finishes with the one-process run's metrics; rank 0 returns them, and the event log is
+the union of the ranks' logs (:func:`merge_events`).
+
+The kernel knows no domain: this module only moves objects between processes and splits a plane.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+
+from corridor.events import Event
+
+MAX_SHARDS = 8
+
+
+@dataclass
+class ShardComm:
+    """A rank's pipes to every other rank; collectives are called by every rank in the same order."""
+
+    rank: int
+    size: int
+    conns: dict[int, Connection]
+    rounds: int = 0  # collectives so far (diagnostics)
+    wait_s: float = 0.0  # [s] wall time inside collectives: the exchange plus waiting for slower ranks
+    peer_cpu_s: list[float] = field(default_factory=list)  # [s] every rank's CPU at the last cpu_gather
+
+    def allgather(self, obj: Any) -> list[Any]:
+        """``obj`` of every rank, in rank order (pairwise: the lower rank sends first, so a large
+        message cannot fill both pipes at once)."""
+        t0 = time.perf_counter()
+        out: list[Any] = [None] * self.size
+        out[self.rank] = obj
+        for peer in sorted(self.conns):
+            if self.rank < peer:
+                self._send(peer, obj)
+                out[peer] = self._recv(peer)
+            else:
+                out[peer] = self._recv(peer)
+                self._send(peer, obj)
+        self.rounds += 1
+        self.wait_s += time.perf_counter() - t0
+        return out
+
+    def _send(self, peer: int, obj: Any) -> None:
+        try:
+            self.conns[peer].send(obj)
+        except OSError:  # the peer is gone: its last word (a failure) may still be in the pipe
+            self._recv(peer)
+            raise RuntimeError(f"shard {peer} ended during a collective") from None
+
+    def _recv(self, peer: int) -> Any:
+        try:
+            return _checked(self.conns[peer].recv(), peer)
+        except (EOFError, OSError):
+            raise RuntimeError(f"shard {peer} ended during a collective") from None
+
+    def sum(self, value: float) -> float:
+        """The sum over the ranks (in rank order: the same float on every rank)."""
+        return float(sum(self.allgather(float(value))))
+
+    def min_array(self, a: np.ndarray) -> np.ndarray:
+        """The elementwise minimum over the ranks."""
+        out: np.ndarray = np.minimum.reduce(self.allgather(np.asarray(a)))
+        return out
+
+    def cpu_gather(self) -> float:
+        """[s] the CPU time of every rank's process (kept in ``peer_cpu_s``); returns their sum."""
+        self.peer_cpu_s = [float(c) for c in self.allgather(time.process_time())]
+        return float(sum(self.peer_cpu_s))
+
+    def close(self) -> None:
+        for conn in self.conns.values():
+            conn.close()
+
+
+def _checked(msg: Any, peer: int) -> Any:
+    if isinstance(msg, _Failed):
+        raise RuntimeError(f"shard {peer} failed: {msg.message}")
+    return msg
+
+
+@dataclass(frozen=True)
+class _Failed:
+    message: str
+
+
+class Strips:
+    """A split of the plane into ``size`` strips along x (east), as many aircraft in each at the start
+    (the edges are the quantiles of the first positions: the same on every rank)."""
+
+    def __init__(self, x_m: np.ndarray, size: int) -> None:
+        self.size = size
+        self.edges = np.quantile(x_m, np.arange(1, size) / size) if len(x_m) else np.zeros(size - 1)  # [m]
+
+    def owner(self, x_m: np.ndarray) -> np.ndarray:
+        """The rank whose strip holds each x [m] (a point on an edge belongs to the strip east of it)."""
+        return np.searchsorted(self.edges, x_m, side="right")
+
+    def within(self, x_m: np.ndarray, rank: int, halo_m: float = 0.0) -> np.ndarray:
+        """Boolean: x [m] in strip ``rank`` widened by ``halo_m`` on both sides."""
+        lo = self.edges[rank - 1] - halo_m if rank > 0 else -np.inf
+        hi = self.edges[rank] + halo_m if rank < self.size - 1 else np.inf
+        return (x_m >= lo) & (x_m < hi)
+
+
+def merge_events(logs: list[list[Event]]) -> list[Event]:
+    """The ranks' event logs as one, in time order: rank 0's, then each event of another rank that
+    rank 0 did not log (a replicated component logs the same events on every rank; a sharded one
+    logs each of its events on one rank, or the same one on several)."""
+    seen = {(e.t, e.source, e.kind, e.message) for e in logs[0]}
+    out = list(logs[0])
+    for log in logs[1:]:
+        for e in log:
+            key = (e.t, e.source, e.kind, e.message)
+            if key not in seen:
+                seen.add(key)
+                out.append(e)
+    return sorted(out, key=lambda e: e.t)  # stable: rank 0's order within a time
+
+
+def _worker(run: RankRun, comm: ShardComm) -> None:
+    """A spawned rank: run, send rank 0 the metrics and events (rank 0 merges the events)."""
+    try:
+        metrics, events = run(comm)
+        comm.conns[0].send(("done", metrics, events))
+    except Exception as exc:  # a rank never dies silently: its peers raise with its message
+        msg = _Failed(f"{type(exc).__name__}: {exc}\n{traceback.format_exc(limit=8)}")
+        for conn in comm.conns.values():
+            try:
+                conn.send(msg)
+            except OSError:
+                pass
+    finally:
+        comm.close()
+
+
+RankRun = Callable[[ShardComm], tuple[dict[str, Any], list[Event]]]
+
+
+def run_sharded(rank0: RankRun, others: RankRun, size: int) -> tuple[dict[str, Any], list[Event], ShardComm]:
+    """``rank0(comm)`` here and ``others(comm)`` on ranks 1..size-1 in spawned processes (``others``
+    must be picklable: a module-level function or a ``functools.partial`` of one). Returns rank 0's
+    metrics, the merged event log and rank 0's communicator (its diagnostics)."""
+    if not 2 <= size <= MAX_SHARDS:
+        raise ValueError(f"shards must be between 2 and {MAX_SHARDS} (1: no shards), got {size}")
+    ctx = mp.get_context("spawn")  # no fork of a process that may hold libsumo, JSBSim or threads
+    ends: dict[int, dict[int, Connection]] = {r: {} for r in range(size)}
+    for a in range(size):
+        for b in range(a + 1, size):
+            ends[a][b], ends[b][a] = ctx.Pipe()
+    procs = []
+    for r in range(1, size):
+        proc = ctx.Process(target=_worker, args=(others, ShardComm(r, size, ends[r])), daemon=True)
+        proc.start()
+        procs.append(proc)
+    for r in range(1, size):  # the spawned ranks hold their own ends now
+        for conn in ends[r].values():
+            conn.close()
+    comm = ShardComm(0, size, ends[0])
+    try:
+        metrics, events = rank0(comm)
+        logs = [events]
+        for r in range(1, size):
+            msg = _checked(comm.conns[r].recv(), r)
+            logs.append(msg[2])
+        return metrics, merge_events(logs), comm
+    except Exception:
+        for conn in comm.conns.values():  # let waiting ranks fail rather than hang
+            try:
+                conn.send(_Failed("rank 0 failed"))
+            except OSError:
+                pass
+        raise
+    finally:
+        comm.close()
+        for proc in procs:
+            proc.join(timeout=10.0)
+            if proc.is_alive():
+                proc.terminate()

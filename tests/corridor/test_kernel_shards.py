@@ -1,0 +1,56 @@
+"""corridor.shards: collectives between spawned ranks, a failing rank, strips, the merged event log."""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import numpy as np
+import pytest
+
+from corridor.events import Event
+from corridor.shards import ShardComm, Strips, merge_events, run_sharded
+
+
+def _rank(fail_on: int, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+    """Every collective once; rank ``fail_on`` raises after the first."""
+    got = comm.allgather(("rank", comm.rank))
+    if comm.rank == fail_on:
+        raise ValueError(f"rank {comm.rank} cannot go on")
+    total = comm.sum(comm.rank + 1.0)
+    low = comm.min_array(np.array([10.0 - comm.rank, float(comm.rank)]))
+    events = [Event(1.0, "mon", "los", f"pair of rank {comm.rank}", {}), Event(0.5, "air", "promote", "same", {})]
+    return {"got": got, "total": total, "low": low.tolist()}, events
+
+
+def test_collectives_over_three_ranks() -> None:
+    metrics, events, comm = run_sharded(partial(_rank, -1), partial(_rank, -1), 3)
+    assert metrics == {"got": [("rank", 0), ("rank", 1), ("rank", 2)], "total": 6.0, "low": [8.0, 0.0]}
+    # the replicated event once, each rank's own one, in time order
+    assert [e.message for e in events] == ["same", "pair of rank 0", "pair of rank 1", "pair of rank 2"]
+    assert comm.rounds == 3
+
+
+def test_a_failing_rank_fails_the_run_with_its_message() -> None:
+    with pytest.raises(RuntimeError, match="shard 1 failed: ValueError: rank 1 cannot go on"):
+        run_sharded(partial(_rank, 1), partial(_rank, 1), 2)
+
+
+def test_shard_count_bounds() -> None:
+    with pytest.raises(ValueError, match="shards must be between 2 and 8"):
+        run_sharded(partial(_rank, -1), partial(_rank, -1), 9)
+
+
+def test_strips_split_at_the_quantiles() -> None:
+    x = np.array([-3.0, -1.0, 1.0, 3.0])
+    s = Strips(x, 2)
+    assert s.edges.tolist() == [0.0]
+    assert s.owner(np.array([-0.1, 0.0, 0.1])).tolist() == [0, 1, 1]
+    assert s.within(x, 0).tolist() == [True, True, False, False]
+    assert s.within(x, 1, halo_m=1.5).tolist() == [False, True, True, True]
+
+
+def test_merge_events_keeps_rank_zeros_order_within_an_instant() -> None:
+    a = [Event(1.0, "x", "k", "a1", {}), Event(1.0, "x", "k", "a2", {})]
+    b = [Event(0.5, "y", "k", "b", {}), Event(1.0, "x", "k", "a2", {})]
+    assert [e.message for e in merge_events([a, b])] == ["b", "a1", "a2"]
