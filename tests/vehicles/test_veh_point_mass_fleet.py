@@ -111,7 +111,8 @@ def test_city_manoeuvres_follow_the_6dof_f450() -> None:
 
 @pytest.mark.parametrize("dt_pm", [0.1, 0.5])
 def test_point_mass_follows_the_6dof_f450(dt_pm: float) -> None:
-    """Speed step, 90 degree turn with a climb, then waypoints: within 2.5 m of JSBSim all along."""
+    """Speed step, 90 degree turn with a climb, then waypoints: within 0.5 m of JSBSim all along
+    (measured: 0.30 m; the first-order model without the tilt loop: 2.0 m)."""
     plan = [(VelocityCommand((20.0, 0.0, 0.0), 0.0), 10.0), (VelocityCommand((0.0, 20.0, 1.0), 0.0), 8.0),
             (WaypointCommand(((60.0, 120.0, 70.0),), 6.0), 20.0)]
     js = JSBSimFleet((47.3769, 8.5417, 408.0))
@@ -127,8 +128,8 @@ def test_point_mass_follows_the_6dof_f450(dt_pm: float) -> None:
             if (k + 1) % every == 0:
                 pm.step(dt_pm)
                 err.append(np.linalg.norm(js.state().position[0] - pm.pos[0]))
-    assert max(err) < 2.5
-    assert err[-1] < 1.5
+    assert max(err) < 0.5
+    assert err[-1] < 0.1
 
 
 def test_first_order_response_closed_form() -> None:
