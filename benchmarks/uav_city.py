@@ -220,17 +220,20 @@ def _load_cache(path: Path | None) -> dict[tuple[str, int], dict[str, Any]]:
 
 
 def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, extra: list[str],
-         variants: dict[str, list[str]], cache: Path | None = None, analyse_only: bool = False) -> None:
+         variants: dict[str, list[str]], cache: Path | None = None, analyse_only: bool = False,
+         first_seed: int = 0) -> None:
     """The paired fidelity check: every seed runs all-6-DOF once and each multi-fidelity variant
     (its ``--set`` list) once, with the same seed (common random numbers). With ``cache`` every
     finished run is appended there (JSON lines) and reused: an interrupted check resumes, and
-    ``analyse_only`` analyses the seeds whose runs are all there."""
+    ``analyse_only`` analyses the seeds whose runs are all there. Seeds ``first_seed`` ...
+    ``first_seed + seeds - 1`` (choose boundaries on other seeds than the final check's)."""
     base = [f"backends.air.params.city.n={n}", f"backends.air.params.city.size_m={size_m}", f"duration={duration_s}",
             "backends.air.params.city.vertiports=20", "controllers.avoid.type=city_potential_field", *extra]
     modes = {"jsbsim": ["backends.air.params.fidelity.mode=jsbsim"],
              **{name: ["backends.air.params.fidelity.mode=multi", *sets] for name, sets in variants.items()}}
     done = _load_cache(cache)
-    todo = [(name, s) for s in range(seeds) for name in modes if (name, s) not in done]
+    seed_range = range(first_seed, first_seed + seeds)
+    todo = [(name, s) for s in seed_range for name in modes if (name, s) not in done]
     if todo and not analyse_only:
         with ProcessPoolExecutor(workers) as ex:
             futures = {ex.submit(one_run_nn, base + modes[name], s): (name, s) for name, s in todo}
@@ -242,7 +245,7 @@ def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, ext
                 if cache is not None:
                     with cache.open("a") as f:
                         f.write(json.dumps({**r, "variant": name, "seed": s, "nn": r["nn"].tolist()}) + "\n")
-    complete = [s for s in range(seeds) if all((name, s) in done for name in modes)]
+    complete = [s for s in seed_range if all((name, s) in done for name in modes)]
     full = [done[("jsbsim", s)] for s in complete]
     for name in variants:
         _bias_report(name, variants[name], [done[(name, s)] for s in complete], full, n, size_m, duration_s)
@@ -319,6 +322,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bias-n", type=int, default=200)
     ap.add_argument("--size", type=float, default=3000.0, help="[m] city side of the bias check")
     ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--first-seed", type=int, default=0, help="bias check: seeds --first-seed ... + --seeds - 1")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--shards", type=int, nargs="+", help="shard counts to compare (wall time) at the first --n")
     ap.add_argument("--repeat", type=int, default=1, help="rounds of the shard comparison")
@@ -332,7 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     if a.shards:
         shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set)
     elif a.bias:
-        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set, _variants(a.variant), a.cache, a.analyse_only)
+        bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set, _variants(a.variant), a.cache, a.analyse_only,
+             a.first_seed)
     else:
         cost_curve(a.n, a.duration, a.seed, a.set)
     return 0

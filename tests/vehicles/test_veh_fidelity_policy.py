@@ -44,3 +44,22 @@ def test_closing_pair_is_promoted_by_both_and_kept_while_it_closes() -> None:
 def test_slow_closure_below_closing_min_is_not_a_pair() -> None:
     pos, vel = [[0, 0, 60], [0, 40, 60]], [[7, 0, 0], [7, -0.3, 0]]  # closing at 0.3 m/s < 0.5 m/s
     assert decide("converging", pos, vel, six=False) == ([], [])
+
+
+def test_encounter_is_flown_6dof_from_closing_to_beyond_the_demotion_boundary() -> None:
+    """``encounter``: side by side never starts one; a head-on pair starts one, stays 6-DOF after its
+    closest approach while it parts inside the demotion boundary (``converging`` demotes it there),
+    and is demoted once it is beyond it."""
+    assert decide("encounter", *SIDE_BY_SIDE, six=False) == ([], [])
+    policy = FidelityPolicy(FidelityParams(promote_on="encounter", **BOUNDARY))
+    none, two = np.zeros(2, bool), np.ones(2, bool)
+
+    def step(pos: list[list[float]], vel: list[list[float]], six: np.ndarray) -> tuple[list[int], list[int]]:
+        promote, demote = policy.decide(np.array(pos, float), np.array(vel, float), none, six, np.zeros(2), 10.0)
+        return promote.tolist(), demote.tolist()
+
+    assert step(*HEAD_ON, six=none) == ([0, 1], [])
+    assert step(*PARTING, six=two) == ([], [])  # 30 m apart, parting at 14 m/s: the encounter runs on
+    assert step([[0, 0, 60], [60, 0, 60]], [[-7, 0, 0], [7, 0, 0]], six=two) == ([], [])  # 60 m apart: inside 90 m
+    assert step([[0, 0, 60], [100, 0, 60]], [[-7, 0, 0], [7, 0, 0]], six=two) == ([], [0, 1])
+    assert step(*PARTING, six=none) == ([], [])  # the encounter is over: parting pairs do not start one

@@ -122,3 +122,13 @@ def test_converging_pair_is_demoted_once_it_parts(tmp_path: Path) -> None:
     assert 14.5 < prom[0].t < 17.5
     assert 29.0 < dem[0].t < 32.0
     assert m["six_dof_share"] < (32.0 - 14.5) / 60.0
+
+
+def test_encounter_pair_stays_6dof_until_beyond_the_demotion_boundary(tmp_path: Path) -> None:
+    """``promote_on: encounter``: the head-on pair is promoted as with ``converging`` (t ~ 16 s) but
+    flies 6-DOF past its closest approach until 150 m apart (t ~ 41 s), as ``proximity`` does here."""
+    _, ctx, m = fly(tmp_path, {**MULTI, "promote_on": "encounter"})
+    prom, dem = ctx.events.of_kind("promote"), ctx.events.of_kind("demote")
+    assert sorted(e.data["uav"] for e in prom) == ["a", "b"] and sorted(e.data["uav"] for e in dem) == ["a", "b"]
+    assert 14.5 < prom[0].t < 17.5
+    assert 39.0 < dem[0].t < 43.0

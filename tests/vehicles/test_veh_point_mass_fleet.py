@@ -9,9 +9,17 @@ import numpy as np
 import pytest
 
 from corridor.snapshot import Kind
-from corridor.vehicles.air.autopilot import Hover, VelocityCommand, WaypointCommand
+from corridor.vehicles.air.autopilot import (
+    F450_RATE_PER_STICK,
+    G_MPS2,
+    Hover,
+    QuadGains,
+    VelocityCommand,
+    WaypointCommand,
+)
 from corridor.vehicles.air.f450_envelope import measure_envelope
 from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
+from corridor.vehicles.air.jsbsim_switch import SwitchableJSBSimFleet
 from corridor.vehicles.air.point_mass_fleet import PointMassFleet, PointMassLimits
 
 
@@ -23,16 +31,88 @@ def steady_speed(lim: PointMassLimits) -> float:
 
 def test_default_limits_are_the_measured_f450_envelope() -> None:
     env, lim = asdict(measure_envelope()), PointMassLimits()
-    for name in ("max_climb_mps", "max_descent_mps", "max_accel_h_mps2", "tau_h_s", "tau_v_s", "max_yaw_rate_rps"):
+    for name in ("max_climb_mps", "max_descent_mps", "tau_v_s", "max_yaw_rate_rps"):
         assert getattr(lim, name) == pytest.approx(env[name], rel=0.08, abs=0.05), name
     for name in ("drag_per_m", "integ_u_hover_mps2", "integ_u_per_m"):
         assert getattr(lim, name) == pytest.approx(env[name], rel=0.15), name
     assert steady_speed(lim) == pytest.approx(env["max_speed_h_mps"], abs=0.02)
+    gains = QuadGains()  # the tilt loop is the cascade's
+    assert (lim.kp_att, lim.max_tilt_rad, lim.kp_vel_xy, lim.kp_pos) == (gains.kp_att, gains.max_tilt_rad,
+                                                                        gains.kp_vel_xy, gains.kp_pos)
+    assert lim.max_tilt_rate_rps == F450_RATE_PER_STICK
+
+
+def test_point_mass_measures_the_6dof_envelope() -> None:
+    """The envelope's manoeuvres flown by the point mass give the 6-DOF F450's figures (measured
+    differences: acceleration 0.4 %, turn rate 0.7 %, time constants equal at 0.1 s sampling)."""
+    js, pm = asdict(measure_envelope("jsbsim")), asdict(measure_envelope("point_mass"))
+    for name in ("max_accel_h_mps2", "max_turn_rate_rps", "max_yaw_rate_rps", "drag_per_m"):
+        assert pm[name] == pytest.approx(js[name], rel=0.03), name
+    for name in ("tau_h_s", "tau_v_s", "max_speed_h_mps", "max_climb_mps", "max_descent_mps"):
+        assert pm[name] == pytest.approx(js[name], abs=0.05), name
+
+
+def _spawned_6dof() -> SwitchableJSBSimFleet:
+    """A 6-DOF F450 hovering at (0, 0, 60) as the multi-fidelity backend spawns one (warm FDM)."""
+    js = SwitchableJSBSimFleet((47.3769, 8.5417, 408.0))
+    js.spawn_in_flight("q", np.array([0.0, 0.0, 60.0]), np.zeros(3), 0.0, 0.0, 0.0,
+                       integ_u_mps2=PointMassLimits().integ_u_hover_mps2)
+    return js
+
+
+@pytest.mark.parametrize("dt_pm", [0.1, 0.5])
+def test_start_to_cruise_has_the_6dof_lag(dt_pm: float) -> None:
+    """Hover -> 7 m/s (a city drone's start): the 6-DOF F450 first tilts (at most 0.75 rad/s per axis)
+    before it accelerates, about 0.27 s of lag. The point mass has it: within 0.25 m/s and 0.5 m of
+    the 6-DOF trajectory over 8 s (measured: 0.19 m/s, 0.36 m); a first-order response without the
+    tilt loop was 1.0 m/s and 1.7 m ahead, a 0.2 s shorter delivery."""
+    js, pm = _spawned_6dof(), PointMassFleet()
+    pm.add("q", (0.0, 0.0, 60.0))
+    cmd = VelocityCommand((7.0, 0.0, 0.0), 0.0)
+    js.command("q", cmd)
+    pm.command("q", cmd)
+    every, dp, dv = round(dt_pm / 0.1), [], []
+    for k in range(80):
+        js.step(0.1)
+        if (k + 1) % every == 0:
+            pm.step(dt_pm)
+            st = js.state()
+            dp.append(np.linalg.norm(st.position[0] - pm.pos[0]))
+            dv.append(np.linalg.norm(st.velocity[0] - pm.vel[0]))
+    assert max(dv) < 0.25
+    assert max(dp) < 0.5
+
+
+CITY_PLAN = [(VelocityCommand((7.0, 0.0, 0.0), 0.0), 10.0), (VelocityCommand((0.0, 7.0, 0.0), 0.0), 8.0),
+             (VelocityCommand((0.0, 7.0, 3.0), 0.0), 8.0), (VelocityCommand((-7.0, 0.0, -2.0), 0.0), 12.0),
+             (VelocityCommand((4.95, 4.95, 0.0), 0.0), 10.0), (WaypointCommand(((60.0, 120.0, 70.0),), 7.0), 25.0)]
+
+
+def test_city_manoeuvres_follow_the_6dof_f450() -> None:
+    """A city drone's manoeuvres at cruise speed (turns of 90 and 135 degrees, climbing to a layer,
+    turning while descending, a waypoint): the point mass (0.5 s steps) stays within 1.2 m of the
+    6-DOF F450 all along (measured: 1.00 m; the thrust it turns with follows the climb or descent).
+    The first-order model was 4.9 m away."""
+    js = JSBSimFleet((47.3769, 8.5417, 408.0))
+    js.add("q", "F450", (0.0, 0.0, 60.0))
+    pm = PointMassFleet()
+    pm.add("q", (0.0, 0.0, 60.0))
+    err = []
+    for cmd, seconds in CITY_PLAN:
+        js.command("q", cmd)
+        pm.command("q", cmd)
+        for k in range(round(seconds / 0.1)):
+            js.step(0.1)
+            if (k + 1) % 5 == 0:
+                pm.step(0.5)
+                err.append(np.linalg.norm(js.state().position[0] - pm.pos[0]))
+    assert max(err) < 1.2
 
 
 @pytest.mark.parametrize("dt_pm", [0.1, 0.5])
 def test_point_mass_follows_the_6dof_f450(dt_pm: float) -> None:
-    """Speed step, 90 degree turn with a climb, then waypoints: within 2.5 m of JSBSim all along."""
+    """Speed step, 90 degree turn with a climb, then waypoints: within 0.5 m of JSBSim all along
+    (measured: 0.30 m; the first-order model without the tilt loop: 2.0 m)."""
     plan = [(VelocityCommand((20.0, 0.0, 0.0), 0.0), 10.0), (VelocityCommand((0.0, 20.0, 1.0), 0.0), 8.0),
             (WaypointCommand(((60.0, 120.0, 70.0),), 6.0), 20.0)]
     js = JSBSimFleet((47.3769, 8.5417, 408.0))
@@ -48,8 +128,8 @@ def test_point_mass_follows_the_6dof_f450(dt_pm: float) -> None:
             if (k + 1) % every == 0:
                 pm.step(dt_pm)
                 err.append(np.linalg.norm(js.state().position[0] - pm.pos[0]))
-    assert max(err) < 2.5
-    assert err[-1] < 1.5
+    assert max(err) < 0.5
+    assert err[-1] < 0.1
 
 
 def test_first_order_response_closed_form() -> None:
@@ -68,14 +148,19 @@ def test_speed_acceleration_and_turn_limits() -> None:
     pm = PointMassFleet()
     pm.add("a", (0.0, 0.0, 50.0))
     pm.add("b", (0.0, 100.0, 50.0), v_enu=(7.0, 0.0, 0.0))
-    pm.command_velocities(np.array([0, 1]), np.array([[30.0, 0.0, 9.0], [0.0, 7.0, 0.0]]))
+    pm.command_velocities(np.array([0, 1]), np.array([[30.0, 0.0, 0.0], [0.0, 7.0, 0.0]]))
     lim, v_prev = pm.limits, pm.vel.copy()
     for _ in range(250):
         pm.step(0.1)
         a_h = np.hypot(*(pm.vel - v_prev)[:, :2].T) / 0.1
-        assert np.all(a_h <= lim.max_accel_h_mps2 + 1e-9)
+        assert np.all(a_h <= G_MPS2 * np.tan(lim.max_tilt_rad) + 1e-9)  # level flight: the tilt limit
+        roll, pitch = pm.attitude()
+        assert np.all(np.hypot(roll, pitch) <= lim.max_tilt_rad + 1e-12)
         v_prev = pm.vel.copy()
     assert np.hypot(*pm.vel[0, :2]) == pytest.approx(steady_speed(lim), rel=1e-3)
+    pm.command_velocities(np.array([0]), np.array([[30.0, 0.0, 9.0]]))
+    for _ in range(50):
+        pm.step(0.1)
     assert pm.vel[0, 2] == pytest.approx(lim.max_climb_mps, rel=1e-6)
     v_b = (-1.0 + np.sqrt(1.0 + 4.0 * lim.drag_per_m / lim.kp_vel_xy * 7.0)) / (2.0 * lim.drag_per_m / lim.kp_vel_xy)
     assert pm.vel[1] == pytest.approx([0.0, v_b, 0.0], abs=1e-3)

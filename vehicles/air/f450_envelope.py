@@ -15,14 +15,18 @@ same autopilot every 6-DOF UAV flies) through step commands and reads what it ac
 - ``integ_u_hover_mps2`` / ``integ_u_per_m``: the cascade's vertical integrator in steady flight,
   a + b v^2 (hover and full speed), the state a hand-over to JSBSim starts it with.
 
-The point-mass model (:mod:`corridor.vehicles.air.point_mass_fleet`) takes these as its limits;
-``tests/vehicles/test_veh_point_mass_fleet.py`` re-measures them and checks its defaults, and
-``python -m corridor.vehicles.air.f450_envelope`` prints them.
+The point-mass model (:mod:`corridor.vehicles.air.point_mass_fleet`) takes the speed, climb, drag
+and integrator figures as its limits, and models the horizontal response as the cascade's tilt loop
+(tilt limit, tilt-rate limit, attitude gain): ``measure_envelope("point_mass")`` flies the same
+manoeuvres with the point mass, and ``tests/vehicles/test_veh_point_mass_fleet.py`` checks that both
+measure the same envelope. ``python -m corridor.vehicles.air.f450_envelope`` prints both.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from types import SimpleNamespace
+from typing import Literal
 
 import numpy as np
 
@@ -65,12 +69,43 @@ def _tau(t: np.ndarray, x: np.ndarray, x0: float, x1: float) -> float:
     return float(t[k] - t[0] + DT_S)
 
 
-def measure_envelope() -> Envelope:
-    """Fly the step manoeuvres (about 80 s simulated, well under a second of CPU)."""
+class _PointMassProbe:
+    """The point-mass F450 behind the few calls of ``JSBSimFleet`` the manoeuvres use."""
+
+    def __init__(self) -> None:
+        from corridor.vehicles.air.point_mass_fleet import PointMassFleet
+
+        self.pm = PointMassFleet()
+
+    @property
+    def t_s(self) -> float:
+        return self.pm.t_s
+
+    def add(self, id: str, model: str, enu_m: tuple[float, float, float]) -> None:
+        self.pm.add(id, enu_m)
+
+    def command(self, id: str, cmd: object) -> None:
+        self.pm.command(id, cmd)
+
+    def step(self, dt_s: float) -> None:
+        self.pm.step(dt_s)
+
+    def state(self) -> SimpleNamespace:
+        roll, pitch = self.pm.attitude()
+        return SimpleNamespace(velocity=self.pm.vel.copy(), yaw=self.pm.yaw.copy(), roll=roll, pitch=pitch)
+
+    def get_property(self, id: str, name: str) -> float:
+        assert name == "corridor/integ-u-mps2", name
+        return float(self.pm.integ_u(np.array([self.pm.row(id)]))[0])
+
+
+def measure_envelope(model: Literal["jsbsim", "point_mass"] = "jsbsim") -> Envelope:
+    """Fly the step manoeuvres (about 80 s simulated, well under a second of CPU) with corridor's
+    6-DOF F450 (``jsbsim``) or the point-mass model (``point_mass``)."""
     from corridor.vehicles.air.autopilot import VelocityCommand
     from corridor.vehicles.air.jsbsim_fleet import JSBSimFleet
 
-    fleet = JSBSimFleet(ORIGIN)
+    fleet = JSBSimFleet(ORIGIN) if model == "jsbsim" else _PointMassProbe()
     fleet.add("q", "F450", (0.0, 0.0, 80.0))
     _fly(fleet, VelocityCommand((0.0, 0.0, 0.0), 0.0), 30.0)
     integ_hover = fleet.get_property("q", "corridor/integ-u-mps2")
@@ -97,5 +132,7 @@ def measure_envelope() -> Envelope:
 
 
 if __name__ == "__main__":
-    for k, v in asdict(measure_envelope()).items():
-        print(f"{k:20s} {v:10.6f}")
+    js, pm = asdict(measure_envelope("jsbsim")), asdict(measure_envelope("point_mass"))
+    print(f"{'':20s} {'6-DOF':>10s} {'point mass':>10s}")
+    for k, v in js.items():
+        print(f"{k:20s} {v:10.6f} {pm[k]:10.6f}")

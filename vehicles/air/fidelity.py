@@ -18,6 +18,13 @@ range shrinks faster than ``closing_min_mps`` and its closest approach within ``
 inside the boundary (the promotion radius to promote, the demotion radius to stay 6-DOF). Two
 aircraft flying side by side, or apart after their closest approach, stay (or go back to) point
 masses; the approach to every closest approach inside the boundary is flown 6-DOF.
+
+``promote_on: encounter`` starts a pair as ``converging`` does (closing, closest approach inside the
+promotion boundary) and keeps it, closing or not, until it is beyond the demotion boundary (neither
+within it nor predicted inside it within ``promote_ttca_s``): the whole encounter is flown 6-DOF, the
+avoidance manoeuvre around the closest approach and the parting included, while pairs that never
+closed on each other (side by side) stay point masses. The policy remembers the pairs of the running
+encounters between checks (aircraft rows are fixed for a run).
 """
 
 from __future__ import annotations
@@ -41,9 +48,10 @@ class FidelityParams(BaseModel):
     promote_ttca_s: float = Field(5.0, ge=0.0)  # [s] look-ahead of the closest-approach test
     demote_radius_m: float = Field(120.0, gt=0.0)  # [m]
     min_dwell_s: float = Field(3.0, ge=0.0)  # [s] shortest 6-DOF spell
-    # proximity: every pair inside the boundary (or predicted inside it); converging: closing pairs only
-    promote_on: Literal["proximity", "converging"] = "proximity"
-    closing_min_mps: float = Field(0.5, ge=0.0)  # [m/s] converging: the range shrinks faster than this
+    # proximity: every pair inside the boundary (or predicted inside it); converging: closing pairs only;
+    # encounter: a closing pair, kept until it is beyond the demotion boundary
+    promote_on: Literal["proximity", "converging", "encounter"] = "proximity"
+    closing_min_mps: float = Field(0.5, ge=0.0)  # [m/s] converging / encounter: the range shrinks faster than this
     uav_speed_bound_mps: float = Field(20.0, gt=0.0)  # [m/s] bounds the pair search radius of UAVs
     piloted_speed_bound_mps: float = Field(80.0, gt=0.0)  # [m/s] same for piloted aircraft
 
@@ -92,6 +100,7 @@ class FidelityPolicy:
 
     def __init__(self, params: FidelityParams) -> None:
         self.p = params
+        self.encounters = np.zeros(0, dtype=np.int64)  # encounter: running pairs, keys i * n + j (i < j), sorted
 
     def decide(self, pos: np.ndarray, vel: np.ndarray, piloted: np.ndarray, six_dof: np.ndarray,
                since_s: np.ndarray, t_s: float) -> tuple[np.ndarray, np.ndarray]:
@@ -106,9 +115,23 @@ class FidelityPolicy:
         stretch = np.array([1.0, 1.0, p.promote_radius_m / p.promote_vertical_m])
         ij, miss, closing = closest_approach_pairs(pos * stretch, vel * stretch, piloted, p.demote_radius_m,
                                                    p.promote_ttca_s, p.uav_speed_bound_mps, p.piloted_speed_bound_mps)
-        if p.promote_on == "converging":  # side by side or parting: no pair (the miss of the others holds)
-            miss = np.where(closing > p.closing_min_mps, miss, np.inf)
-        hot, warm = close_rows(n, ij, miss, p.promote_radius_m), close_rows(n, ij, miss, p.demote_radius_m)
+        if p.promote_on == "encounter":
+            hot = warm = self._encounter_rows(n, ij, miss, closing)
+        else:
+            if p.promote_on == "converging":  # side by side or parting: no pair (the miss of the others holds)
+                miss = np.where(closing > p.closing_min_mps, miss, np.inf)
+            hot, warm = close_rows(n, ij, miss, p.promote_radius_m), close_rows(n, ij, miss, p.demote_radius_m)
         promote = np.flatnonzero(hot & ~six_dof & ~piloted)
         demote = np.flatnonzero(six_dof & ~warm & ~piloted & (t_s - since_s >= p.min_dwell_s))
         return promote, demote
+
+    def _encounter_rows(self, n: int, ij: np.ndarray, miss: np.ndarray, closing: np.ndarray) -> np.ndarray:
+        """Rows in a running encounter: pairs that start one now (closing, inside the promotion
+        boundary) and the running ones still inside the demotion boundary; remembers them."""
+        p = self.p
+        lo, hi = np.minimum(ij[:, 0], ij[:, 1]), np.maximum(ij[:, 0], ij[:, 1])
+        key = lo.astype(np.int64) * n + hi
+        start = (closing > p.closing_min_mps) & (miss < p.promote_radius_m)
+        keep = np.isin(key, self.encounters) & (miss < p.demote_radius_m)
+        self.encounters = np.unique(key[start | keep])
+        return close_rows(n, ij, np.where(start | keep, 0.0, np.inf), 1.0)

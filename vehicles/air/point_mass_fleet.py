@@ -1,21 +1,23 @@
 """A point-mass quadcopter fleet, vectorised over every aircraft (struct of arrays, BlueSky style).
 
-Each row is an F450 reduced to a point with a first-order velocity response: the autopilot's
-velocity demand (the same P-on-position / commanded-velocity law and saturations as
-``autopilot.QuadCascade.velocity_demand``) is followed with time constants ``tau_h_s`` (horizontal)
-and ``tau_v_s`` (vertical), the horizontal acceleration saturated at ``max_accel_h_mps2``, speeds at
-the measured maxima. Drag (``drag_per_m`` v^2) against the P velocity loop leaves the cascade's
-steady error: the point mass flies v = v_demand - (c / kp_vel_xy) |v| v, so 8 m/s commanded is 7.86
-m/s flown, as in JSBSim. A heading (course) change is a change of the velocity vector, so the turn rate
-is bounded by ``max_accel_h_mps2 / speed``. Yaw follows its target at ``max_yaw_rate_rps``. Roll and
-pitch are those of a quad producing the current horizontal acceleration (``atan(a / g)``, the
-cascade's tilt law), so a hand-over to JSBSim can start with a consistent attitude.
+Each row is an F450 reduced to a point that flies corridor's quad cascade (``autopilot.QuadCascade``)
+without the rotors: the autopilot's velocity demand (P on position or the commanded velocity, the
+speed / climb saturations) gives a horizontal acceleration demand (P velocity loop, ``kp_vel_xy``), that
+a tilt (roll, pitch: ``atan(a / g)``, at most ``max_tilt_rad``); the tilt follows its demand as the
+cascade's attitude loop moves it (``kp_att``, at most ``max_tilt_rate_rps`` per body axis: the F450's
+full-stick rate), and the thrust along the tilt accelerates the point against the drag ``drag_per_m``
+v^2 (so 8 m/s commanded is 7.86 m/s flown, as in JSBSim). The tilt loop is the lag of a real quad: it
+tilts before it accelerates (about 0.27 s from hover to a cruise command); a first-order velocity
+response without it flew 1.5 m ahead of the 6-DOF F450 after every start. The vertical speed follows
+its demand with the time constant ``tau_v_s`` (at most free fall: the thrust cannot pull down), and the
+thrust's vertical part scales the horizontal acceleration (a quad turns harder while it climbs). Yaw
+follows its target at ``max_yaw_rate_rps``. A hand-over to JSBSim starts from the modelled attitude.
 
-The limits are the F450's as corridor's 6-DOF model flies them, measured by
-:func:`corridor.vehicles.air.f450_envelope.measure_envelope` (the defaults below; the test re-measures
-them). One step of ``dt_s`` uses the exact first-order decay of the velocity error, the acceleration
-clamp on top, and trapezoidal position integration, so a coarse step (0.5 s) stays on the
-fine-step trajectory.
+The speed, climb, drag and integrator figures are the F450's as corridor's 6-DOF model flies them,
+measured by :func:`corridor.vehicles.air.f450_envelope.measure_envelope`; the tilt loop's constants are
+the cascade's. ``measure_envelope("point_mass")`` measures the same envelope on this model (the test
+compares both). One step of ``dt_s`` is integrated in sub-steps of at most ``max_substep_s``, so a
+coarse step (0.5 s) stays on the fine-step trajectory.
 
 The fleet takes the autopilot's commands (``Hover``, ``PositionCommand``, ``VelocityCommand``,
 ``WaypointCommand``) per aircraft, and whole-fleet velocity commands (:meth:`command_velocities`).
@@ -49,8 +51,6 @@ class PointMassLimits:
     max_speed_h_mps: float = 8.0  # [m/s] the cascade's command limit (7.86 m/s flown: drag droop)
     max_climb_mps: float = 3.0  # [m/s]
     max_descent_mps: float = 2.03  # [m/s]
-    max_accel_h_mps2: float = 3.5  # [m/s^2]
-    tau_h_s: float = 0.5  # [s] (unsaturated: a 1 m/s step)
     tau_v_s: float = 0.2  # [s]
     max_yaw_rate_rps: float = 0.6  # [rad/s]
     drag_per_m: float = 0.00673  # [1/m] a_drag = c v^2
@@ -59,6 +59,21 @@ class PointMassLimits:
     kp_pos: float = 0.6  # [1/s] the cascade's gains (QuadGains)
     kp_vel_xy: float = 3.0  # [1/s]
     kp_yaw: float = 1.5  # [1/s]
+    kp_att: float = 5.0  # [1/s] tilt error -> tilt rate (QuadGains)
+    max_tilt_rad: float = 0.35  # [rad] (QuadGains)
+    max_tilt_rate_rps: float = 0.75  # [rad/s] per axis: full stick (autopilot.F450_RATE_PER_STICK)
+    max_substep_s: float = 0.05  # [s] integration sub-step (not a property of the F450)
+
+
+def _demand(lim: PointMassLimits, by_pos: np.ndarray, pos: np.ndarray, p_tgt: np.ndarray, v_tgt: np.ndarray,
+            cap: np.ndarray) -> np.ndarray:
+    """The cascade's velocity demand [m/s] (k, 3): P on position where ``by_pos``, else the commanded
+    velocity; horizontal norm saturated at ``cap`` [m/s], vertical at the climb / descent limits."""
+    v = np.where(by_pos[:, None], lim.kp_pos * (p_tgt - pos), v_tgt)
+    scale = np.minimum(1.0, cap / np.maximum(np.hypot(v[:, 0], v[:, 1]), 1e-9))
+    out = v * scale[:, None]
+    out[:, 2] = np.clip(v[:, 2], -lim.max_descent_mps, lim.max_climb_mps)
+    return out
 
 
 class PmMode:
@@ -81,7 +96,7 @@ class PointMassFleet:
         self.roles = np.zeros(0, dtype=np.int8)
         self.pos = np.zeros((0, 3))  # [m] ENU
         self.vel = np.zeros((0, 3))  # [m/s] ENU
-        self.acc = np.zeros((0, 3))  # [m/s^2] over the last step
+        self.tilt = np.zeros((0, 2))  # [rad] roll, pitch (JSBSim body convention)
         self.yaw = np.zeros(0)  # [rad] ENU
         self.mode = np.zeros(0, dtype=np.int8)
         self.p_tgt = np.zeros((0, 3))  # [m]
@@ -102,7 +117,7 @@ class PointMassFleet:
         self.ids.append(id)
         self.roles = _grow(self.roles, int(role))
         self.pos, self.vel = _grow(self.pos, p), _grow(self.vel, np.asarray(v_enu, float))
-        self.acc = _grow(self.acc, np.zeros(3))
+        self.tilt = _grow(self.tilt, np.zeros(2))
         self.yaw, self.yaw_tgt = _grow(self.yaw, yaw_rad), _grow(self.yaw_tgt, yaw_rad)
         self.mode = _grow(self.mode, PmMode.POSITION)
         self.p_tgt, self.v_tgt = _grow(self.p_tgt, p), _grow(self.v_tgt, np.zeros(3))
@@ -155,12 +170,9 @@ class PointMassFleet:
 
     def set_state(self, q: int, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float, roll_rad: float,
                   pitch_rad: float) -> None:
-        """Take over a state (a 6-DOF aircraft handing back): the acceleration is the one the attitude
-        produces (inverse of :meth:`attitude`)."""
+        """Take over a state (a 6-DOF aircraft handing back), its attitude included."""
         self.pos[q], self.vel[q], self.yaw[q] = p_enu, v_enu, yaw_rad
-        a_right, a_fwd = G_MPS2 * np.tan(roll_rad), -G_MPS2 * np.tan(pitch_rad)
-        c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-        self.acc[q] = np.array([c * a_fwd + s * a_right, s * a_fwd - c * a_right, 0.0]) - self.drag_acc([q])[0]
+        self.tilt[q] = (roll_rad, pitch_rad)
 
     def waypoint_index(self, id: str) -> int:
         return self._wp.get(self._row[id], (None, 0))[1]
@@ -168,34 +180,43 @@ class PointMassFleet:
     # ------------------------------------------------------------------------------------ dynamics
     def velocity_demand(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """The cascade's velocity demand [m/s] (k, 3): P on position or the command, saturated."""
-        lim = self.limits
-        v = np.where((self.mode[rows] == PmMode.VELOCITY)[:, None], self.v_tgt[rows],
-                     lim.kp_pos * (self.p_tgt[rows] - self.pos[rows]))
-        h = np.hypot(v[:, 0], v[:, 1])
-        cap = np.minimum(self.speed_limit[rows], lim.max_speed_h_mps)
-        scale = np.minimum(1.0, cap / np.maximum(h, 1e-9))
-        out = v * np.column_stack([scale, scale, np.ones_like(scale)])
-        out[:, 2] = np.clip(v[:, 2], -lim.max_descent_mps, lim.max_climb_mps)
-        return out
+        cap = np.minimum(self.speed_limit[rows], self.limits.max_speed_h_mps)
+        return _demand(self.limits, self.mode[rows] != PmMode.VELOCITY, self.pos[rows], self.p_tgt[rows],
+                       self.v_tgt[rows], cap)
 
     def step(self, dt_s: float, rows: np.ndarray | slice = slice(None)) -> None:
-        """Advance ``rows`` (default: all) by ``dt_s`` [s]; ``t_s`` advances only for a full step."""
+        """Advance ``rows`` (default: all) by ``dt_s`` [s]; ``t_s`` advances only for a full step.
+        Integrated in sub-steps of at most ``max_substep_s`` (the attitude loop's time scale)."""
         lim = self.limits
-        v0 = self.vel[rows]
-        dv = self.velocity_demand(rows) - v0
-        dv[:, :2] -= (lim.drag_per_m / lim.kp_vel_xy) * np.hypot(v0[:, 0], v0[:, 1])[:, None] * v0[:, :2]
-        dv[:, :2] *= 1.0 - np.exp(-dt_s / lim.tau_h_s)
-        dv[:, 2] *= 1.0 - np.exp(-dt_s / lim.tau_v_s)
-        dh = np.hypot(dv[:, 0], dv[:, 1])
-        clamp = np.minimum(1.0, lim.max_accel_h_mps2 * dt_s / np.maximum(dh, 1e-12))
-        dv[:, :2] *= clamp[:, None]
-        v1 = v0 + dv
-        self.acc[rows] = dv / dt_s
-        self.pos[rows] = self.pos[rows] + 0.5 * (v0 + v1) * dt_s
-        self.vel[rows] = v1
-        yaw_rate = np.clip(lim.kp_yaw * wrap_pi(self.yaw_tgt[rows] - self.yaw[rows]),
-                           -lim.max_yaw_rate_rps, lim.max_yaw_rate_rps)
-        self.yaw[rows] = wrap_pi(self.yaw[rows] + yaw_rate * dt_s)
+        n_sub = max(1, int(np.ceil(dt_s / lim.max_substep_s - 1e-9)))
+        h = dt_s / n_sub
+        pos, vel, tilt, yaw = self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows]
+        mode, p_tgt, v_tgt = self.mode[rows], self.p_tgt[rows], self.v_tgt[rows]
+        cap = np.minimum(self.speed_limit[rows], lim.max_speed_h_mps)
+        yaw_tgt = self.yaw_tgt[rows]
+        by_pos = mode != PmMode.VELOCITY
+        decay_v = 1.0 - np.exp(-h / lim.tau_v_s)
+        for _ in range(n_sub):
+            vd = _demand(lim, by_pos, pos, p_tgt, v_tgt, cap)
+            c, s = np.cos(yaw), np.sin(yaw)
+            a_e, a_n = lim.kp_vel_xy * (vd[:, 0] - vel[:, 0]), lim.kp_vel_xy * (vd[:, 1] - vel[:, 1])
+            tilt_dem = np.column_stack([np.arctan2(s * a_e - c * a_n, G_MPS2), -np.arctan2(c * a_e + s * a_n, G_MPS2)])
+            norm = np.hypot(tilt_dem[:, 0], tilt_dem[:, 1])
+            tilt_dem *= np.minimum(1.0, lim.max_tilt_rad / np.maximum(norm, 1e-12))[:, None]
+            tilt = tilt + h * np.clip(lim.kp_att * (tilt_dem - tilt), -lim.max_tilt_rate_rps, lim.max_tilt_rate_rps)
+            dvz = np.maximum((vd[:, 2] - vel[:, 2]) * decay_v, -G_MPS2 * h)  # thrust >= 0: at most free fall
+            lift = G_MPS2 + dvz / h  # [m/s^2] the thrust's vertical part (climbing: more, descending: less)
+            a_right, a_fwd = lift * np.tan(tilt[:, 0]), -lift * np.tan(tilt[:, 1])
+            v_h = np.hypot(vel[:, 0], vel[:, 1])
+            v1 = vel.copy()
+            v1[:, 0] += h * (c * a_fwd + s * a_right - lim.drag_per_m * v_h * vel[:, 0])
+            v1[:, 1] += h * (s * a_fwd - c * a_right - lim.drag_per_m * v_h * vel[:, 1])
+            v1[:, 2] += dvz
+            pos = pos + 0.5 * h * (vel + v1)
+            vel = v1
+            yaw_rate = np.clip(lim.kp_yaw * wrap_pi(yaw_tgt - yaw), -lim.max_yaw_rate_rps, lim.max_yaw_rate_rps)
+            yaw = wrap_pi(yaw + yaw_rate * h)
+        self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows] = pos, vel, tilt, yaw
         if isinstance(rows, slice):
             self.t_s += dt_s
         self._advance_waypoints()
@@ -207,19 +228,10 @@ class PointMassFleet:
                 self.p_tgt[q] = cmd.waypoints_enu[i + 1]
 
     def attitude(self, rows: np.ndarray | slice = slice(None)) -> tuple[np.ndarray, np.ndarray]:
-        """(roll, pitch) [rad] of a quad producing the last step's horizontal acceleration plus the
-        drag it overcomes (JSBSim body convention, the cascade's tilt law: roll = atan(a_right / g),
-        pitch = -atan(a_fwd / g))."""
-        a, yaw = self.acc[rows] + self.drag_acc(rows), self.yaw[rows]
-        c, s = np.cos(yaw), np.sin(yaw)
-        a_fwd, a_right = c * a[:, 0] + s * a[:, 1], s * a[:, 0] - c * a[:, 1]
-        return np.arctan2(a_right, G_MPS2), -np.arctan2(a_fwd, G_MPS2)
-
-    def drag_acc(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        """[m/s^2] (k, 3) horizontal thrust that balances the drag: c |v_h| v_h."""
-        v = self.vel[rows].copy()
-        v[:, 2] = 0.0
-        return self.limits.drag_per_m * np.hypot(v[:, 0], v[:, 1])[:, None] * v
+        """(roll, pitch) [rad]: the modelled tilt (JSBSim body convention; the thrust's horizontal
+        acceleration is g tan(roll) to the right, -g tan(pitch) forward)."""
+        t = self.tilt[rows]
+        return t[:, 0].copy(), t[:, 1].copy()
 
     def integ_u(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
         """[m/s^2] the vertical integrator the cascade holds in this steady flight (hand-over)."""
