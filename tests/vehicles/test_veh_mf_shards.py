@@ -101,21 +101,28 @@ def _fly(tracks: np.ndarray, ranks: int) -> tuple[list[dict[str, Any]], list[lis
         a, b = mp.Pipe()
         comms = [ShardComm(0, 2, {1: a}), ShardComm(1, 2, {0: b})]
     mons = [_monitor(c) for c in comms]
+    out = _drive(mons, tracks)
+    return out, [[e.message for e in ctx.events.events] for _, ctx in mons]
+
+
+def _drive(runs: list[tuple[Any, RunContext]], tracks: np.ndarray) -> list[dict[str, Any]]:
+    """Tick every (monitor, context) on the snapshots of ``tracks`` in turn, then finish them
+    together, one thread each (a sharded finish's collectives wait for the other ranks)."""
     for s in _snapshots(tracks):
-        for mon, ctx in mons:
+        for mon, ctx in runs:
             ctx.snapshot, ctx.t = s, s.t
             mon.tick(ctx)
-    out: list[dict[str, Any]] = [{} for _ in mons]
+    out: list[dict[str, Any]] = [{} for _ in runs]
 
     def finish(k: int) -> None:
-        out[k] = mons[k][0].finish(mons[k][1])
+        out[k] = runs[k][0].finish(runs[k][1])
 
-    threads = [threading.Thread(target=finish, args=(k,)) for k in range(len(mons))]
+    threads = [threading.Thread(target=finish, args=(k,)) for k in range(len(runs))]
     for t in threads:
         t.start()
     for t in threads:
         t.join(timeout=30)
-    return out, [[e.message for e in ctx.events.events] for _, ctx in mons]
+    return out
 
 
 def _tracks(start: np.ndarray, vel: np.ndarray, ticks: int) -> np.ndarray:
@@ -186,20 +193,7 @@ def test_a_collision_across_the_strip_edge_is_counted_once() -> None:
         ctx = RunContext(run_seed=0, dt=DT, duration=2.0)
         ctx.shard = shard
         runs.append((CollisionMonitor("collisions", CollisionMonitor.Params(), None), ctx))
-    for s in _snapshots(tracks):
-        for mon, ctx in runs:
-            ctx.snapshot, ctx.t = s, s.t
-            mon.tick(ctx)
-    out: list[dict[str, Any]] = [{} for _ in runs]
-
-    def finish(k: int) -> None:
-        out[k] = runs[k][0].finish(runs[k][1])
-
-    threads = [threading.Thread(target=finish, args=(k,)) for k in range(3)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join(timeout=30)
+    out = _drive(runs, tracks)
     assert out[0]["collisions"] == 1 and 1.0 < out[0]["first_collision_s"] < 1.2
     assert out[1] == out[0] and out[2] == out[0]
     logs = [[(e.t, e.message) for e in ctx.events.events] for _, ctx in runs]
