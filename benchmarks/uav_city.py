@@ -40,9 +40,11 @@ import argparse
 import json
 import math
 import os
+import pickle
 import resource
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -76,18 +78,20 @@ def one_run_switch_cost(sets: list[str], seed: int) -> dict[str, Any]:
             "spawn_cpu_per_sim_s": getattr(js, "spawn_cpu_s", math.nan) / sc.duration}
 
 
-def one_run_exchange(sets: list[str], seed: int) -> dict[str, Any]:
+def one_run_exchange(sets: list[str], seed: int, profile: bool = False) -> dict[str, Any]:
     """``one_run`` plus, for a sharded run, where its CPU went: ``rank_cpu_per_sim_s`` (each rank's
     process from the first tick: rank 0 is the run's own process), and per tick the collectives
     (``rounds_per_tick``) and rank 0's wall time inside them (``wait_ms_per_tick``: the exchange plus
-    waiting for the slower rank)."""
+    waiting for the slower rank). ``profile``: every rank's ``TickProfile.summary()`` (``profiles``)."""
     from corridor.run import simulate
     from corridor.scenario import load
 
     sc, _ = load(CITY, sets)
-    m, ctx, _ = simulate(sc, seed)
+    m, ctx, _ = simulate(sc, seed, profile=profile)
     air, sim_s = ctx.components["air"], sc.duration
     comm = ctx.shard
+    if profile:
+        m = {**m, "profiles": ctx.profiles}
     if comm is None:
         return {**m, "rank_cpu_per_sim_s": [m["cpu_per_sim_s"]]}
     ticks = round(sim_s / sc.dt)
@@ -117,7 +121,8 @@ def cost_curve(ns: list[int], duration_s: float, seed: int, extra: list[str]) ->
               f"{m['pool_cpu_per_sim_s']:>12.3f} {m['spawn_cpu_per_sim_s']:>7.3f}", flush=True)
 
 
-def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str]) -> None:
+def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repeat: int, extra: list[str],
+                  profile: bool = False, profile_out: Path | None = None) -> None:
     """Per run: the wall of the run loop and its speed-up against the round's one-shard run (fair on
     an idle machine only), the CPU per simulated s of all ranks and of each, the speed-up the CPU
     allows (one-shard CPU / the busiest rank's CPU: the wall speed-up with a free core per rank and
@@ -125,7 +130,8 @@ def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repea
     CPU) / (K - 1), over the one-shard CPU; Amdahl's serial part), whether the rows equal the
     one-shard run's, the load, and the collectives per tick."""
     machine = {"wall_s", "rtf", "cpu_per_sim_s", "cpu_total_per_sim_s", "rank_cpu_per_sim_s", "rounds_per_tick",
-               "wait_ms_per_tick"}
+               "wait_ms_per_tick", "profiles"}
+    fn = partial(one_run_exchange, profile=profile)
     print(f"N={n}, {duration_s:.0f} s, potential field; wall of the run loop (rtf: simulated s per wall s)")
     print(f"{'round':>5} {'shards':>6} {'loop wall [s]':>13} {'speed-up':>9} {'CPU/sim s':>10} {'per rank':>16} "
           f"{'CPU bound':>10} {'replicated':>11} {'6-DOF share':>12} {'rows = 1 shard':>15} {'load (1 min)':>13}  exchange")
@@ -134,7 +140,7 @@ def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repea
         for k in shards:
             sets = [f"backends.air.params.city.n={n}", f"duration={duration_s}",
                     "controllers.avoid.type=city_potential_field", f"backends.air.params.shards={k}", *extra]
-            m = timed_run(sets, seed, duration_s, one_run_exchange)
+            m = timed_run(sets, seed, duration_s, fn)
             wall = duration_s / m["rtf"]
             ref = ref or {**m, "wall": wall}
             same = all(_same(m[c], ref[c]) for c in m if c not in machine)
@@ -146,6 +152,41 @@ def shard_speedup(n: int, shards: list[int], duration_s: float, seed: int, repea
             print(f"{r:>5} {k:>6} {wall:>13.1f} {ref['wall'] / wall:>9.2f} {m['cpu_per_sim_s']:>10.3f} "
                   f"{' / '.join(f'{c:.3f}' for c in ranks):>16} {bound:>10.2f} {repl:>11.2f} {m['six_dof_share']:>12.3f} "
                   f"{str(same):>15} {os.getloadavg()[0]:>13.2f}  {ex}", flush=True)
+            if profile and k > 1:
+                print_profile(ref["profiles"][0], m["profiles"])
+            if profile_out is not None:
+                with profile_out.open("ab") as f:
+                    pickle.dump({"round": r, "shards": k, "profiles": m["profiles"]}, f)
+
+
+def print_profile(one: dict[str, Any], ranks: list[dict[str, Any]]) -> None:
+    """Per part, the CPU per tick [ms] of the one-shard run and of each rank (thread CPU, the
+    collectives' CPU apart as ``exchange``, of which ``serialise``), the ranks' sum over the one-shard
+    value (1: replicated work, 1/K... : divided), the wall inside the collectives, and the predicted
+    wall speed-up on one free core per rank (``corridor.tick_profile.predict_wall``)."""
+    from corridor.tick_profile import predict_wall
+
+    ticks = one["ticks"]
+    names = sorted(set(one["parts"]) | {k for r in ranks for k in r["parts"]},
+                   key=lambda k: -one["parts"].get(k, np.zeros(1)).sum())
+    print(f"    {'part':24s} {'1 shard':>8} " + " ".join(f"{'rank ' + str(r):>8}" for r in range(len(ranks)))
+          + f" {'sum/1':>6} {'uneven':>7}  [CPU ms per tick; uneven: mean over ticks of max - mean over ranks]")
+    for name in names:
+        a = one["parts"].get(name, np.zeros(ticks)).sum() / ticks * 1e3
+        series = np.array([r["parts"].get(name, np.zeros(ticks)) for r in ranks])  # (ranks, ticks)
+        per = series.sum(axis=1) / ticks * 1e3
+        uneven = float((series.max(axis=0) - series.mean(axis=0)).mean() * 1e3)
+        print(f"    {name:24s} {a:8.3f} " + " ".join(f"{c:8.3f}" for c in per)
+              + f" {per.sum() / a if a > 0 else math.nan:6.2f} {uneven:7.3f}")
+    loop = [r["loop_cpu_s"] / ticks * 1e3 for r in ranks]
+    print(f"    {'tick loop (thread CPU)':24s} {one['loop_cpu_s'] / ticks * 1e3:8.3f} " + " ".join(f"{c:8.3f}" for c in loop))
+    print(f"    {'wall in collectives':24s} {'':8s} " + " ".join(f"{r['wait_s'] / ticks * 1e3:8.3f}" for r in ranks)
+          + f"   ({len(ranks[0]['trace']) / ticks:.2f} collectives per tick, round trip "
+          f"{ranks[0]['rtt_s'] * 1e6:.0f} us)")
+    wall, tick_max = predict_wall(ranks)
+    print(f"    predicted wall speed-up (free core per rank): {one['loop_cpu_s'] / wall:.2f} "
+          f"(per segment between collectives; per tick only: {one['loop_cpu_s'] / tick_max:.2f}; "
+          f"CPU split: {one['loop_cpu_s'] / max(r['loop_cpu_s'] for r in ranks):.2f})", flush=True)
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -326,6 +367,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--shards", type=int, nargs="+", help="shard counts to compare (wall time) at the first --n")
     ap.add_argument("--repeat", type=int, default=1, help="rounds of the shard comparison")
+    ap.add_argument("--profile", action="store_true",
+                    help="shard comparison: CPU per tick and part of every rank, and the predicted wall speed-up")
+    ap.add_argument("--profile-out", type=Path, help="with --profile: append every run's profiles here (pickles)")
     ap.add_argument("--variant", action="append", default=[], metavar="NAME:KEY=VALUE,...",
                     help="a multi-fidelity variant of the bias check (repeatable; they share the all-6-DOF runs)")
     ap.add_argument("--cache", type=Path, help="bias check: append every finished run here (JSON lines) and reuse it")
@@ -334,7 +378,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="a scenario override for every run (repeatable), e.g. a fidelity boundary")
     a = ap.parse_args(argv)
     if a.shards:
-        shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set)
+        shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set, a.profile or a.profile_out is not None,
+                      a.profile_out)
     elif a.bias:
         bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set, _variants(a.variant), a.cache, a.analyse_only,
              a.first_seed)

@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import time
 from collections.abc import Iterable
+from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 from enum import IntEnum
 from pathlib import Path, PurePath
@@ -22,6 +23,7 @@ import numpy as np
 
 from corridor.events import EventLog
 from corridor.snapshot import WorldSnapshot
+from corridor.tick_profile import TickProfile
 
 
 class Phase(IntEnum):
@@ -124,6 +126,8 @@ class RunContext:
     out_dir: Path | None = None  # the batch's output folder (--out); None: files go to workdir
     run_id: str = "run"  # e.g. "none-s0"; part of every per-run file name
     shard: Any = None  # a sharded run's corridor.shards.ShardComm (this process's rank); None: one process
+    profile: TickProfile | None = None  # opt-in: CPU per tick and part (corridor.tick_profile)
+    profiles: list[dict[str, Any]] | None = None  # a profiled run: every rank's TickProfile.summary(), rank order
 
     def output_path(self, rel: str | Path, per_run: bool = True) -> Path:
         """Where a component writes the file ``rel`` (relative, checked by ``relative_output_path``).
@@ -144,6 +148,13 @@ class RunContext:
         out = path_inside(root, target)
         out.parent.mkdir(parents=True, exist_ok=True)
         return path_inside(root, target)  # again after mkdir: a symlinked folder cannot lead out
+
+    def part(self, name: str) -> AbstractContextManager[None]:
+        """A part of the tick (a component's tick, or a stage inside one), timed when profiled.
+
+        Nested parts count apart from the one around them (``corridor.tick_profile``).
+        """
+        return self.profile.part(name) if self.profile is not None else nullcontext()
 
     def rng(self, name: str) -> np.random.Generator:
         """An independent generator per subsystem, derived from the run seed and the name only.
@@ -470,19 +481,22 @@ class Simulation:
         k = self.ctx.tick
         for every, c in self._due[phase]:
             if k % every == 0:
-                c.tick(self.ctx)
+                with self.ctx.part(c.name):
+                    c.tick(self.ctx)
 
     def _act(self) -> None:
         if self.ctx.commands:
-            for b in self._backends:
-                b.apply(self.ctx.commands, self.ctx)
-            self.ctx.commands = []
+            with self.ctx.part("act"):
+                for b in self._backends:
+                    b.apply(self.ctx.commands, self.ctx)
+                self.ctx.commands = []
 
     def _integrate(self) -> None:
         self._run(Phase.INTEGRATE)
         self.ctx.tick += 1
         self.ctx.t = self.ctx.tick * self.ctx.dt
-        self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, [b.snapshot_part() for b in self._backends])
+        with self.ctx.part("snapshot"):
+            self.ctx.snapshot = WorldSnapshot.from_parts(self.ctx.t, [b.snapshot_part() for b in self._backends])
 
     def step(self) -> None:
         """One tick: sense, communicate, decide, act, integrate, detect, record.
@@ -496,6 +510,8 @@ class Simulation:
         self._integrate()
         self._run(Phase.DETECT)
         self._run(Phase.RECORD)
+        if self.ctx.profile is not None:
+            self.ctx.profile.end_tick()
 
     @property
     def n_ticks(self) -> int:
@@ -525,8 +541,12 @@ class Simulation:
         t0 = time.perf_counter()
         try:
             self.start()
+            if self.ctx.profile is not None:
+                self.ctx.profile.begin(self.ctx.shard)
             for _ in range(self.n_ticks):
                 self.step()
+            if self.ctx.profile is not None:
+                self.ctx.profile.end()
             metrics = self.finish()
         finally:
             self.close()

@@ -23,6 +23,7 @@ from corridor.events import Event, EventLog
 from corridor.registry import BACKENDS, CONTROLLERS, MONITORS, RECORDERS
 from corridor.scenario import ComponentSpec, Scenario, apply_overrides, scenario_dir, validate
 from corridor.shards import ShardComm, run_sharded
+from corridor.tick_profile import TickProfile
 
 DEFAULT_MONITORS: dict[str, ComponentSpec] = {"collisions": ComponentSpec(type="collisions")}
 # added last when the scenario declares ``specs``: evaluates them on the recorded signals at the end
@@ -140,23 +141,36 @@ class ScratchRun:
 
 
 def _run_rank(sim: Simulation, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
-    """One rank of a sharded run (``corridor.shards``)."""
+    """One rank of a sharded run (``corridor.shards``); a profiled run's ranks measure their round trip
+    first and gather their profiles at the end (in ``ctx.profiles``)."""
     sim.ctx.shard = comm
-    return sim.run(), sim.ctx.events.events
+    if sim.ctx.profile is not None:
+        sim.ctx.profile.rtt_s = comm.round_trip()
+    metrics = sim.run()
+    if sim.ctx.profile is not None:
+        sim.ctx.profiles = comm.allgather(sim.ctx.profile.summary())
+    return metrics, sim.ctx.events.events
 
 
-def _spawned_rank(sc: Scenario, seed: int, run_id: str, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+def _spawned_rank(sc: Scenario, seed: int, run_id: str, profile: bool, comm: ShardComm
+                  ) -> tuple[dict[str, Any], list[Event]]:
     """Ranks 1.. of a sharded run: the same scenario and seed, no recorder, no output files."""
     with tempfile.TemporaryDirectory(prefix="corridor-") as tmp:
-        return _run_rank(build(sc, seed, Path(tmp), run_id=run_id), comm)
+        sim = build(sc, seed, Path(tmp), run_id=run_id)
+        sim.ctx.profile = TickProfile() if profile else None
+        return _run_rank(sim, comm)
 
 
 def _run(sim: Simulation, sc: Scenario, seed: int, run_id: str) -> dict[str, Any]:
     """The simulation's metrics; in ``shard_count`` processes when a component asks for shards."""
     size = max(c.shard_count for c in sim.ctx.components.values())
     if size <= 1:
-        return sim.run()
-    metrics, events, comm = run_sharded(partial(_run_rank, sim), partial(_spawned_rank, sc, seed, run_id), size)
+        metrics = sim.run()
+        if sim.ctx.profile is not None:
+            sim.ctx.profiles = [sim.ctx.profile.summary()]
+        return metrics
+    others = partial(_spawned_rank, sc, seed, run_id, sim.ctx.profile is not None)
+    metrics, events, comm = run_sharded(partial(_run_rank, sim), others, size)
     log = EventLog()
     for e in events:
         log.emit(e.t, e.source, e.kind, e.message, **e.data)
@@ -165,9 +179,12 @@ def _run(sim: Simulation, sc: Scenario, seed: int, run_id: str) -> dict[str, Any
 
 
 def simulate(sc: Scenario, seed: int, out_dir: str | None = None, run_id: str = "run",
-             rerun_path: str | None = None) -> tuple[dict[str, Any], RunContext, float]:
+             rerun_path: str | None = None, profile: bool = False) -> tuple[dict[str, Any], RunContext, float]:
+    """One run: its metrics, its context and its wall time [s]. ``profile``: every rank's CPU per tick
+    and part in ``ctx.profiles`` (``corridor.tick_profile``; the rows do not change)."""
     with tempfile.TemporaryDirectory(prefix="corridor-", dir=scratch_root(out_dir)) as tmp:
         sim = build(sc, seed, Path(tmp), rerun_path, out_dir, run_id)
+        sim.ctx.profile = TickProfile() if profile else None
         metrics = _run(sim, sc, seed, run_id)
     metrics.update(event_counts(sim.ctx))
     metrics.update(switch_scores(sim.ctx))

@@ -24,6 +24,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
+from multiprocessing.reduction import ForkingPickler
 from typing import Any
 
 import numpy as np
@@ -42,12 +43,15 @@ class ShardComm:
     conns: dict[int, Connection]
     rounds: int = 0  # collectives so far (diagnostics)
     wait_s: float = 0.0  # [s] wall time inside collectives: the exchange plus waiting for slower ranks
+    cpu_s: float = 0.0  # [s] thread CPU inside collectives (serialisation, pipe reads and writes)
+    ser_s: float = 0.0  # [s] of which pickling and unpickling
+    trace: list[tuple[float, float]] = field(default_factory=list)  # thread CPU [s] at each collective's entry, exit
     peer_cpu_s: list[float] = field(default_factory=list)  # [s] every rank's CPU at the last cpu_gather
 
     def allgather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (pairwise: the lower rank sends first, so a large
         message cannot fill both pipes at once)."""
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         out: list[Any] = [None] * self.size
         out[self.rank] = obj
         for peer in sorted(self.conns):
@@ -58,21 +62,48 @@ class ShardComm:
                 out[peer] = self._recv(peer)
                 self._send(peer, obj)
         self.rounds += 1
+        c1 = time.thread_time()
         self.wait_s += time.perf_counter() - t0
+        self.cpu_s += c1 - c0
+        self.trace.append((c0, c1))
         return out
 
     def _send(self, peer: int, obj: Any) -> None:
+        c0 = time.thread_time()
+        buf = ForkingPickler.dumps(obj)  # what Connection.send does, timed apart
+        self.ser_s += time.thread_time() - c0
         try:
-            self.conns[peer].send(obj)
+            self.conns[peer].send_bytes(buf)
         except OSError:  # the peer is gone: its last word (a failure) may still be in the pipe
             self._recv(peer)
             raise RuntimeError(f"shard {peer} ended during a collective") from None
 
     def _recv(self, peer: int) -> Any:
         try:
-            return _checked(self.conns[peer].recv(), peer)
+            buf = self.conns[peer].recv_bytes()
         except (EOFError, OSError):
             raise RuntimeError(f"shard {peer} ended during a collective") from None
+        c0 = time.thread_time()
+        msg = ForkingPickler.loads(buf)
+        self.ser_s += time.thread_time() - c0
+        return _checked(msg, peer)
+
+    def round_trip(self, times: int = 200) -> float:
+        """[s] the smallest round trip of a small message between rank 0 and each other rank (every
+        rank calls it; not a collective: nothing is counted). On a loaded machine the smallest of
+        many is still near the idle machine's."""
+        best = float("inf")
+        for _ in range(times):
+            for peer in sorted(self.conns):
+                if self.rank == 0:
+                    t0 = time.perf_counter()
+                    self.conns[peer].send_bytes(b"x")
+                    self.conns[peer].recv_bytes()
+                    best = min(best, time.perf_counter() - t0)
+                elif peer == 0:
+                    self.conns[0].recv_bytes()
+                    self.conns[0].send_bytes(b"x")
+        return best
 
     def sum(self, value: float) -> float:
         """The sum over the ranks (in rank order: the same float on every rank)."""

@@ -177,10 +177,11 @@ class MultiFidelityAirBackend(AirBackend):
         ctx.events.emit(self.t_s, self.name, "demote", f"{aid}: jsbsim -> point_mass", uav=aid, fidelity="point_mass")
 
     def _switch(self, ctx: RunContext) -> None:
-        pos, vel = self._exact_state()
-        if self.missions is not None:  # deliveries end and start at the exact states of T
-            self.missions.arrivals(self.t_s, pos[self.quad_rows])
-        promote, demote = self.policy.decide(pos, vel, ~self.is_quad, self.six, self.since, self.t_s)
+        with ctx.part(f"{self.name}.fidelity_check"):
+            pos, vel = self._exact_state()
+            if self.missions is not None:  # deliveries end and start at the exact states of T
+                self.missions.arrivals(self.t_s, pos[self.quad_rows])
+            promote, demote = self.policy.decide(pos, vel, ~self.is_quad, self.six, self.since, self.t_s)
         if len(demote):
             st = self.js.state()
             k_of = {str(i): k for k, i in enumerate(st.ids)}
@@ -194,12 +195,15 @@ class MultiFidelityAirBackend(AirBackend):
         if self._cpu_t0 is None:
             self._wall_t0, self._cpu_t0 = time.perf_counter(), time.process_time()
         if self.tick_count % self.pm_every == 0:
-            self._switch(ctx)
-            self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
-            pm_q = self.q_of[self.quad_rows[~self.six[self.quad_rows]]]
-            if len(pm_q):
-                self.pm.step(self.pm_every * self.period, pm_q)
-        self.js.step(self.period)
+            with ctx.part(f"{self.name}.switch"):
+                self._switch(ctx)
+            with ctx.part(f"{self.name}.point_mass"):
+                self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
+                pm_q = self.q_of[self.quad_rows[~self.six[self.quad_rows]]]
+                if len(pm_q):
+                    self.pm.step(self.pm_every * self.period, pm_q)
+        with ctx.part(f"{self.name}.jsbsim"):
+            self.js.step(self.period)
         self._check_finite()
         self.tick_count += 1
         self.t_s = self.tick_count * self.period
