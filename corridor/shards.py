@@ -45,13 +45,21 @@ class ShardComm:
     wait_s: float = 0.0  # [s] wall time inside collectives: the exchange plus waiting for slower ranks
     cpu_s: float = 0.0  # [s] thread CPU inside collectives (serialisation, pipe reads and writes)
     ser_s: float = 0.0  # [s] of which pickling and unpickling
-    trace: list[tuple[float, float]] = field(default_factory=list)  # thread CPU [s] at each collective's entry, exit
+    # per collective: thread CPU [s] at its entry and exit, and the CPU it kept this rank busy
+    trace: list[tuple[float, float, float]] = field(default_factory=list)
     peer_cpu_s: list[float] = field(default_factory=list)  # [s] every rank's CPU at the last cpu_gather
+    # work for a rank that waits for a peer (one short chunk per call; False: nothing left), run once a
+    # receive has waited idle_after_s, between polls of the pipe; it must not change what any rank computes
+    idle: Callable[[], bool] | None = None
+    idle_after_s: float = 0.002  # [s]
+    idle_s: float = 0.0  # [s] thread CPU of the idle work (inside the collectives' cpu_s)
+    _overrun: float = 0.0  # [s] this collective: the idle chunks that may have outlasted the wait
 
     def allgather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (pairwise: the lower rank sends first, so a large
         message cannot fill both pipes at once)."""
-        t0, c0 = time.perf_counter(), time.thread_time()
+        t0, c0, idle0 = time.perf_counter(), time.thread_time(), self.idle_s
+        self._overrun = 0.0
         out: list[Any] = [None] * self.size
         out[self.rank] = obj
         for peer in sorted(self.conns):
@@ -65,7 +73,8 @@ class ShardComm:
         c1 = time.thread_time()
         self.wait_s += time.perf_counter() - t0
         self.cpu_s += c1 - c0
-        self.trace.append((c0, c1))
+        # busy: the idle work counts only as far as it can have kept this rank late (its last chunk)
+        self.trace.append((c0, c1, c1 - c0 - (self.idle_s - idle0) + self._overrun))
         return out
 
     def _send(self, peer: int, obj: Any) -> None:
@@ -80,6 +89,8 @@ class ShardComm:
 
     def _recv(self, peer: int) -> Any:
         try:
+            if self.idle is not None:
+                self._idle_until(self.conns[peer])
             buf = self.conns[peer].recv_bytes()
         except (EOFError, OSError):
             raise RuntimeError(f"shard {peer} ended during a collective") from None
@@ -87,6 +98,19 @@ class ShardComm:
         msg = ForkingPickler.loads(buf)
         self.ser_s += time.thread_time() - c0
         return _checked(msg, peer)
+
+    def _idle_until(self, conn: Connection) -> None:
+        """Chunks of idle work while ``conn`` has nothing after ``idle_after_s`` of waiting (a peer
+        this far behind is in a long stall: a chunk does not make this rank the late one)."""
+        if conn.poll(self.idle_after_s):
+            return
+        c0 = c = time.thread_time()
+        while self.idle is not None and self.idle():
+            last, c = c, time.thread_time()
+            if conn.poll():
+                self._overrun += c - last  # the message came during this chunk at the latest
+                break
+        self.idle_s += time.thread_time() - c0
 
     def round_trip(self, times: int = 200) -> float:
         """[s] the smallest round trip of a small message between rank 0 and each other rank (every

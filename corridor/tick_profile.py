@@ -24,6 +24,7 @@ import numpy as np
 
 EXCHANGE = "exchange"  # [s] CPU inside the collectives (serialisation included)
 SERIALISE = "serialise"  # [s] of which pickling and unpickling
+IDLE_WORK = "idle work"  # [s] work a rank did inside the collectives while it waited (``ShardComm.idle``)
 
 
 @dataclass
@@ -58,24 +59,29 @@ class TickProfile:
     @contextmanager
     def part(self, name: str) -> Iterator[None]:
         """Time ``name`` in this tick: its CPU without the parts nested in it, and without the
-        collectives it calls (those go to ``exchange``, their pickling also to ``serialise``)."""
-        c0, s0 = self._comm_cpu()
-        self._stack.append([0.0, 0.0, 0.0])  # the nested parts' CPU, their collectives' CPU, their pickling
+        collectives it calls (those go to ``exchange``, their pickling also to ``serialise``, the
+        idle work a waiting rank did inside them to ``idle work``)."""
+        c0 = self._comm_cpu()
+        self._stack.append([0.0, 0.0, 0.0, 0.0])  # the nested parts' CPU; their collectives', pickling's, idle work's
         t0 = time.thread_time()
         try:
             yield
         finally:
             cpu = time.thread_time() - t0
-            c1, s1 = self._comm_cpu()
-            inner_cpu, inner_comm, inner_ser = self._stack.pop()
-            own_comm, own_ser = (c1 - c0) - inner_comm, (s1 - s0) - inner_ser
-            self._add(name, cpu - inner_cpu - own_comm)
-            if own_comm > 0.0:
-                self._add(EXCHANGE, own_comm)
-                self._add(SERIALISE, own_ser)
+            c1 = self._comm_cpu()
+            inner = self._stack.pop()
+            own = [(b - a) - i for a, b, i in zip(c0, c1, inner[1:], strict=True)]  # comm, serialise, idle
+            self._add(name, cpu - inner[0] - own[0])
+            if own[0] > 0.0:
+                self._add(EXCHANGE, own[0] - own[2])
+                self._add(SERIALISE, own[1])
+                if own[2] > 0.0:
+                    self._add(IDLE_WORK, own[2])
             if self._stack:
                 outer = self._stack[-1]
-                outer[0], outer[1], outer[2] = outer[0] + cpu, outer[1] + c1 - c0, outer[2] + s1 - s0
+                outer[0] += cpu
+                for k in range(3):
+                    outer[k + 1] += c1[k] - c0[k]
 
     def end_tick(self) -> None:
         for name in self._now.keys() - self.parts.keys():
@@ -91,11 +97,12 @@ class TickProfile:
         return {k: np.asarray(v) for k, v in self.parts.items()}
 
     def trace(self) -> np.ndarray:
-        """The loop's collectives: (k, 2) thread CPU [s] at each one's entry and exit (a sharded run)."""
+        """The loop's collectives: (k, 3) thread CPU [s] at each one's entry and exit, and the CPU it kept
+        the rank busy (its idle work only as far as it can have outlasted the wait; a sharded run)."""
         if self.comm is None:
-            return np.zeros((0, 2))
+            return np.zeros((0, 3))
         a, b = self.rounds
-        return np.asarray(self.comm.trace[a:b], dtype=float).reshape(-1, 2)
+        return np.asarray(self.comm.trace[a:b], dtype=float).reshape(-1, 3)
 
     def summary(self) -> dict[str, Any]:
         """What another process needs (picklable, no communicator)."""
@@ -106,8 +113,9 @@ class TickProfile:
     def _add(self, name: str, cpu_s: float) -> None:
         self._now[name] = self._now.get(name, 0.0) + cpu_s
 
-    def _comm_cpu(self) -> tuple[float, float]:
-        return (self.comm.cpu_s, self.comm.ser_s) if self.comm is not None else (0.0, 0.0)
+    def _comm_cpu(self) -> tuple[float, float, float]:
+        c = self.comm
+        return (c.cpu_s, c.ser_s, c.idle_s) if c is not None else (0.0, 0.0, 0.0)
 
     def _rounds(self) -> int:
         return self.comm.rounds if self.comm is not None else 0
@@ -127,8 +135,11 @@ def predict_wall(ranks: list[dict[str, Any]]) -> tuple[float, float]:
 
 
 def _segments(r: dict[str, Any]) -> np.ndarray:
-    """A rank's CPU [s] per segment: from the loop's start (or a collective's exit) to the next
-    collective's exit (or the loop's end)."""
+    """A rank's busy CPU [s] per segment: from the loop's start (or a collective's exit) to the next
+    collective's exit (or the loop's end), the collective's idle work left out (but its overrun)."""
     tr = r["trace"]
-    bounds = np.concatenate([[r["cpu0_s"]], tr[:, 1], [r["cpu0_s"] + r["loop_cpu_s"]]])
-    return np.diff(bounds)
+    if not len(tr):
+        return np.array([r["loop_cpu_s"]])
+    start = np.concatenate([[r["cpu0_s"]], tr[:-1, 1]])
+    work = tr[:, 0] - start + tr[:, 2]
+    return np.append(work, r["cpu0_s"] + r["loop_cpu_s"] - tr[-1, 1])

@@ -54,3 +54,34 @@ def test_merge_events_keeps_rank_zeros_order_within_an_instant() -> None:
     a = [Event(1.0, "x", "k", "a1", {}), Event(1.0, "x", "k", "a2", {})]
     b = [Event(0.5, "y", "k", "b", {}), Event(1.0, "x", "k", "a2", {})]
     assert [e.message for e in merge_events([a, b])] == ["b", "a1", "a2"]
+
+
+def _late_peer(comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+    """Rank 1 is late to the first collective, rank 0 to the second; rank 0 counts its idle calls."""
+    import time
+
+    calls: list[int] = []
+
+    def idle() -> bool:
+        calls.append(1)
+        time.sleep(0.001)  # a chunk of work
+        return len(calls) < 50  # then nothing left
+
+    comm.idle = idle
+    if comm.rank == 1:
+        time.sleep(0.3)
+    first = comm.allgather(comm.rank)
+    while_waiting = len(calls)
+    if comm.rank == 0:
+        time.sleep(0.3)
+    second = comm.allgather(comm.rank)
+    return {"first": first, "second": second, "while_waiting": while_waiting,
+            "when_not": len(calls) - while_waiting, "idle_s": comm.idle_s}, []
+
+
+def test_a_waiting_rank_does_idle_work_only_while_its_peer_is_late() -> None:
+    metrics, _, _ = run_sharded(_late_peer, _late_peer, 2)
+    assert metrics["first"] == metrics["second"] == [0, 1]  # the idle work does not touch the messages
+    assert 10 <= metrics["while_waiting"] <= 50  # chunks while rank 1 was late (until nothing was left)
+    assert metrics["when_not"] == 0  # rank 1's message was there: no idle work
+    assert metrics["idle_s"] >= 0.0

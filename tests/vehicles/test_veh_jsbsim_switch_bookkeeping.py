@@ -85,3 +85,27 @@ def test_pool_growth_and_spawns_are_timed_apart() -> None:
     assert warm > 5.0 * spawn  # loads and a 1 s hover of 8 FDMs against one initial-condition run
     f.spawn_in_flight("q1", np.array([0.0, 300.0, 60.0]), np.zeros(3), 0.0, 0.0, 0.0, group=0)
     assert f.warm_cpu_s == warm and f.spawn_cpu_s > spawn
+
+
+def test_a_prefetched_batch_flies_as_one_warmed_at_the_spawn() -> None:
+    """A sharded rank warms FDM batches while it waits for its peers (``prefetch``, one chunk per
+    call); a pool that grows takes the reserve's batch instead of warming one then: the same
+    trajectories, the same model loads, and no loading at the spawn."""
+    ref = _fleet(0)
+    pre = _fleet(0)
+    chunks = 0
+    while pre.prefetch():
+        chunks += 1
+    assert chunks >= 8 and len(pre._reserve) == 1  # a batch in reserve, a model load per chunk
+    assert pre.loads == 0  # loads count when a pool takes the batch
+    for f in (ref, pre):
+        for k in range(3):  # groups 0 and 1: two pools grow, the first from the reserve
+            f.spawn_in_flight(f"q{k}", np.array([40.0 * k, 0.0, 60.0]), np.array([3.0, 0.0, 0.0]), 0.0, 0.02, -0.03,
+                              group=k % 2)
+        f.step(2.0)
+    assert pre.prefetched == 1 and ref.prefetched == 0
+    assert pre.loads == ref.loads == 16
+    np.testing.assert_array_equal(pre.state().position, ref.state().position)
+    np.testing.assert_array_equal(pre.state().velocity, ref.state().velocity)
+    assert pre.warm_cpu_s < 0.8 * ref.warm_cpu_s  # one of the two growths took the warmed batch: no loads then
+    assert pre.prefetch()  # the reserve is empty: a new batch starts

@@ -39,6 +39,7 @@ class PeerJSBSimFleet:
 
     def __init__(self, local: SwitchableJSBSimFleet, comm: ShardComm) -> None:
         self.local, self.comm = local, comm
+        comm.idle = local.prefetch  # a rank waiting for its peers warms FDMs for its pools' next growth
         self.rate_hz = local.rate_hz
         self.t_s = 0.0  # [s]
         self._order: list[str] = []  # every rank's aircraft, in the one-process fleet's order

@@ -19,6 +19,7 @@ demotions whichever process flies the group, and a fleet split into shards of wh
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -31,6 +32,7 @@ _INTEG = ("corridor/integ-e-mps2", "corridor/integ-n-mps2", "corridor/integ-u-mp
 WARM_BATCH = 8  # [FDM] loaded and spun up together when the pool is empty
 WARM_S = 1.0  # [s] hover that spins the propellers up to their hover speed
 POOL_GROUPS = 8  # FDM pools (the most shards a fleet can be split into)
+RESERVE = 1  # [batch] warmed batches a sharded rank prefetches while it waits for its peers
 
 
 class SwitchableJSBSimFleet(JSBSimFleet):
@@ -45,6 +47,10 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         self._warming = False  # True in the helper fleet that spins FDMs up for the pool
         self.warm_cpu_s = 0.0  # [s] CPU spent growing the pools (model loads + spin-up; diagnostics)
         self.spawn_cpu_s = 0.0  # [s] CPU spent on in-flight spawns (pool growth excluded; diagnostics)
+        self._reserve: list[tuple[list[Any], int]] = []  # warmed batches (FDMs, loads) not yet in a pool
+        self._prefetch: Iterator[None] | None = None  # the batch being warmed in idle time
+        self.prefetched = 0  # batches a pool took from the reserve (diagnostics)
+        self.prefetch_cpu_s = 0.0  # [s] CPU spent prefetching (in idle time; diagnostics)
 
     def _new_fdm(self, model: str) -> Any:
         if model != "F450" or self._warming:
@@ -56,17 +62,49 @@ class SwitchableJSBSimFleet(JSBSimFleet):
         return pool.pop()
 
     def _warm_up(self, pool: list[Any]) -> None:
-        """WARM_BATCH hovering F450s far from the scene, flown WARM_S, their FDMs into the pool."""
+        """A warmed batch's FDMs into the pool: the reserve's first (a batch prefetched in idle time,
+        the one in progress finished first), else one warmed now. Every batch is the same (WARM_BATCH
+        F450s far from the scene, flown WARM_S), so where and when it was warmed does not show in
+        a trajectory; its model loads count when a pool takes it."""
         t0 = time.process_time()
+        if not self._reserve and self._prefetch is not None:
+            for _ in self._prefetch:
+                pass
+            self._prefetch = None
+        if self._reserve:
+            self.prefetched += 1
+        else:
+            for _ in self._warm_batch():
+                pass
+        fdms, loads = self._reserve.pop(0)
+        self.loads += loads
+        pool.extend(reversed(fdms))
+        self.warm_cpu_s += time.process_time() - t0
+
+    def _warm_batch(self) -> Iterator[None]:
+        """Warm a batch into the reserve, in chunks: a yield after each model load (~5 ms of CPU) and
+        before the spin-up (~10 ms)."""
         warm = SwitchableJSBSimFleet((self.origin.lat_deg, self.origin.lon_deg, self.origin.h_m), self.rate_hz,
                                      self.root, self.quad_gains)
         warm._warming = True
         for k in range(WARM_BATCH):
             warm.add(f"warm{k}", "F450", (0.0, 50.0 * k, 100.0))
+            yield
         warm.step(WARM_S)
-        self.loads += warm.loads
-        pool.extend(reversed(warm._fdms))
-        self.warm_cpu_s += time.process_time() - t0
+        self._reserve.append((list(warm._fdms), warm.loads))
+
+    def prefetch(self) -> bool:
+        """One chunk of work towards a reserve of RESERVE batches (for a rank waiting for its peers:
+        ``corridor.shards.ShardComm.idle``); False when the reserve is full."""
+        if self._prefetch is None:
+            if len(self._reserve) >= RESERVE:
+                return False
+            self._prefetch = self._warm_batch()
+        t0 = time.process_time()
+        if next(self._prefetch, StopIteration) is StopIteration:
+            self._prefetch = None
+        self.prefetch_cpu_s += time.process_time() - t0
+        return True
 
     def spawn_in_flight(self, id: str, p_enu: np.ndarray, v_enu: np.ndarray, yaw_rad: float,
                         roll_rad: float, pitch_rad: float, role: Role = Role.OTHER, integ_u_mps2: float = 0.0,

@@ -201,13 +201,29 @@ class MultiFidelityAirBackend(AirBackend):
                 self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
                 pm_q = self.q_of[self.quad_rows[~self.six[self.quad_rows]]]
                 if len(pm_q):
-                    self.pm.step(self.pm_every * self.period, pm_q)
+                    self._step_point_masses(ctx, pm_q)
         with ctx.part(f"{self.name}.jsbsim"):
             self.js.step(self.period)
         self._check_finite()
         self.tick_count += 1
         self.t_s = self.tick_count * self.period
         self.six_dof_quad_s += float(np.count_nonzero(self.six[self.quad_rows])) * self.period
+
+    def _step_point_masses(self, ctx: RunContext, pm_q: np.ndarray) -> None:
+        """The point masses ``pm_q`` advance a point-mass period. A sharded run: each rank steps an
+        equal share of them and the ranks allgather the stepped states (a row's step depends on its
+        own state and targets only, and every rank holds every row's targets: the one-process values)."""
+        dt_s = self.pm_every * self.period
+        if ctx.shard is None:
+            self.pm.step(dt_s, pm_q)
+            return
+        comm = ctx.shard
+        shares = np.array_split(pm_q, comm.size)
+        self.pm.step(dt_s, shares[comm.rank], waypoints=False)
+        for rows, st in zip(shares, comm.allgather(self.pm.state_rows(shares[comm.rank])), strict=True):
+            if rows is not shares[comm.rank]:
+                self.pm.set_state_rows(rows, st)
+        self.pm.advance_waypoints()
 
     def _check_finite(self) -> None:
         if len(self.js.ids) and not self.js.all_finite():

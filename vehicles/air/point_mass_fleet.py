@@ -184,9 +184,11 @@ class PointMassFleet:
         return _demand(self.limits, self.mode[rows] != PmMode.VELOCITY, self.pos[rows], self.p_tgt[rows],
                        self.v_tgt[rows], cap)
 
-    def step(self, dt_s: float, rows: np.ndarray | slice = slice(None)) -> None:
+    def step(self, dt_s: float, rows: np.ndarray | slice = slice(None), waypoints: bool = True) -> None:
         """Advance ``rows`` (default: all) by ``dt_s`` [s]; ``t_s`` advances only for a full step.
-        Integrated in sub-steps of at most ``max_substep_s`` (the attitude loop's time scale)."""
+        Integrated in sub-steps of at most ``max_substep_s`` (the attitude loop's time scale); each
+        row's step depends on its own state and targets only. ``waypoints``: then advance the
+        waypoint commands (a step split over processes does it once every part is in)."""
         lim = self.limits
         n_sub = max(1, int(np.ceil(dt_s / lim.max_substep_s - 1e-9)))
         h = dt_s / n_sub
@@ -219,9 +221,18 @@ class PointMassFleet:
         self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows] = pos, vel, tilt, yaw
         if isinstance(rows, slice):
             self.t_s += dt_s
-        self._advance_waypoints()
+        if waypoints:
+            self.advance_waypoints()
 
-    def _advance_waypoints(self) -> None:
+    def state_rows(self, rows: np.ndarray) -> np.ndarray:
+        """(k, 9) what ``step`` changes in ``rows``: position, velocity, tilt, yaw."""
+        return np.column_stack([self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows]])
+
+    def set_state_rows(self, rows: np.ndarray, st: np.ndarray) -> None:
+        """Take ``state_rows`` of ``rows`` (stepped elsewhere)."""
+        self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows] = st[:, 0:3], st[:, 3:6], st[:, 6:8], st[:, 8]
+
+    def advance_waypoints(self) -> None:
         for q, (cmd, i) in list(self._wp.items()):
             if i < len(cmd.waypoints_enu) - 1 and np.linalg.norm(self.pos[q] - cmd.waypoints_enu[i]) < cmd.accept_radius_m:
                 self._wp[q] = (cmd, i + 1)
