@@ -54,6 +54,7 @@ class ShardComm:
     idle_after_s: float = 0.002  # [s]
     idle_s: float = 0.0  # [s] thread CPU of the idle work (inside the collectives' cpu_s)
     _overrun: float = 0.0  # [s] this collective: the idle chunks that may have outlasted the wait
+    strips: Strips | None = None  # the run's split of the plane, when a component balances it for the others
 
     def allgather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (pairwise: the lower rank sends first, so a large
@@ -161,11 +162,20 @@ class _Failed:
 
 class Strips:
     """A split of the plane into ``size`` strips along x (east), as many aircraft in each at the start
-    (the edges are the quantiles of the first positions: the same on every rank)."""
+    (the edges are the quantiles of the first positions: the same on every rank); ``rebalance`` moves
+    the edges to even out the ranks' work."""
 
     def __init__(self, x_m: np.ndarray, size: int) -> None:
         self.size = size
         self.edges = np.quantile(x_m, np.arange(1, size) / size) if len(x_m) else np.zeros(size - 1)  # [m]
+
+    def rebalance(self, x_m: np.ndarray, fixed: np.ndarray, max_step_m: float) -> None:
+        """Move every edge toward :func:`balanced_edges` (``x_m``: the points whose work a strip
+        divides, one unit each; ``fixed``: the units each rank has besides), at most ``max_step_m``
+        [m]. Sorted edges stay sorted; the same inputs give the same edges on every rank."""
+        target = balanced_edges(x_m, fixed, self.size)
+        if target is not None:
+            self.edges = self.edges + np.clip(target - self.edges, -max_step_m, max_step_m)
 
     def owner(self, x_m: np.ndarray) -> np.ndarray:
         """The rank whose strip holds each x [m] (a point on an edge belongs to the strip east of it)."""
@@ -176,6 +186,23 @@ class Strips:
         lo = self.edges[rank - 1] - halo_m if rank > 0 else -np.inf
         hi = self.edges[rank] + halo_m if rank < self.size - 1 else np.inf
         return (x_m >= lo) & (x_m < hi)
+
+
+def balanced_edges(x_m: np.ndarray, fixed: np.ndarray, size: int) -> np.ndarray | None:
+    """The strip edges [m] that give every rank the same work: rank r, with ``fixed[r]`` units of its
+    own, gets ``max(0, T - fixed[r])`` of the points ``x_m`` (one unit each), T such that every point
+    has a strip (water-filling); None with fewer than two points."""
+    xs = np.sort(np.asarray(x_m, float))
+    n, f = len(xs), np.asarray(fixed, float)
+    if n < 2:
+        return None
+    lo, hi = float(f.min()), float(f.max()) + n
+    for _ in range(64):  # bisection on T: sum(max(0, T - f)) = n
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if np.maximum(0.0, mid - f).sum() > n else (mid, hi)
+    counts = np.maximum(0.0, lo - f)
+    cut = np.clip(np.round(np.cumsum(counts)[:-1] * n / counts.sum()).astype(int), 1, n - 1)
+    return 0.5 * (xs[cut - 1] + xs[cut])
 
 
 def merge_events(logs: list[list[Event]]) -> list[Event]:

@@ -76,7 +76,7 @@ class CitySeparation(Component):
         los_piloted_h_m: float = Field(609.6, gt=0.0)  # [m] 2000 ft
         los_piloted_v_m: float = Field(76.2, gt=0.0)  # [m] 250 ft
         backend: str | None = "air"
-        halo_mps: float = Field(150.0, gt=0.0)  # [m/s] sharded runs: the halo is halo_mps * dt wide
+        halo_mps: float = Field(1500.0, gt=0.0)  # [m/s] sharded runs: the halo is halo_mps * dt wide
         region_margin_m: float = Field(500.0, gt=0.0)  # [m] sharded runs: a rank's trees reach this far out of its strip
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
@@ -91,6 +91,7 @@ class CitySeparation(Component):
         self.quad_s = 0.0  # [s] quadcopter flight time
         self.strips: Strips | None = None  # a sharded run's regions (corridor.shards)
         self.halo_m = 0.0  # [m] a sharded run's halo: halo_mps * dt
+        self._edges_seen = np.zeros(0)  # [m] the strip edges at the last tick (a balanced split moves them)
 
     def tick(self, ctx: RunContext) -> None:
         s = ctx.snapshot
@@ -115,7 +116,8 @@ class CitySeparation(Component):
     def _region(self, comm: ShardComm, pos: np.ndarray, piloted: np.ndarray, teleport: np.ndarray,
                 reach_m: float) -> Region:
         if self.strips is None:
-            self.strips = Strips(pos[:, 0], comm.size)
+            self.strips = comm.strips or Strips(pos[:, 0], comm.size)
+            self._edges_seen = self.strips.edges.copy()
         if self.params.region_margin_m < self.halo_m + reach_m:
             raise ValueError(f"{self.name}: params.region_margin_m ({self.params.region_margin_m} m) must cover the halo "
                              f"and the candidate radius ({self.halo_m + reach_m:.1f} m)")
@@ -132,11 +134,14 @@ class CitySeparation(Component):
         move = np.linalg.norm(pos - self.prev, axis=1)
         teleport = move > MAX_STEP_M
         step = float(move[~teleport].max(initial=0.0))
-        if step > self.halo_m:
-            raise ValueError(f"{self.name}: an aircraft moved {step:.1f} m in one tick, more than the shards' halo "
-                             f"({self.halo_m:.1f} m = halo_mps * dt): raise params.halo_mps")
         reach = float(np.hypot(p.los_h_m, p.los_v_m) + 2.0 * step)
         reg = self._region(ctx.shard, pos, piloted, teleport, reach)
+        edge_move = float(np.abs(self.strips.edges - self._edges_seen).max(initial=0.0))  # [m] a balanced split's
+        self._edges_seen = self.strips.edges.copy()
+        if step + edge_move > self.halo_m:
+            raise ValueError(f"{self.name}: an aircraft moved {step:.1f} m and a strip edge {edge_move:.1f} m in one "
+                             f"tick, more than the shards' halo ({self.halo_m:.1f} m = halo_mps * dt): raise "
+                             "params.halo_mps")
         lp = pos[reg.local]
         tree = cKDTree(lp)
         ij = [tree.query_pairs(reach, output_type="ndarray")]

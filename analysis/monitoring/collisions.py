@@ -116,7 +116,7 @@ class CollisionMonitor(Component):
         ids are the previous tick's array (published arrays are never written again), so the rows match."""
         x = cur.position[:, 0]
         if self._strips is None:
-            self._strips = Strips(x, comm.size)
+            self._strips = comm.strips or Strips(x, comm.size)
         same = prev is not None and (same_ids or (len(prev.ids) == len(cur.ids) and bool(np.all(prev.ids == cur.ids))))
         move = np.linalg.norm(cur.position - prev.position, axis=1) if same and prev is not None else np.zeros(len(x))
         step = float(move[move <= MAX_STEP_M].max(initial=0.0)) if same else MAX_STEP_M
@@ -148,7 +148,7 @@ class CollisionMonitor(Component):
         """The special rows in this rank's strip (a pair is found by a rank that owns one of its rows;
         ``finish`` takes the union over the ranks)."""
         if self._strips is None:
-            self._strips = Strips(s.position[:, 0], comm.size)
+            self._strips = comm.strips or Strips(s.position[:, 0], comm.size)
         return special[self._strips.within(s.position[special, 0], comm.rank)]
 
     def _add(self, ctx: RunContext, t: float, a: str, b: str, how: str) -> None:

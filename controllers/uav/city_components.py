@@ -101,7 +101,7 @@ class CityNone(Controller):
         """A sharded run: this rank's drones (its strip of the city) decided here, the others' commands
         from their ranks (each drone's command depends on its own pairs only: the one-process values)."""
         if self.strips is None:
-            self.strips = Strips(x[:, 0], self.comm.size)
+            self.strips = self.comm.strips or Strips(x[:, 0], self.comm.size)
         own = np.flatnonzero(self.strips.within(x[:, 0], self.comm.rank))
         cmd, avoiding = np.zeros_like(x), np.zeros(len(x), dtype=bool)
         for rows, c, a in self.comm.allgather((own, *self.commands(t, x, v, goal, own))):

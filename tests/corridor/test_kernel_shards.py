@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from corridor.events import Event
-from corridor.shards import ShardComm, Strips, merge_events, run_sharded
+from corridor.shards import ShardComm, Strips, balanced_edges, merge_events, run_sharded
 
 
 def _rank(fail_on: int, comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
@@ -85,3 +85,31 @@ def test_a_waiting_rank_does_idle_work_only_while_its_peer_is_late() -> None:
     assert 10 <= metrics["while_waiting"] <= 50  # chunks while rank 1 was late (until nothing was left)
     assert metrics["when_not"] == 0  # rank 1's message was there: no idle work
     assert metrics["idle_s"] >= 0.0
+
+
+def test_balanced_edges_even_out_the_work() -> None:
+    x = np.arange(100.0)  # [m] a point per metre, one unit of work each
+    assert balanced_edges(x, np.zeros(2), 2).tolist() == [49.5]  # as many points each
+    # rank 0 has 40 units besides: it gets 30 points, rank 1 70 (70 units each)
+    assert balanced_edges(x, np.array([40.0, 0.0]), 2).tolist() == [29.5]
+    # more fixed work than points: rank 0 gets none but the one a strip keeps
+    assert balanced_edges(x, np.array([500.0, 0.0]), 2).tolist() == [0.5]
+    e = balanced_edges(x, np.array([0.0, 30.0, 0.0]), 3)  # the middle rank's strip narrows
+    assert e is not None and np.diff(np.concatenate([[-0.5], e, [99.5]])).tolist() == [43.0, 14.0, 43.0]
+
+
+def test_strips_follow_the_load_by_bounded_steps() -> None:
+    x = np.arange(100.0)
+    s = Strips(x, 2)
+    assert s.edges.tolist() == [49.5]
+    path = []
+    for _ in range(4):
+        s.rebalance(x, np.array([40.0, 0.0]), max_step_m=8.0)
+        path.append(float(s.edges[0]))
+    assert path == [41.5, 33.5, 29.5, 29.5]  # toward the balanced edge, 8 m at a time, then stays
+    again = Strips(x, 2)
+    for _ in range(4):
+        again.rebalance(x, np.array([40.0, 0.0]), max_step_m=8.0)
+    assert again.edges.tolist() == s.edges.tolist()  # the same inputs, the same edges (every rank)
+    s.rebalance(x, np.array([0.0, 40.0]), max_step_m=100.0)
+    assert s.edges.tolist() == [69.5]  # the load moved to rank 1: its strip shrinks

@@ -89,6 +89,11 @@ class PeerJSBSimFleet:
         self._owner[id], self._model[id] = rank, model
         self._changed, self._rows_of = True, []
 
+    def count_by_rank(self) -> np.ndarray:
+        """[aircraft] how many each rank flies."""
+        return np.bincount(np.fromiter(self._owner.values(), dtype=int, count=len(self._owner)),
+                           minlength=self.comm.size)
+
     def _mine(self, id: str) -> bool:
         try:
             return self._owner[id] == self.comm.rank
