@@ -32,6 +32,17 @@ ranks and of each, the speed-up the CPU split allows and the replicated (serial)
 CPU times: fair under load), and whether the rows equal the one-shard run's.
 
     python benchmarks/uav_city.py --shards 1 2 --n 2000 --duration 30 --repeat 2
+
+With ``--profile`` (``--profile-out FILE`` also appends the profiles to FILE as pickles) every run
+is profiled (``corridor.tick_profile``: thread CPU per tick and part on every rank, the rows do not
+change) and each sharded run prints, per part, the CPU per tick of the one-shard run and of each
+rank, the ranks' sum over the one-shard value (1: divided, K: replicated), how uneven the ranks are
+tick by tick, the exchange (of which the pickling) and the idle work apart, and the predicted wall
+speed-up on one free core per rank (the one-shard loop's CPU over the sum, per segment between two
+collectives, of the slowest rank's CPU plus a round trip: ``predict_wall``). CPU times, so it holds
+under load; the machine's load still inflates CPU times by 10-30 % from run to run.
+
+    python benchmarks/uav_city.py --shards 1 2 --n 2000 --duration 20 --profile
 """
 
 from __future__ import annotations

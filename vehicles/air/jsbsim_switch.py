@@ -14,6 +14,11 @@ which FDM an aircraft gets shows in its trajectory. The pool is therefore split 
 backend's group: point-mass row mod ``POOL_GROUPS``). A group's FDMs then see the same promotions and
 demotions whichever process flies the group, and a fleet split into shards of whole groups
 (``jsbsim_shards``) gives the rows of the one-process fleet.
+
+Every warmed batch is the same, so a rank of a sharded run warms one ahead while it waits for its
+peers (:meth:`SwitchableJSBSimFleet.prefetch`, in chunks of a model load: ``ShardComm.idle``); the
+next pool that grows takes it instead of warming one then (a 50 ms stall that held up every other
+rank). Its model loads count when a pool takes it, so ``jsbsim_loads`` does not change.
 """
 
 from __future__ import annotations

@@ -23,10 +23,13 @@ are in a :class:`SwitchableJSBSimFleet`. Each tick (the scenario's ``dt``):
 Commands reach the point-mass row always (its targets stay current) and the JSBSim aircraft while it
 flies 6-DOF. :class:`FleetVelocityCommand` commands many aircraft in one bus item.
 
-``shards: K`` splits the run over K processes (``corridor.shards``): every rank steps the point
-masses, the fidelity check and the missions of the whole fleet (the same on every rank), and flies
-the JSBSim aircraft of its pool groups (:class:`~corridor.vehicles.air.jsbsim_shards.PeerJSBSimFleet`);
-``cpu_per_sim_s`` sums the ranks' CPU.
+``shards: K`` splits the run over K processes (``corridor.shards``): every rank runs the fidelity
+check and the missions of the whole fleet (the same on every rank), steps an equal share of the
+point masses (the ranks allgather the stepped states), and flies the JSBSim aircraft of its pool
+groups (:class:`~corridor.vehicles.air.jsbsim_shards.PeerJSBSimFleet`). The backend owns the run's
+split of the city into strips (``ShardComm.strips``, which the monitors and the avoidance divide
+their work by) and moves its edges every point-mass period toward the split that evens out the
+ranks' work (:class:`ShardBalance`). ``cpu_per_sim_s`` sums the ranks' CPU.
 """
 
 from __future__ import annotations
@@ -60,7 +63,7 @@ class ShardBalance(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    six_dof_weight: float = Field(45.0, ge=0.0)  # [units] per JSBSim aircraft (CPU per tick, N = 2,000: 0.18 ms vs 0.004 ms)
+    six_dof_weight: float = Field(80.0, ge=0.0)  # [units] per JSBSim aircraft: its steps and its share of the spawns
     edge_step_m: float = Field(100.0, ge=0.0)  # [m] per point-mass period (0: the first split stays)
 
 
