@@ -55,6 +55,13 @@ class ShardComm:
     idle_s: float = 0.0  # [s] thread CPU of the idle work (inside the collectives' cpu_s)
     _overrun: float = 0.0  # [s] this collective: the idle chunks that may have outlasted the wait
     strips: Strips | None = None  # the run's split of the plane, when a component balances it for the others
+    carried: list[list[Any]] = field(default_factory=list)  # per rank: what it posted for the last allgather
+    _posted: list[Any] = field(default_factory=list)
+
+    def post(self, obj: Any) -> None:
+        """Send ``obj`` with the next ``allgather`` (one message fewer than an allgather of its own;
+        every rank posts as many objects at the same points); after it, ``carried[r]`` is rank r's."""
+        self._posted.append(obj)
 
     def allgather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (pairwise: the lower rank sends first, so a large
@@ -62,14 +69,17 @@ class ShardComm:
         t0, c0, idle0 = time.perf_counter(), time.thread_time(), self.idle_s
         self._overrun = 0.0
         out: list[Any] = [None] * self.size
-        out[self.rank] = obj
+        msg = (obj, self._posted)
+        out[self.rank] = msg
         for peer in sorted(self.conns):
             if self.rank < peer:
-                self._send(peer, obj)
+                self._send(peer, msg)
                 out[peer] = self._recv(peer)
             else:
                 out[peer] = self._recv(peer)
-                self._send(peer, obj)
+                self._send(peer, msg)
+        self.carried, self._posted = [m[1] for m in out], []
+        out = [m[0] for m in out]
         self.rounds += 1
         c1 = time.thread_time()
         self.wait_s += time.perf_counter() - t0

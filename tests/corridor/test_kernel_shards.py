@@ -113,3 +113,19 @@ def test_strips_follow_the_load_by_bounded_steps() -> None:
     assert again.edges.tolist() == s.edges.tolist()  # the same inputs, the same edges (every rank)
     s.rebalance(x, np.array([0.0, 40.0]), max_step_m=100.0)
     assert s.edges.tolist() == [69.5]  # the load moved to rank 1: its strip shrinks
+
+
+def _posting(comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
+    comm.post(np.full(2, float(comm.rank)))
+    got = comm.allgather(("tick", comm.rank))
+    carried = [c[0].tolist() for c in comm.carried]
+    comm.allgather(None)
+    return {"got": got, "carried": carried, "after": comm.carried}, []
+
+
+def test_posted_objects_travel_with_the_next_collective() -> None:
+    metrics, _, comm = run_sharded(_posting, _posting, 3)
+    assert metrics["got"] == [("tick", 0), ("tick", 1), ("tick", 2)]  # the collective's own values
+    assert metrics["carried"] == [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]  # every rank's post, in rank order
+    assert metrics["after"] == [[], [], []]  # posted once: the next collective carries nothing
+    assert comm.rounds == 2

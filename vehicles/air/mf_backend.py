@@ -140,6 +140,7 @@ class MultiFidelityAirBackend(AirBackend):
         self.six_dof_quad_s = 0.0  # [s] quadcopter-seconds flown 6-DOF
         self.tick_count = 0
         self.pm_prev_pos, self.pm_prev_vel = self.pm.pos.copy(), self.pm.vel.copy()
+        self._pm_shares: list[np.ndarray] = []  # a sharded run: each rank's point-mass rows stepped this tick
         self.t_s = 0.0
         if p.fidelity.mode == "jsbsim":
             for r in self.quad_rows:
@@ -226,6 +227,8 @@ class MultiFidelityAirBackend(AirBackend):
                     self._step_point_masses(ctx, pm_q)
         with ctx.part(f"{self.name}.jsbsim"):
             self.js.step(self.period)
+        if self._pm_shares:
+            self._take_point_masses(ctx.shard)
         self._check_finite()
         self.tick_count += 1
         self.t_s = self.tick_count * self.period
@@ -233,18 +236,27 @@ class MultiFidelityAirBackend(AirBackend):
 
     def _step_point_masses(self, ctx: RunContext, pm_q: np.ndarray) -> None:
         """The point masses ``pm_q`` advance a point-mass period. A sharded run: each rank steps an
-        equal share of them and the ranks allgather the stepped states (a row's step depends on its
-        own state and targets only, and every rank holds every row's targets: the one-process values)."""
+        equal share of them and posts the stepped states; they travel with the 6-DOF fleet's state
+        exchange of this tick (``_take_point_masses``: nothing reads the point masses before). A
+        row's step depends on its own state and targets only, and every rank holds every row's
+        targets: the one-process values."""
         dt_s = self.pm_every * self.period
         if ctx.shard is None:
             self.pm.step(dt_s, pm_q)
             return
         comm = ctx.shard
-        shares = np.array_split(pm_q, comm.size)
-        self.pm.step(dt_s, shares[comm.rank], waypoints=False)
-        for rows, st in zip(shares, comm.allgather(self.pm.state_rows(shares[comm.rank])), strict=True):
-            if rows is not shares[comm.rank]:
+        self._pm_shares = np.array_split(pm_q, comm.size)
+        mine = self._pm_shares[comm.rank]
+        self.pm.step(dt_s, mine, waypoints=False)
+        comm.post(self.pm.state_rows(mine))
+
+    def _take_point_masses(self, comm: Any) -> None:
+        """The other ranks' stepped point masses (posted in ``_step_point_masses``), then the waypoints."""
+        for r, rows in enumerate(self._pm_shares):
+            if r != comm.rank:
+                (st,) = comm.carried[r]
                 self.pm.set_state_rows(rows, st)
+        self._pm_shares = []
         self.pm.advance_waypoints()
 
     def _check_finite(self) -> None:
