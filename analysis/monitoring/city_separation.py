@@ -106,10 +106,13 @@ class CitySeparation(Component):
         if ctx.shard is not None:
             self._tick_region(ctx, pos, piloted)
         else:
-            i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
-            self._nearest(pos, tree, reach, np.concatenate([i, j]))
-            if len(i):
-                self._check(ctx, i, j, d0, d1, piloted, len(pos))
+            with ctx.part(f"{self.name}.pairs"):
+                i, j, d0, d1, tree, reach = self._candidates(self.prev, pos, piloted)
+            with ctx.part(f"{self.name}.nearest"):
+                self._nearest(pos, tree, reach, np.concatenate([i, j]))
+            with ctx.part(f"{self.name}.check"):
+                if len(i):
+                    self._check(ctx, i, j, d0, d1, piloted, len(pos))
         self.prev = pos.copy()
 
     # ---- a sharded run: this rank's region ---------------------------------------------------------------
@@ -142,24 +145,27 @@ class CitySeparation(Component):
             raise ValueError(f"{self.name}: an aircraft moved {step:.1f} m and a strip edge {edge_move:.1f} m in one "
                              f"tick, more than the shards' halo ({self.halo_m:.1f} m = halo_mps * dt): raise "
                              "params.halo_mps")
-        lp = pos[reg.local]
-        tree = cKDTree(lp)
-        ij = [tree.query_pairs(reach, output_type="ndarray")]
-        for k in np.flatnonzero(piloted[reg.local]):
-            js = np.asarray(tree.query_ball_point(lp[k], np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step),
-                            dtype=np.int64)
-            js = js[js != k]
-            ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
-        m = len(reg.local)
-        key = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64) @ np.array([m, 1], dtype=np.int64))
-        pairs = reg.local[np.column_stack([key // m, key % m])]  # sorted (i, j), as np.unique(axis=0) gives them
-        pairs = pairs[reg.checked[pairs[:, 0]]]
-        i, j = pairs[:, 0], pairs[:, 1]
-        d1 = pos[i] - pos[j]
-        ok = ~(teleport[i] | teleport[j])
-        d0 = np.where(ok[:, None], self.prev[i] - self.prev[j], d1)
-        self._nearest_region(pos, reg, tree, reach, np.concatenate([i, j]))
-        self._check(ctx, i, j, d0, d1, piloted, len(pos), reg.owned)
+        with ctx.part(f"{self.name}.pairs"):
+            lp = pos[reg.local]
+            tree = cKDTree(lp)
+            ij = [tree.query_pairs(reach, output_type="ndarray")]
+            r_piloted = np.hypot(p.los_piloted_h_m, p.los_piloted_v_m) + 2.0 * step
+            for k in np.flatnonzero(piloted[reg.local]):
+                js = np.asarray(tree.query_ball_point(lp[k], r_piloted), dtype=np.int64)
+                js = js[js != k]
+                ij.append(np.column_stack([np.minimum(js, k), np.maximum(js, k)]))
+            m = len(reg.local)
+            key = np.unique(np.concatenate(ij).reshape(-1, 2).astype(np.int64) @ np.array([m, 1], dtype=np.int64))
+            pairs = reg.local[np.column_stack([key // m, key % m])]  # sorted (i, j), as np.unique(axis=0) gives them
+            pairs = pairs[reg.checked[pairs[:, 0]]]
+            i, j = pairs[:, 0], pairs[:, 1]
+            d1 = pos[i] - pos[j]
+            ok = ~(teleport[i] | teleport[j])
+            d0 = np.where(ok[:, None], self.prev[i] - self.prev[j], d1)
+        with ctx.part(f"{self.name}.nearest"):
+            self._nearest_region(pos, reg, tree, reach, np.concatenate([i, j]))
+        with ctx.part(f"{self.name}.check"):
+            self._check(ctx, i, j, d0, d1, piloted, len(pos), reg.owned)
 
     def _nearest_region(self, pos: np.ndarray, reg: Region, tree: cKDTree, reach_m: float, paired: np.ndarray) -> None:
         """``_nearest`` for this rank's rows, on its local trees. A local nearest neighbour within the

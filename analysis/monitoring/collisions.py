@@ -86,10 +86,11 @@ class CollisionMonitor(Component):
         if not _may_touch(prev, cur, special):  # no box of a special row can reach another's: nothing to find
             self._prev, self._prev_ids = cur, s.ids
             return
-        if ctx.shard is None:
-            self._boxes(ctx, prev, cur, special)
-        else:  # a sharded run: the pairs with a special row in this rank's strip, on its rows near the strip
-            self._boxes(ctx, *self._local(ctx.shard, prev, cur, special, s.ids is self._prev_ids))
+        part = (prev, cur, special)
+        if ctx.shard is not None:  # a sharded run: the pairs with a special row in this rank's strip, on its rows near it
+            part = self._local(ctx.shard, prev, cur, special, s.ids is self._prev_ids)
+        with ctx.part(f"{self.name}.boxes"):
+            self._boxes(ctx, *part)
         self._prev, self._prev_ids = cur, s.ids
 
     def _boxes(self, ctx: RunContext, prev: Poses | None, cur: Poses, special: np.ndarray) -> None:

@@ -25,7 +25,7 @@ flies 6-DOF. :class:`FleetVelocityCommand` commands many aircraft in one bus ite
 
 ``shards: K`` splits the run over K processes (``corridor.shards``): every rank runs the fidelity
 check and the missions of the whole fleet (the same on every rank), steps an equal share of the
-point masses (the ranks allgather the stepped states), and flies the JSBSim aircraft of its pool
+point masses (their stepped states travel with the 6-DOF state exchange), and flies the JSBSim aircraft of its pool
 groups (:class:`~corridor.vehicles.air.jsbsim_shards.PeerJSBSimFleet`). The backend owns the run's
 split of the city into strips (``ShardComm.strips``, which the monitors and the avoidance divide
 their work by) and moves its edges every point-mass period toward the split that evens out the
