@@ -54,6 +54,7 @@ def test_two_shards_give_the_one_shard_rows() -> None:
     # the monitors and the avoidance share the air backend's balanced split, whose edge moved
     strips, comps = ctxs[2].shard.strips, ctxs[2].components
     assert strips is comps["separation"].strips is comps["collisions"]._strips is comps["avoid"].strips
+    assert ctxs[2].shard.idle is not None  # a waiting rank prefetches FDMs (shard_balance.prefetch)
     start_x = np.array([a.start_enu[0] for a in comps["air"].aircraft])
     edge0, edge = float(np.median(start_x)), float(strips.edges[0])
     assert abs(edge - edge0) > 20.0

@@ -59,12 +59,13 @@ class ShardBalance(BaseModel):
     point-mass period the edges move toward the split that evens out the ranks' work, counting each
     aircraft in a strip as one unit (its separation, collision and avoidance work) and each JSBSim
     aircraft a rank flies as ``six_dof_weight`` units more (its pool group's rank flies it wherever it
-    is), by at most ``edge_step_m``. The rows do not depend on the split."""
+    is), by at most ``edge_step_m``. The rows do not depend on the split, nor on ``prefetch``."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     six_dof_weight: float = Field(80.0, ge=0.0)  # [units] per JSBSim aircraft: its steps and its share of the spawns
     edge_step_m: float = Field(100.0, ge=0.0)  # [m] per point-mass period (0: the first split stays)
+    prefetch: bool = True  # a rank that waits for its peers warms the next FDM batch (jsbsim_switch)
 
 
 @dataclass(frozen=True)
@@ -125,6 +126,8 @@ class MultiFidelityAirBackend(AirBackend):
         self.js: SwitchableJSBSimFleet | PeerJSBSimFleet = SwitchableJSBSimFleet(self.origin, rate_hz=p.rate_hz)
         if ctx.shard is not None:  # this rank flies its pool groups' aircraft, every rank sees all states
             self.js = PeerJSBSimFleet(self.js, ctx.shard)
+            if not p.shard_balance.prefetch:
+                ctx.shard.idle = None
             ctx.shard.strips = Strips(np.array([a.start_enu[0] for a in self.aircraft]), ctx.shard.size)
         self.fleet = self.js
         for a in self.aircraft:
