@@ -411,7 +411,7 @@ def main(argv: list[str] | None = None) -> int:
             if args.plot:
                 from corridor.analysis.learning_curve import figure
 
-                figure(args.folders).savefig(args.plot)
+                figure(args.folders, table).savefig(args.plot)
                 print(args.plot)
         elif args.cmd == "checkpoints":
             if args.holdout < 2:
