@@ -2,7 +2,7 @@
 the runs that broke a constraint, and the held-out comparison, several methods in one figure.
 
     python -m corridor.analysis.learning_curve results/uav_encounter-learn-blrl results/uav_encounter-learn-cma \\
-        --out learning_curve.svg
+        --out learning_curve.svg [--held-out bench.json]   # bench.json: learn_benchmark.py holdout --json
 """
 
 from __future__ import annotations
@@ -75,12 +75,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folders", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, default=Path("learning_curve.svg"))
+    ap.add_argument("--held-out", type=Path, action="append", default=[],
+                    help="a table of tools/learn_benchmark.py holdout --json to mark (repeatable)")
     args = ap.parse_args(argv)
     missing = [f for f in args.folders if not (f / "learn.json").is_file()]
     if missing:
         print(f"learning_curve: {missing[0]}: no learn.json (a run_scenario --learn folder?)")
         return 2
-    figure(args.folders).savefig(args.out)
+    bad = [f for f in args.held_out if not f.is_file()]
+    if bad:
+        print(f"learning_curve: --held-out {bad[0]}: no such file (learn_benchmark.py holdout --json writes it)")
+        return 2
+    rows = [r for f in args.held_out for r in json.loads(f.read_text())]
+    figure(args.folders, rows or None).savefig(args.out)
     print(args.out)
     return 0
 

@@ -171,12 +171,29 @@ def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, 
     return [done[s.run_id] for s in hold]
 
 
+def training_seeds(folder: Path) -> set[int]:
+    """The seeds of a --learn folder's training runs (its ``runs.parquet`` rows of a numbered stage)."""
+    import pandas as pd
+
+    from corridor.errors import CorridorError
+
+    f = folder / "runs.parquet"
+    if not f.is_file():
+        raise CorridorError(f"learn_benchmark: {folder}: no runs.parquet (the training did not finish?)")
+    df = pd.read_parquet(f, columns=["seed", "learn.stage"])
+    train = df[df["learn.stage"].astype(str).str.fullmatch(r"\d+") & df["seed"].notna()]
+    return {int(x) for x in train["seed"]}
+
+
 def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str], workers: int) -> list[dict[str, Any]]:
     """One dict per folder (method): the held-out figures against the hand-tuned theta0."""
+    from corridor.learn_core import specs
+
     datas = [load_learn(f) for f in folders]
     check_same(datas, [str(f) for f in folders])
     pb = problem_of(datas[0])
     seed = int(datas[0]["seed"])
+    held = {int(s.seed) for s in specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold")}
     base = _theta_rows(pb, pb.theta0, n, seed, out, "hand_tuned", workers)
     cache: dict[tuple[float, ...], list[dict[str, Any]]] = {tuple(np.round(pb.theta0, 9)): base}
     table = []
@@ -195,6 +212,7 @@ def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str]
             theta = ", ".join(f"{k.split('.params.boundaries.', 1)[1]} {v:.4g}" for k, v in zip(data["keys"], th, strict=True))
         unchanged = data["theta"] is not None and key == tuple(np.round(pb.theta0, 9))
         table.append({"method": data["method"], "folder": str(folder), "training_episodes": data["training_runs"],
+                      "overlap_training_seeds": len(held & training_seeds(folder)),
                       "theta": theta, "episodes_to_95": 0 if unchanged else episodes_to_95(data["curve"]),
                       **compare(pb, base, rows, metrics)})
     return table
@@ -287,6 +305,8 @@ def print_holdout(table: list[dict[str, Any]], metrics: Sequence[str]) -> None:
     t0 = table[0]
     m0 = t0["hand_tuned_objective"]
     print(f"held-out: {t0['pairs']} seeds; hand-tuned objective {fmt_ci(*m0)}, violating runs {t0['violating_hand_tuned']}")
+    print("held-out seeds also drawn in training: "
+          + ", ".join(f"{t['method']} {t['overlap_training_seeds']}" for t in table))
     head = ["method", "train ep.", "ep. to 95 %", "theta", "held-out objective", "learned - hand-tuned [95 % CI]",
             "violating", "reward: learned - hand-tuned", *[f"d {c}" for c in metrics]]
     print("| " + " | ".join(head) + " |")

@@ -44,6 +44,11 @@ def test_held_out_rows_of_the_benchmark_are_marked_at_their_training_runs(tmp_pa
     np.testing.assert_array_equal(mark.lines[0].get_ydata(), [-1.0])
     (hand,) = [ln for ln in ax.get_lines() if ln.get_label().startswith("hand-tuned")]
     np.testing.assert_array_equal(hand.get_ydata(), [-1.34, -1.34])
+    table, svg = tmp_path / "bench.json", tmp_path / "curves.svg"
+    table.write_text(json.dumps(rows))
+    assert main([str(blrl), str(ppo), "--held-out", str(table), "--out", str(svg)]) == 0
+    assert "11 runs breaking a constraint" in svg.read_text()
+    assert main([str(blrl), "--held-out", str(tmp_path / "none.json"), "--out", str(svg)]) == 2
 
 
 def test_a_folder_without_learn_json_is_exit_2(tmp_path: Path) -> None:

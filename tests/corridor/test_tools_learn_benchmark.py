@@ -86,7 +86,9 @@ def test_holdout_uses_the_seeds_and_draws_of_learns_own_comparison(tmp_path: Pat
     own = json.loads((out / "learn.json").read_text())["holdout"]
     table = lb.holdout_table([out], 2, tmp_path / "bench", ["sep_min_h_m"], 2)
     (row,) = table
-    assert row["pairs"] == 2 and row["training_episodes"] == 12
+    assert row["pairs"] == 2 and row["training_episodes"] == 12 and row["overlap_training_seeds"] == 0
+    train = pd.read_parquet(out / "runs.parquet")
+    assert lb.training_seeds(out) == {int(x) for x in train.loc[train["learn.stage"].str.isdigit(), "seed"]}
     assert row["hand_tuned_objective"][0] == pytest.approx(own["hand_tuned"]["objective_mean"])
     assert row["learned_objective"][0] == pytest.approx(own["learned"]["objective_mean"])
     assert row["violating_learned"] == 0 and row["paired_diff_reward"][0] == pytest.approx(row["paired_diff"][0])
