@@ -86,8 +86,12 @@ def check_same(datas: list[dict[str, Any]], names: list[str]) -> None:
     """The folders must hold one problem; else one line naming the field that differs."""
     from corridor.errors import CorridorError
 
+    def text(d: dict[str, Any], field: str) -> str:  # an expression's spacing does not make another problem
+        v = json.dumps(d.get(field), sort_keys=True)
+        return "".join(v.split()) if field in ("objective", "constraints") else v
+
     for field in SAME:
-        values = {json.dumps(d.get(field), sort_keys=True) for d in datas}
+        values = {text(d, field) for d in datas}
         if len(values) > 1:
             raise CorridorError(f"learn_benchmark: the folders learn different problems ({field} differs: "
                                 f"{', '.join(names)})")

@@ -47,6 +47,10 @@ def test_folders_of_different_problems_are_refused_in_one_line(tmp_path: Path) -
     base = {"scenario": "uav_encounter", "variant": "potential_field", "keys": ["a"], "objective": "-x",
             "constraints": [], "sets": [], "seed": 0}
     lb.check_same([base, dict(base)], ["a", "b"])
+    spaced = {**base, "objective": "- x", "constraints": ["nmac == 0"]}
+    lb.check_same([{**base, "constraints": ["nmac==0"]}, spaced], ["a", "b"])  # the same expressions
+    with pytest.raises(CorridorError, match="constraints differs"):
+        lb.check_same([spaced, {**base, "constraints": ["nmac == 1"]}], ["a", "b"])
     with pytest.raises(CorridorError, match="objective differs"):
         lb.check_same([base, {**base, "objective": "-y"}], ["a", "b"])
     assert lb.main(["holdout", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
