@@ -2,7 +2,7 @@
 the runs that broke a constraint, and the held-out comparison, several methods in one figure.
 
     python -m corridor.analysis.learning_curve results/uav_encounter-learn-blrl results/uav_encounter-learn-cma \\
-        --out learning_curve.svg
+        --out learning_curve.svg [--held-out bench.json]   # bench.json: learn_benchmark.py holdout --json
 """
 
 from __future__ import annotations
@@ -26,10 +26,28 @@ def _curve(data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     return runs, mean, lo, hi, np.array([s["violating_runs"] for s in c])
 
 
-def figure(folders: list[Path]) -> Figure:
-    """Objective (mean and 95 % interval per stage) and violating runs against training runs."""
+def _held_out_marks(ax: Any, rows: list[dict[str, Any]], folder: Path, name: str, color: Any) -> None:
+    """The rows of ``tools/learn_benchmark.py holdout`` (its ``--json``) for ``folder``: the learned objective
+    on the held-out seeds (95 % interval) at the training runs it took, with its violating runs."""
+    for row in rows:
+        if Path(row["folder"]).resolve() != Path(folder).resolve():
+            continue
+        m, lo, hi = row["learned_objective"]
+        ax.errorbar([row["training_episodes"]], [m], yerr=[[m - lo], [hi - m]], fmt="*", color=color, markersize=11,
+                    capsize=3, markeredgecolor="black",
+                    label=f"{name}: held-out ({row['pairs']} seeds, {row['violating_learned']} runs breaking a constraint)")
+
+
+def figure(folders: list[Path], held_out: list[dict[str, Any]] | None = None) -> Figure:
+    """Objective (mean and 95 % interval per stage) and violating runs against training runs; ``held_out``:
+    rows of ``tools/learn_benchmark.py holdout`` to mark (the hand-tuned one as a dashed line)."""
     fig = Figure(figsize=(8.0, 4.6), layout="constrained")
     ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    if held_out:
+        m0 = held_out[0]["hand_tuned_objective"][0]
+        ax.axhline(m0, color="grey", ls="--", lw=1.0,
+                   label=f"hand-tuned: held-out ({held_out[0]['pairs']} seeds, "
+                         f"{held_out[0]['violating_hand_tuned']} runs breaking a constraint)")
     for folder in folders:
         data = json.loads((Path(folder) / "learn.json").read_text())
         runs, mean, lo, hi, viol = _curve(data)
@@ -42,6 +60,7 @@ def figure(folders: list[Path]) -> Figure:
             for key, style in (("hand_tuned", "s"), ("learned", "*")):
                 ax.plot([runs[-1] + 2], [h[key]["objective_mean"]], style, color=line.get_color(), markersize=9,
                         label=f"{name}: held-out {key.replace('_', '-')} ({h['runs']} seeds)")
+        _held_out_marks(ax, held_out or [], Path(folder), name, line.get_color())
         ax2.bar(runs, viol, width=2.0, alpha=0.6, color=line.get_color())
     ax.set_ylabel(f"objective: {data['objective']}")
     keys = ", ".join(k.split("boundaries.")[-1] for k in data["keys"])
@@ -56,12 +75,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folders", nargs="+", type=Path)
     ap.add_argument("--out", type=Path, default=Path("learning_curve.svg"))
+    ap.add_argument("--held-out", type=Path, action="append", default=[],
+                    help="a table of tools/learn_benchmark.py holdout --json to mark (repeatable)")
     args = ap.parse_args(argv)
     missing = [f for f in args.folders if not (f / "learn.json").is_file()]
     if missing:
         print(f"learning_curve: {missing[0]}: no learn.json (a run_scenario --learn folder?)")
         return 2
-    figure(args.folders).savefig(args.out)
+    bad = [f for f in args.held_out if not f.is_file()]
+    if bad:
+        print(f"learning_curve: --held-out {bad[0]}: no such file (learn_benchmark.py holdout --json writes it)")
+        return 2
+    rows = [r for f in args.held_out for r in json.loads(f.read_text())]
+    figure(args.folders, rows or None).savefig(args.out)
     print(args.out)
     return 0
 

@@ -23,7 +23,9 @@ What it produces, and how that maps onto ``blrl``/``cma``:
   the environment on the same seeds with the same ``randomize`` draws; the paired difference of the
   objective gets a 95 % t interval.  The training seeds are drawn by the environment; how many of
   them are also held-out seeds is reported (``holdout.overlap_training_seeds``).
-- not mapped: ``--resume`` (the PPO state is not checkpointed per stage) and ``--executor ray`` (the
+- checkpoints: the policy and its normaliser after 4, 8, 16, 32 and every 48 training runs
+  (``DIR/checkpoints/epNNNNN``), so that ``tools/learn_benchmark.py checkpoints`` can run them on held-out seeds.
+- not mapped: ``--resume`` (the optimiser state is not saved per stage) and ``--executor ray`` (the
   environment is stepped in this process): both are refused with one line.
 """
 
@@ -45,6 +47,16 @@ LEARNING_RATE = 3e-4
 SWITCHES = {"avoid_enter": ("avoid_enter", "avoid_exit"), "avoid_exit": ("avoid_enter", "avoid_exit")}
 POLICY = "ppo_policy.zip"
 NORMALISER = "ppo_vecnormalize.pkl"
+CHECKPOINTS = "checkpoints"  # DIR/checkpoints/epNNNNN/{POLICY, NORMALISER}: the policy after NNNNN training runs
+CHECKPOINT_EVERY = 48  # runs between checkpoints (blrl's budget on uav_encounter), besides 4, 8, 16, 32
+
+
+def checkpoint_episodes(budget: int) -> list[int]:
+    """Training runs after which the policy is saved: every stage up to 32 that is a power of two, then
+    every ``CHECKPOINT_EVERY`` runs, below the final budget (the final policy is ``POLICY`` itself)."""
+    n = (budget // EPISODES_PER_STAGE) * EPISODES_PER_STAGE
+    early = [EPISODES_PER_STAGE * 2**k for k in range(8) if EPISODES_PER_STAGE * 2**k <= 32]
+    return sorted({e for e in [*early, *range(CHECKPOINT_EVERY, n, CHECKPOINT_EVERY)] if 0 < e < n})
 
 
 def check(pb: Problem, resume: bool, executor: str) -> tuple[str, str]:
@@ -98,11 +110,20 @@ def train(pb: Problem, budget: int, seed: int, out: Path, sets: list[str], switc
                 learning_rate=LEARNING_RATE, seed=seed, device="cpu", verbose=0)
     curve: list[dict[str, Any]] = []
     rows: list[dict[str, Any]] = []
+    saves = set(checkpoint_episodes(budget))
 
     class Stages(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.stage_rows: list[dict[str, Any]] = []
+
+        def _on_rollout_start(self) -> None:
+            done = len(curve) * EPISODES_PER_STAGE  # runs the policy (and its normaliser) has been trained on
+            if done in saves:
+                dest = out / CHECKPOINTS / f"ep{done:05d}"
+                dest.mkdir(parents=True, exist_ok=True)
+                model.save(dest / POLICY)
+                venv.save(str(dest / NORMALISER))
 
         def _on_step(self) -> bool:
             for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):

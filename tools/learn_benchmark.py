@@ -2,6 +2,7 @@
 
     python tools/learn_benchmark.py holdout DIR_BLRL DIR_CMA DIR_PPO --holdout 200 --out results/bench \\
         [--metric hard_brakes --metric sep_min_h_m] [--plot curves.svg] [--workers 2]
+    python tools/learn_benchmark.py checkpoints DIR_PPO --against DIR_BLRL --holdout 50 --out results/bench
     python tools/learn_benchmark.py scan SCAN_DIR ... --reference SCAN_DIR_OF_THE_START --x avoid_enter.dist_m \\
         --objective -path_ratio_mean --constraint 'nmac == 0' [--plot scan.svg]
 
@@ -16,6 +17,11 @@ the paired difference of the reward (objective - penalty x broken constraints, w
 the paired difference of each ``--metric`` column, and the training episodes needed to reach 95 % of
 the final objective (``episodes_to_95``, on the training stages; 0 when the learned theta is theta0).  Rows go to ``OUT/holdout/<tag>/``; a second call with the
 same ``OUT`` re-uses the finished runs (resume).
+
+``checkpoints`` runs the PPO policy saved after 4, 8, 16, 32 and every 48 training runs
+(``DIR/checkpoints/epNNNNN``) and the final one on the first ``N`` held-out seeds, beside the hand-tuned
+theta0 and the learned theta of a blrl/cma folder on the same seeds: PPO "matches" at the first
+checkpoint with 0 runs breaking a constraint and a mean objective at least that of the learned theta.
 
 ``scan`` reads plain batches (``run_scenario --seed S --runs N --set KEY=V ...``, the same seeds in
 every folder) and prints, per folder, the objective's paired difference against ``--reference`` with
@@ -80,8 +86,12 @@ def check_same(datas: list[dict[str, Any]], names: list[str]) -> None:
     """The folders must hold one problem; else one line naming the field that differs."""
     from corridor.errors import CorridorError
 
+    def text(d: dict[str, Any], field: str) -> str:  # an expression's spacing does not make another problem
+        v = json.dumps(d.get(field), sort_keys=True)
+        return "".join(v.split()) if field in ("objective", "constraints") else v
+
     for field in SAME:
-        values = {json.dumps(d.get(field), sort_keys=True) for d in datas}
+        values = {text(d, field) for d in datas}
         if len(values) > 1:
             raise CorridorError(f"learn_benchmark: the folders learn different problems ({field} differs: "
                                 f"{', '.join(names)})")
@@ -123,21 +133,24 @@ def _theta_rows(pb: Any, theta: np.ndarray, n: int, seed: int, out: Path, tag: s
 _WORKER: dict[str, Any] = {}  # per policy-evaluating process: the problem of its folder
 
 
-def _policy_run(folder: str, seed: int, draws: dict[str, Any]) -> dict[str, Any]:
-    """One held-out run of the PPO policy in ``folder`` (in a worker process)."""
+def _policy_run(folder: str, seed: int, draws: dict[str, Any], policy: str | None = None) -> dict[str, Any]:
+    """One held-out run of the PPO policy of the --learn ``folder`` (in a worker process); ``policy`` is the
+    folder of the policy files when it is not ``folder`` itself (a checkpoint)."""
     from corridor.learn_ppo import evaluate_policy
 
     if _WORKER.get("folder") != folder:
         data = load_learn(Path(folder))
         _WORKER.update(folder=folder, data=data, pb=problem_of(data))
     data = _WORKER["data"]
-    return evaluate_policy(Path(folder), _WORKER["pb"], list(data["sets"]), (data["switch"][0], data["switch"][1]),
-                           seed, draws)
+    return evaluate_policy(Path(policy or folder), _WORKER["pb"], list(data["sets"]),
+                           (data["switch"][0], data["switch"][1]), seed, draws)
 
 
-def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, workers: int) -> list[dict[str, Any]]:
+def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, workers: int,
+                 policy: Path | None = None) -> list[dict[str, Any]]:
     """The PPO policy on the held-out seeds and draws (``workers`` processes); finished rows are kept in
-    ``rows.parquet`` as they come (a second call runs only the missing ones)."""
+    ``rows.parquet`` as they come (a second call runs only the missing ones).  ``policy``: a checkpoint's
+    folder instead of the final policy in ``folder``."""
     import multiprocessing as mp
     import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -153,7 +166,8 @@ def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, 
     todo = [s for s in hold if s.run_id not in done]
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per process: torch's own threads would contend
     with ProcessPoolExecutor(max(1, workers), mp_context=mp.get_context("spawn")) as ex:
-        futures = {ex.submit(_policy_run, str(folder), s.seed, s.draws): s for s in todo}
+        futures = {ex.submit(_policy_run, str(folder), s.seed, s.draws, None if policy is None else str(policy)): s
+                   for s in todo}
         for fut in as_completed(futures):
             s = futures[fut]
             done[s.run_id] = {**fut.result(), "run_id": s.run_id, "seed": s.seed}
@@ -161,12 +175,29 @@ def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, 
     return [done[s.run_id] for s in hold]
 
 
+def training_seeds(folder: Path) -> set[int]:
+    """The seeds of a --learn folder's training runs (its ``runs.parquet`` rows of a numbered stage)."""
+    import pandas as pd
+
+    from corridor.errors import CorridorError
+
+    f = folder / "runs.parquet"
+    if not f.is_file():
+        raise CorridorError(f"learn_benchmark: {folder}: no runs.parquet (the training did not finish?)")
+    df = pd.read_parquet(f, columns=["seed", "learn.stage"])
+    train = df[df["learn.stage"].astype(str).str.fullmatch(r"\d+") & df["seed"].notna()]
+    return {int(x) for x in train["seed"]}
+
+
 def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str], workers: int) -> list[dict[str, Any]]:
     """One dict per folder (method): the held-out figures against the hand-tuned theta0."""
+    from corridor.learn_core import specs
+
     datas = [load_learn(f) for f in folders]
     check_same(datas, [str(f) for f in folders])
     pb = problem_of(datas[0])
     seed = int(datas[0]["seed"])
+    held = {int(s.seed) for s in specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold")}
     base = _theta_rows(pb, pb.theta0, n, seed, out, "hand_tuned", workers)
     cache: dict[tuple[float, ...], list[dict[str, Any]]] = {tuple(np.round(pb.theta0, 9)): base}
     table = []
@@ -185,9 +216,65 @@ def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str]
             theta = ", ".join(f"{k.split('.params.boundaries.', 1)[1]} {v:.4g}" for k, v in zip(data["keys"], th, strict=True))
         unchanged = data["theta"] is not None and key == tuple(np.round(pb.theta0, 9))
         table.append({"method": data["method"], "folder": str(folder), "training_episodes": data["training_runs"],
+                      "overlap_training_seeds": len(held & training_seeds(folder)),
                       "theta": theta, "episodes_to_95": 0 if unchanged else episodes_to_95(data["curve"]),
                       **compare(pb, base, rows, metrics)})
     return table
+
+
+def checkpoint_table(ppo: Path, against: Path, n: int, out: Path, workers: int) -> list[dict[str, Any]]:
+    """The PPO policy after each saved number of training runs (``DIR/checkpoints/epNNNNN`` and the final one)
+    on the first ``n`` held-out seeds, against the hand-tuned theta0 and the learned theta of ``against`` (a
+    blrl/cma folder of the same problem) on the same seeds and draws: when, if ever, PPO matches it."""
+    from corridor.errors import CorridorError
+    from corridor.learn_ppo import CHECKPOINTS
+    from corridor.objective import value
+
+    data, ref = load_learn(ppo), load_learn(against)
+    check_same([data, ref], [str(ppo), str(against)])
+    if data["theta"] is not None or ref["theta"] is None:
+        raise CorridorError(f"learn_benchmark checkpoints: {ppo} must be a --method ppo folder and {against} "
+                            "a blrl or cma folder")
+    pb = problem_of(data)
+    seed = int(data["seed"])
+    base = _theta_rows(pb, pb.theta0, n, seed, out, "hand_tuned", workers)
+    th = np.array([ref["theta"][k] for k in ref["keys"]])
+    same_as_start = tuple(np.round(th, 9)) == tuple(np.round(pb.theta0, 9))
+    rows_ref = base if same_as_start else _theta_rows(pb, th, n, seed, out, f"{ref['method']}-{against.name}", workers)
+    points = sorted((int(p.name[2:]), p) for p in (ppo / CHECKPOINTS).glob("ep*") if p.name[2:].isdigit())
+    points.append((int(data["training_runs"]), ppo))
+    obj = lambda r: value(pb.objective, r)  # noqa: E731
+    o_ref = _by_seed(rows_ref, obj)
+    table = []
+    for episodes, folder in points:
+        tag = f"ppo-{ppo.name}" if folder == ppo else f"ppo-{ppo.name}-ep{episodes:05d}"
+        rows = _policy_rows(pb, ppo, n, seed, out, tag, workers, None if folder == ppo else folder)
+        o = _by_seed(rows, obj)
+        common = sorted(set(o) & set(o_ref))
+        bad = violating(pb, rows)
+        table.append({"episodes": episodes, **compare(pb, base, rows, ()),
+                      "against_objective": ci95([o_ref[k] for k in common]),
+                      "paired_diff_against": paired(o_ref, o)[:3], "violating_against": violating(pb, rows_ref),
+                      "matches": bool(common) and bad == 0 and float(np.mean([o[k] for k in common]))
+                      >= float(np.mean([o_ref[k] for k in common]))})
+    return table
+
+
+def print_checkpoints(table: list[dict[str, Any]], against: str) -> None:
+    t0 = table[0]
+    print(f"held-out: {t0['pairs']} seeds; hand-tuned {fmt_ci(*t0['hand_tuned_objective'])} "
+          f"({t0['violating_hand_tuned']} violating); {against} {fmt_ci(*t0['against_objective'])} "
+          f"({t0['violating_against']} violating)")
+    head = ["PPO training runs", "held-out objective", "ppo - hand-tuned [95 % CI]", f"ppo - {against} [95 % CI]",
+            "violating runs", "matches"]
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    for t in table:
+        print("| " + " | ".join([str(t["episodes"]), fmt_ci(*t["learned_objective"]), fmt_ci(*t["paired_diff"]),
+                                 fmt_ci(*t["paired_diff_against"]), str(t["violating_learned"]),
+                                 "yes" if t["matches"] else "no"]) + " |")
+    first = next((t["episodes"] for t in table if t["matches"]), None)
+    print(f"first match: {first if first is not None else 'none'} training runs")
 
 
 def _by_seed(rows: list[dict[str, Any]], f: Any) -> dict[int, float]:
@@ -222,6 +309,8 @@ def print_holdout(table: list[dict[str, Any]], metrics: Sequence[str]) -> None:
     t0 = table[0]
     m0 = t0["hand_tuned_objective"]
     print(f"held-out: {t0['pairs']} seeds; hand-tuned objective {fmt_ci(*m0)}, violating runs {t0['violating_hand_tuned']}")
+    print("held-out seeds also drawn in training: "
+          + ", ".join(f"{t['method']} {t['overlap_training_seeds']}" for t in table))
     head = ["method", "train ep.", "ep. to 95 %", "theta", "held-out objective", "learned - hand-tuned [95 % CI]",
             "violating", "reward: learned - hand-tuned", *[f"d {c}" for c in metrics]]
     print("| " + " | ".join(head) + " |")
@@ -315,6 +404,13 @@ def main(argv: list[str] | None = None) -> int:
     h.add_argument("--workers", type=int, default=2)
     h.add_argument("--plot", type=Path, help="learning curves of the folders in one SVG")
     h.add_argument("--json", type=Path, help="write the table as JSON")
+    c = sub.add_parser("checkpoints", help="a PPO folder's checkpoints against a blrl/cma result on held-out seeds")
+    c.add_argument("ppo", type=Path)
+    c.add_argument("--against", type=Path, required=True, help="the blrl or cma folder PPO must match")
+    c.add_argument("--holdout", type=int, default=50, help="held-out seeds (the first N of holdout's; default 50)")
+    c.add_argument("--out", type=Path, required=True, help="folder for the held-out rows (shared with holdout)")
+    c.add_argument("--workers", type=int, default=2)
+    c.add_argument("--json", type=Path, help="write the table as JSON")
     s = sub.add_parser("scan", help="objective against a boundary parameter, paired with a reference batch")
     s.add_argument("folders", nargs="+", type=Path)
     s.add_argument("--reference", type=Path, required=True)
@@ -339,8 +435,15 @@ def main(argv: list[str] | None = None) -> int:
             if args.plot:
                 from corridor.analysis.learning_curve import figure
 
-                figure(args.folders).savefig(args.plot)
+                figure(args.folders, table).savefig(args.plot)
                 print(args.plot)
+        elif args.cmd == "checkpoints":
+            if args.holdout < 2:
+                raise CorridorError(f"--holdout {args.holdout}: need at least 2 seeds for an interval")
+            table = checkpoint_table(args.ppo, args.against, args.holdout, args.out, args.workers)
+            print_checkpoints(table, load_learn(args.against)["method"])
+            if args.json:
+                args.json.write_text(json.dumps(table, indent=1))
         else:
             table = scan_table(args.folders, args.reference, args.objective, args.constraint, args.metric)
             print(f"{'set values':60s} {'pairs':>5s} {'objective':>26s} {'paired diff [95 % CI]':>34s} violating")

@@ -33,5 +33,23 @@ def test_curves_per_method_at_cumulative_runs(tmp_path: Path) -> None:
     assert [p.get_height() for p in ax2.patches] == [0, 1, 0, 0, 1]
 
 
+def test_held_out_rows_of_the_benchmark_are_marked_at_their_training_runs(tmp_path: Path) -> None:
+    blrl, ppo = _folder(tmp_path, "blrl", [-1.3, -1.2]), _folder(tmp_path, "ppo", [-1.25, -1.15, -1.1])
+    rows = [{"folder": str(ppo), "training_episodes": 24, "learned_objective": [-1.0, -1.1, -0.9], "pairs": 200,
+             "violating_learned": 11, "hand_tuned_objective": [-1.34, -1.35, -1.33], "violating_hand_tuned": 0}]
+    ax = figure([blrl, ppo], rows).axes[0]
+    (mark,) = ax.containers  # one errorbar: the ppo folder's row; blrl has none
+    assert mark.get_label() == "ppo: held-out (200 seeds, 11 runs breaking a constraint)"
+    np.testing.assert_array_equal(mark.lines[0].get_xdata(), [24])
+    np.testing.assert_array_equal(mark.lines[0].get_ydata(), [-1.0])
+    (hand,) = [ln for ln in ax.get_lines() if ln.get_label().startswith("hand-tuned")]
+    np.testing.assert_array_equal(hand.get_ydata(), [-1.34, -1.34])
+    table, svg = tmp_path / "bench.json", tmp_path / "curves.svg"
+    table.write_text(json.dumps(rows))
+    assert main([str(blrl), str(ppo), "--held-out", str(table), "--out", str(svg)]) == 0
+    assert "11 runs breaking a constraint" in svg.read_text()
+    assert main([str(blrl), "--held-out", str(tmp_path / "none.json"), "--out", str(svg)]) == 2
+
+
 def test_a_folder_without_learn_json_is_exit_2(tmp_path: Path) -> None:
     assert main([str(tmp_path)]) == 2

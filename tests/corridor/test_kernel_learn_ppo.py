@@ -51,6 +51,11 @@ def test_ppo_end_to_end_stages_policy_and_paired_holdout(tmp_path: Path) -> None
     assert [c["runs"] for c in data["curve"]] == [4, 4] and data["switch"] == ["avoid_enter", "avoid_exit"]
     assert (out / "ppo_policy.zip").is_file() and (out / "ppo_vecnormalize.pkl").is_file()
     assert not (out / "learned.yaml").exists()
+    # the policy after the first stage is kept beside the final one (checkpoint_episodes(8) == [4])
+    ckpt = out / "checkpoints" / "ep00004"
+    assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["ep00004"]
+    assert (ckpt / "ppo_policy.zip").is_file() and (ckpt / "ppo_vecnormalize.pkl").is_file()
+    assert (ckpt / "ppo_policy.zip").read_bytes() != (out / "ppo_policy.zip").read_bytes()
     for stage in ("000", "001"):
         rows = pd.read_parquet(out / "stages" / stage / "rows.parquet")
         assert len(rows) == 4 and (rows["status"] == "ok").all() and rows["path_ratio_mean"].notna().all()
@@ -66,3 +71,12 @@ def test_ppo_end_to_end_stages_policy_and_paired_holdout(tmp_path: Path) -> None
     draws = {k: hold0.loc[hold1["run_id"].replace("hold1", "hold0"), f"draw.{k}"] for k in pb.sc.randomize}
     again = evaluate_policy(out, pb, ["duration=4"], ("avoid_enter", "avoid_exit"), int(hold1["seed"]), draws)
     assert again["path_ratio_mean"] == hold1["path_ratio_mean"] and again["seed"] == hold1["seed"]
+
+
+def test_checkpoints_early_in_powers_of_two_then_every_48_runs_before_the_final_policy() -> None:
+    from corridor.learn_ppo import checkpoint_episodes
+
+    assert checkpoint_episodes(8) == [4]
+    assert checkpoint_episodes(32) == [4, 8, 16]
+    assert checkpoint_episodes(480) == [4, 8, 16, 32, 48, 96, 144, 192, 240, 288, 336, 384, 432]
+    assert checkpoint_episodes(50) == [4, 8, 16, 32]  # 12 stages of 4: the final policy is the one after 48

@@ -47,6 +47,10 @@ def test_folders_of_different_problems_are_refused_in_one_line(tmp_path: Path) -
     base = {"scenario": "uav_encounter", "variant": "potential_field", "keys": ["a"], "objective": "-x",
             "constraints": [], "sets": [], "seed": 0}
     lb.check_same([base, dict(base)], ["a", "b"])
+    spaced = {**base, "objective": "- x", "constraints": ["nmac == 0"]}
+    lb.check_same([{**base, "constraints": ["nmac==0"]}, spaced], ["a", "b"])  # the same expressions
+    with pytest.raises(CorridorError, match="constraints differs"):
+        lb.check_same([spaced, {**base, "constraints": ["nmac == 1"]}], ["a", "b"])
     with pytest.raises(CorridorError, match="objective differs"):
         lb.check_same([base, {**base, "objective": "-y"}], ["a", "b"])
     assert lb.main(["holdout", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
@@ -86,7 +90,9 @@ def test_holdout_uses_the_seeds_and_draws_of_learns_own_comparison(tmp_path: Pat
     own = json.loads((out / "learn.json").read_text())["holdout"]
     table = lb.holdout_table([out], 2, tmp_path / "bench", ["sep_min_h_m"], 2)
     (row,) = table
-    assert row["pairs"] == 2 and row["training_episodes"] == 12
+    assert row["pairs"] == 2 and row["training_episodes"] == 12 and row["overlap_training_seeds"] == 0
+    train = pd.read_parquet(out / "runs.parquet")
+    assert lb.training_seeds(out) == {int(x) for x in train.loc[train["learn.stage"].str.isdigit(), "seed"]}
     assert row["hand_tuned_objective"][0] == pytest.approx(own["hand_tuned"]["objective_mean"])
     assert row["learned_objective"][0] == pytest.approx(own["learned"]["objective_mean"])
     assert row["violating_learned"] == 0 and row["paired_diff_reward"][0] == pytest.approx(row["paired_diff"][0])
@@ -113,3 +119,29 @@ def test_a_ppo_policy_is_run_on_the_held_out_seeds_of_learns_own_comparison(tmp_
     assert row["learned_objective"][0] == pytest.approx(own["learned"]["objective_mean"])
     assert row["hand_tuned_objective"][0] == pytest.approx(own["hand_tuned"]["objective_mean"])
     assert len(pd.read_parquet(tmp_path / "bench" / "holdout" / "ppo-ppo" / "rows.parquet")) == 2
+
+
+def test_ppo_checkpoints_are_matched_against_a_learned_theta_on_the_same_held_out_seeds(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Short runs (3 s): every policy flies the hand-tuned rows, so PPO matches cma from its first checkpoint;
+    the rows of theta0 and of the learned theta are those holdout runs (shared folder)."""
+    pytest.importorskip("stable_baselines3")
+    sys.path.insert(0, str(ROOT / "tools"))  # the spawned workers import the tool by name
+    common = ["uav_encounter", "--variant", "potential_field", "--quiet", "--learn", "avoid_enter.dist_m",
+              "--objective", "-path_ratio_mean", "--holdout", "0", "--set", "duration=3"]
+    ppo, cma = tmp_path / "ppo", tmp_path / "cma"
+    assert run_scenario([*common, "--method", "ppo", "--budget", "8", "--out", str(ppo)]) == 0
+    assert run_scenario([*common, "--method", "cma", "--budget", "12", "--out", str(cma)]) == 0
+    bench = tmp_path / "bench"
+    (row,) = lb.holdout_table([cma], 2, bench, [], 2)
+    table = lb.checkpoint_table(ppo, cma, 2, bench, 2)
+    assert [t["episodes"] for t in table] == [4, 8]
+    for t in table:
+        assert t["pairs"] == 2 and t["violating_learned"] == 0
+        assert t["against_objective"][0] == pytest.approx(row["learned_objective"][0])
+        assert t["paired_diff"][0] == pytest.approx(0.0) and t["matches"]
+    assert (bench / "holdout" / "ppo-ppo-ep00004" / "rows.parquet").is_file()
+    lb.print_checkpoints(table, "cma")
+    assert "first match: 4 training runs" in capsys.readouterr().out
+    with pytest.raises(CorridorError, match="must be a --method ppo folder"):
+        lb.checkpoint_table(cma, ppo, 2, bench, 2)
