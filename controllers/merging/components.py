@@ -322,13 +322,20 @@ class V2XMerging(Controller):
         followers: dict[str, list[str]] = {}
         self._listen = {}
         order = self.coord.sequence
+        # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
+        # have heard it already (a CAM is a broadcast), so every ordered vehicle also listens to the
+        # senders on a conflicting lane that are not ordered yet
+        newcomers = self._newcomers(s, idx, set(order)) if self.coord.policy == "fifo" else []
         for pos_, vid in enumerate(order):
             if vid not in self.tracks:
                 continue
             ahead = order[max(0, pos_ - self._listen_depth): pos_]
-            self._listen[vid] = set(ahead)
+            self._listen[vid] = set(ahead).union(newcomers)
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
+            for src in newcomers:
+                if src != vid:
+                    followers.setdefault(src, []).append(vid)
         # a multicast per CAM: the same draws as one unicast send per copy
         cams = [(vid, z, p, [RSU, *followers.get(vid, ())])
                 for vid, z, p in zip([ids[k] for k in due.tolist()], cam_z, cam_pos, strict=True)]
@@ -341,6 +348,13 @@ class V2XMerging(Controller):
         self._receive(t)
         self.tracks.drop_stale(t)
         return cams
+
+    @staticmethod
+    def _newcomers(s: dict[str, Any], idx: np.ndarray, ordered: set[str]) -> list[str]:
+        """The CAM senders ``idx`` (rows) on a conflicting lane (ramp, or the mainline lane ramp
+        vehicles join) that the RSU has not ordered yet."""
+        ids, conflict = s["ids"], (s["ramp"] | s["right"]) & ~s["merged"]
+        return [ids[k] for k in idx.tolist() if conflict[k] and ids[k] not in ordered]
 
     def _receive(self, t: float) -> None:
         """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each

@@ -8,9 +8,17 @@ needs a gap it can enter).
 
 Policies
 --------
-``fifo``  First in, first served: order of control-zone entry (``entered_s``, ties by id);
-          ``t_i = max(earliest_i, t_{i-1} + h(road_{i-1}, road_i))``.  Assigned times never move,
-          except to repair a vehicle that can no longer make its slot (see below).
+``fifo``  First come, first served *at the merge point*: the order of ``entered_s`` (the arrival
+          time expected when the vehicle entered the zone; ties by id);
+          ``t_i = max(earliest_i, t_{i-1} + h(road_{i-1}, road_i))``.  A newcomer is inserted among
+          the vehicles not yet frozen by that key, so a fast mainline vehicle that enters after a
+          slow ramp vehicle but arrives before it is served first (it never passes a frozen
+          vehicle).  Until 2026-11-27 newcomers were appended behind the whole sequence, i.e. the
+          order was the order of zone entry: in ``scenarios/merging.yaml`` about half of the
+          newcomers were then queued behind a vehicle expected more than 2 s after them, and the
+          ramp vehicles' energy-optimal plans slowed them on the ramp to meet the late slots this
+          left them (docs/guide/merging-flagship.md).  Assigned times do not move otherwise, except
+          to repair a vehicle that can no longer make its slot (see below).
 
 ``cps``   Rolling-horizon **constrained position shifting** (Balakrishnan & Chandran, "Algorithms
           for scheduling runway operations under constrained position shifting", Operations
@@ -96,6 +104,7 @@ class _Slot:
     rank: int  # FCFS rank (global, in order of entry)
     earliest_s: float
     t_s: float  # assigned crossing time
+    entered_s: float  # [s] FCFS key: the arrival expected at zone entry (ZoneVehicle.entered_s)
 
 
 @dataclass
@@ -133,8 +142,12 @@ class Coordinator:
         self._update_earliest(vehicles)
         new = sorted((v for v in vehicles if v.id not in self._ids()), key=lambda v: (v.entered_s, v.id))
         for v in new:
-            self._st.slots.append(_Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan))
+            slot = _Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan, v.entered_s)
             self._st.n_ranked += 1
+            if self.policy == "fifo":
+                self._insert_fcfs(t_s, slot)
+            else:  # cps: FCFS ranks in order of appearance; the search shifts them (max_shift)
+                self._st.slots.append(slot)
         if self.policy == "cps" and (new or self._needs_repair()):
             self._resequence(t_s)
         self._retime()
@@ -194,6 +207,15 @@ class Coordinator:
             if np.isnan(s.t_s) or too_close or missed or too_late:
                 s.t_s = t_need
             prev = (s.t_s, s.road)
+
+    def _insert_fcfs(self, t_s: float, slot: _Slot) -> None:
+        """fifo: ``slot`` goes behind every vehicle expected at the merge point no later than it
+        (``entered_s``, then id) and behind the frozen prefix, ahead of the rest."""
+        slots, n_fix = self._st.slots, self._n_frozen(t_s)
+        k = len(slots)
+        while k > n_fix and (slots[k - 1].entered_s, slots[k - 1].vid) > (slot.entered_s, slot.vid):
+            k -= 1
+        slots.insert(k, slot)
 
     def _track_shift(self) -> None:
         for k, s in enumerate(self._st.slots):

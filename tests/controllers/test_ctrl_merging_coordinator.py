@@ -161,3 +161,55 @@ def test_cps_never_lets_a_follower_pass_its_leader_on_the_same_road(seed: int) -
     for road in ("main", "ramp"):
         fcfs = [vid for _, vid, r in arr if r == road]
         assert [vid for vid in res["order"] if res["crossed"][vid][2] == road] == fcfs
+
+
+def test_fifo_serves_first_at_the_merge_point_not_first_into_the_zone() -> None:
+    """A slow ramp vehicle that entered the zone first but is expected at the merge point later does
+    not hold a mainline vehicle that entered after it and is expected earlier (first come, first served
+    at the merge point: the order of ``entered_s``, the arrival expected at zone entry).  Before the fix
+    fifo appended every newcomer behind the whole sequence: the mainline vehicle was ordered behind the
+    ramp vehicle and had to yield to it, 8 s after it could have crossed."""
+    cfg = CoordinatorConfig(control_zone_m=250.0, headway_same_s=1.0, headway_cross_s=1.4)
+    coord = Coordinator("fifo", cfg)
+    ramp = ZoneVehicle("r1", "ramp", 250.0, 12.0, earliest_arrival_s=16.0, entered_s=16.0)
+    assert coord.assign(0.0, [ramp]) == pytest.approx({"r1": 16.0})
+    main = ZoneVehicle("m1", "main", 250.0, 30.0, earliest_arrival_s=9.3, entered_s=9.3)
+    times = coord.assign(1.0, [ramp, main])
+    assert coord.sequence == ["m1", "r1"]
+    assert times == pytest.approx({"m1": 9.3, "r1": 16.0})
+
+
+def test_fifo_never_moves_a_newcomer_ahead_of_a_committed_slot() -> None:
+    """A vehicle within ``freeze_s`` of its slot keeps its place, even against an earlier expected arrival."""
+    cfg = CoordinatorConfig(control_zone_m=250.0, headway_same_s=1.0, headway_cross_s=1.4, freeze_s=2.0)
+    coord = Coordinator("fifo", cfg)
+    coord.assign(0.0, [ZoneVehicle("r1", "ramp", 20.0, 15.0, earliest_arrival_s=1.5, entered_s=1.5)])
+    late = ZoneVehicle("m1", "main", 25.0, 30.0, earliest_arrival_s=0.9, entered_s=0.9)  # heard late
+    times = coord.assign(0.1, [ZoneVehicle("r1", "ramp", 18.5, 15.0, 1.5, 1.5), late])
+    assert coord.sequence == ["r1", "m1"]
+    assert times == pytest.approx({"r1": 1.5, "m1": 2.9})
+
+
+def test_fifo_rolling_simulation_crosses_in_order_of_expected_arrival() -> None:
+    """Ramp vehicles cross the zone slower than mainline ones: the crossing order is the order of the
+    arrivals expected at zone entry, not of the zone entries (before the fix: the entry order)."""
+    cfg = CoordinatorConfig()
+    arr = _arrivals(np.random.default_rng(3), 0.4, 0.15, 200.0)
+    v_road = {"main": 30.0, "ramp": 12.0}  # [m/s] through the zone
+    expected = {vid: t_in + cfg.control_zone_m / v_road[road] for t_in, vid, road in arr}
+    coord = Coordinator("fifo", cfg)
+    crossed: list[str] = []
+    active: list[tuple[str, str]] = []
+    i, t = 0, 0.0
+    while i < len(arr) or active:
+        while i < len(arr) and arr[i][0] <= t:
+            active.append((arr[i][1], arr[i][2]))
+            i += 1
+        zone = [ZoneVehicle(v, r, 0.0, v_road[r], max(expected[v], t), expected[v]) for v, r in active]
+        times = coord.assign(t, zone)
+        done = sorted((v for v, _ in active if times[v] <= t), key=lambda v: times[v])
+        crossed += done
+        active = [(v, r) for v, r in active if v not in done]
+        t += 0.2
+    assert len(crossed) == len(arr)
+    assert crossed == sorted(expected, key=lambda v: (expected[v], v))
