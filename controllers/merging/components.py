@@ -209,7 +209,9 @@ class V2XMerging(Controller):
         self._on_ramp_lane = np.zeros(0, dtype=bool)
         self._joins_lane = np.zeros(0, dtype=bool)
         self._merged_lane = np.zeros(0, dtype=bool)
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
+        # the age of information it reports is its own (of the states the coordinator used): the
+        # channel's per-pair bookkeeping is not kept
+        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
