@@ -267,7 +267,12 @@ class Channel:
 
     def set_positions_arrays(self, ids: Iterable[str], pos_m: np.ndarray) -> None:
         """Same as ``set_positions`` from a snapshot's struct of arrays (ids[N], position[N, 2|3])."""
-        self.set_positions(dict(zip(ids, np.asarray(pos_m, dtype=float), strict=True)))
+        pos = np.asarray(pos_m, dtype=float)
+        if pos.ndim == 2 and pos.shape[1] == 3:  # each row is already the float 3-vector ``_as3`` makes
+            self._positions = dict(zip(ids, pos, strict=True))
+            self._recv_dirty = True
+            return
+        self.set_positions(dict(zip(ids, pos, strict=True)))
 
     # -- sending --------------------------------------------------------------------------------
     def send(
