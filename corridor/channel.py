@@ -36,7 +36,9 @@ Model choices (written down because metrics depend on them):
   message, and at every ``deliver(t_s)`` call *after* that call's deliveries, the sample is
   ``t_s - (send time of the newest message the receiver has from that source)``.  ``aoi_mean_s`` is
   the mean over all samples, ``aoi_max_s`` their maximum.  Detaching a node forgets its pairs both as
-  receiver and as source (a vehicle that left no longer ages).
+  receiver and as source (a vehicle that left no longer ages).  A channel built with ``aoi=False``
+  keeps none of it (both NaN): a consumer that measures its own age of information skips the
+  per-pair matrix work of every delivery.
 
 Determinism: all randomness comes from the ``numpy.random.Generator`` passed in; every ``send``
 draws a fixed number of arrays (loss and jitter uniforms over its receiver set, plus the
@@ -198,9 +200,16 @@ class Channel:
     each receiver reads ``inbox(its_id)``.
     """
 
-    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator, t_end_s: float | None = None) -> None:
-        """``t_end_s`` [s]: the run's end; copies arriving later are dropped at send (None: never)."""
+    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator, t_end_s: float | None = None,
+                 aoi: bool = True) -> None:
+        """A channel drawing from ``rng``.
+
+        ``t_end_s`` [s]: the run's end; copies arriving later are dropped at send (None: never).
+        ``aoi`` False: no age-of-information bookkeeping (``stats()`` reports it as NaN), for a consumer
+        that keeps its own; nothing else changes (the draws, deliveries and other statistics).
+        """
         self.cfg = cfg
+        self._aoi_on = aoi
         self._rng = rng
         self._t_end_s = math.inf if t_end_s is None else float(t_end_s)
         self._n_in_flight = 0
@@ -258,7 +267,12 @@ class Channel:
 
     def set_positions_arrays(self, ids: Iterable[str], pos_m: np.ndarray) -> None:
         """Same as ``set_positions`` from a snapshot's struct of arrays (ids[N], position[N, 2|3])."""
-        self.set_positions(dict(zip(ids, np.asarray(pos_m, dtype=float), strict=True)))
+        pos = np.asarray(pos_m, dtype=float)
+        if pos.ndim == 2 and pos.shape[1] == 3:  # each row is already the float 3-vector ``_as3`` makes
+            self._positions = dict(zip(ids, pos, strict=True))
+            self._recv_dirty = True
+            return
+        self.set_positions(dict(zip(ids, pos, strict=True)))
 
     # -- sending --------------------------------------------------------------------------------
     def send(
@@ -531,7 +545,7 @@ class Channel:
 
     def _record_received(self, batches: list[_Batch], parts: list[tuple[np.ndarray, np.ndarray]]) -> None:
         """Newest received send time per (receiver, source): the age-of-information state."""
-        if not batches:
+        if not batches or not self._aoi_on:
             return
         counts = [d.size for d, _ in parts]
         dst = np.concatenate([d for d, _ in parts])
@@ -602,6 +616,8 @@ class Channel:
         )
 
     def _sample_aoi(self, t_s: float) -> None:
+        if not self._aoi_on:
+            return
         # only attached receivers hold received times (detach clears a node's row and column), and only
         # the columns of sources with a received time (``_has_col``): their block gives the same values
         # in the same (row-major) order as the whole matrix

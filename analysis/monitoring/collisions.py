@@ -140,6 +140,9 @@ class CollisionMonitor(Component):
         if road is None or road.posed is None or not len(road):
             return ctrl
         rows = road.offset + np.flatnonzero(ctrl[road.sl])
+        if not road.posed:  # no posed vehicle: every controlled road row is lane-driven
+            ctrl[rows] = False
+            return ctrl
         lane_driven = [k for k in rows.tolist() if str(s.ids[k]) not in road.posed]
         if lane_driven:
             ctrl[lane_driven] = False

@@ -171,6 +171,51 @@ def test_aoi_grows_when_every_message_is_lost() -> None:
     assert s.aoi_mean_s == pytest.approx(np.mean(np.arange(0, 11)))
 
 
+def test_channel_without_aoi_delivers_the_same_and_reports_no_aoi() -> None:
+    """``aoi=False`` skips the age-of-information bookkeeping only: the same draws, deliveries,
+    detaches and counters; both AoI figures NaN."""
+    def run(aoi: bool) -> tuple[list[tuple[str, int, float, list[int]]], object]:
+        ch = Channel(ChannelConfig(range_m=150.0, latency_s=0.02, jitter_s=0.05, loss=BernoulliLoss(p=0.3)),
+                     np.random.default_rng(3), aoi=aoi)
+        ids = [f"v{i}" for i in range(10)]
+        got = []
+        for k in range(40):
+            t = 0.1 * k
+            for i in ids[k % 3: 10 - k % 2]:
+                ch.attach(i)
+            ch.detach(ids[k % 10])
+            ch.set_positions_arrays(ids, np.c_[np.linspace(0.0, 300.0, 10) + t, np.zeros(10)])
+            ch.send_many(t, [(i, (i, k), None, None) for i in ids[:6]] + [("rsu", k, None, ids[7:9])])
+            got += [(b.src, b.seq, b.t_sent_s, b.dst_idx.tolist()) for b in ch.deliver_indexed(t)]
+        return got, ch.stats()
+
+    (got_on, st_on), (got_off, st_off) = run(True), run(False)
+    assert got_on == got_off and len(got_on) > 100
+    assert math.isfinite(st_on.aoi_mean_s) and math.isnan(st_off.aoi_mean_s) and math.isnan(st_off.aoi_max_s)
+    assert {**st_on.__dict__, "aoi_mean_s": 0, "aoi_max_s": 0} == {**st_off.__dict__, "aoi_mean_s": 0, "aoi_max_s": 0}
+
+
+def test_set_positions_arrays_of_3d_rows_equals_set_positions() -> None:
+    """The (N, 3) fast path of ``set_positions_arrays`` range-checks as ``set_positions`` does."""
+    def run(fast: bool) -> list[tuple[str, str, float]]:
+        ch = Channel(ChannelConfig(range_m=120.0, loss=BernoulliLoss(p=0.2)), np.random.default_rng(4))
+        ids = [f"v{i}" for i in range(8)]
+        for i in ids:
+            ch.attach(i)
+        got = []
+        for k in range(30):
+            pos = np.c_[np.linspace(0.0, 400.0, 8) + 2.0 * k, np.full(8, -3.5), np.zeros(8)]
+            if fast:
+                ch.set_positions_arrays(ids, pos)
+            else:
+                ch.set_positions({i: [float(v) for v in p] for i, p in zip(ids, pos, strict=True)})
+            ch.send_many(0.1 * k, [(i, k, None, None) for i in ids])
+            got += [(d.src, d.dst, d.t_recv_s) for d in ch.deliver(0.1 * k + 0.1)]
+        return got
+
+    assert run(True) == run(False) and len(run(True)) > 100
+
+
 def _run(seed: int) -> list[tuple[str, str, float, int]]:
     cfg = ChannelConfig(range_m=150.0, loss=GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3))
     ch = Channel(cfg, np.random.default_rng(seed))

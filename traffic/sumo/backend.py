@@ -118,6 +118,9 @@ class SumoBackend(Backend):
         self.posed: set[str] = set()
         self._lc_mode0: dict[str, int] = {}  # original lane-change modes of vehicles a controller changed
         self._speed_mode0: dict[str, int] = {}  # speed modes their vehicle types set at departure
+        # the speed mode this backend last gave each vehicle: a command repeating it skips the libsumo call
+        # (SUMO's setSpeedMode only sets the influencer's flags, so setting the same mode again changes nothing)
+        self._speed_mode_set: dict[str, int] = {}
         self._ids: list[str] = []  # ids of the vehicles in the network after the last step
         self.commands_ignored = 0
         # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
@@ -240,6 +243,7 @@ class SumoBackend(Backend):
             self.controlled.discard(vid)
             self.posed.discard(vid)
             self._speed_mode0.pop(vid, None)
+            self._speed_mode_set.pop(vid, None)
         teleported = []
         for vid in sim.get(tel, ()):
             teleported.append(uid_of.get(vid, -1))
@@ -275,7 +279,7 @@ class SumoBackend(Backend):
         connected = bool(spec and self._rng.random() < spec.connected_share)
         if vt is not None and vt.speed_mode is not None:
             ls.vehicle.setSpeedMode(vid, vt.speed_mode)
-            self._speed_mode0[vid] = vt.speed_mode
+            self._speed_mode0[vid] = self._speed_mode_set[vid] = vt.speed_mode
         desired = ls.vehicle.getSpeedFactor(vid)
         max_speed = vt.max_speed if vt else 50.0
         if spec is None and self.net.user_files:  # a vehicle of the user's files: its own
@@ -349,9 +353,12 @@ class SumoBackend(Backend):
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
         role = same.role
-        if self.controlled:
+        if self.controlled:  # the rows of the controlled vehicles, by uid (one per id): no pass over the ids
+            uid_of = self.tables.uid_of
+            by_uid = np.zeros(len(self.tables.vehicle_ids), dtype=bool)
+            by_uid[[uid_of[v] for v in self.controlled if v in uid_of]] = True
             role = role.copy()
-            role[[k for k, v in enumerate(ids) if v in self.controlled]] = _CONTROLLED
+            role[by_uid[same.uid]] = _CONTROLLED
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
                          distance=distance, events=events, detectors=detectors,
                          posed=frozenset(self.posed) if self.posed else frozenset())
@@ -438,7 +445,7 @@ class SumoBackend(Backend):
                 continue
             if isinstance(c, cmd.Release):
                 v.setSpeed(vid, -1)
-                v.setSpeedMode(vid, self._speed_mode0.get(vid, 31))
+                self._set_speed_mode(vid, self._speed_mode0.get(vid, 31))
                 if vid in self._lc_mode0:
                     v.setLaneChangeMode(vid, self._lc_mode0.pop(vid))
                 self.controlled.discard(vid)
@@ -451,11 +458,11 @@ class SumoBackend(Backend):
             self.controlled.add(vid)
             if isinstance(c, cmd.SetSpeed):
                 if c.speed_mode is not None:
-                    v.setSpeedMode(vid, c.speed_mode)
+                    self._set_speed_mode(vid, c.speed_mode)
                 v.setSpeed(vid, max(0.0, c.speed_mps))
             elif isinstance(c, cmd.SetAccel):
                 if c.speed_mode is not None:
-                    v.setSpeedMode(vid, c.speed_mode)
+                    self._set_speed_mode(vid, c.speed_mode)
                 v.setAcceleration(vid, c.accel_mps2, c.duration_s)
             elif isinstance(c, cmd.ChangeLane):
                 v.changeLane(vid, c.lane_index, c.duration_s)
@@ -463,6 +470,12 @@ class SumoBackend(Backend):
                 self.posed.add(vid)
                 v.setSpeed(vid, max(0.0, c.speed_mps))
                 v.moveToXY(vid, c.edge, c.lane, c.x, c.y, 90.0 - math.degrees(c.yaw_rad), c.keep_route)
+
+    def _set_speed_mode(self, vid: str, mode: int) -> None:
+        """``setSpeedMode`` unless this backend already gave ``vid`` that mode (the same flags either way)."""
+        if self._speed_mode_set.get(vid) != mode:
+            self._ls.vehicle.setSpeedMode(vid, mode)
+            self._speed_mode_set[vid] = mode
 
     def close(self) -> None:
         if self._started:
