@@ -343,7 +343,7 @@ class V2XMerging(Controller):
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self.channel.send_many(t, cams)
             cams = []
-        for vid in self._senders - set(sel):  # out of the area: forget it (stats, age of information)
+        for vid in sorted(self._senders - set(sel)):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
         self._receive(t)

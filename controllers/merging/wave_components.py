@@ -157,9 +157,11 @@ class WaveDamping(Controller):
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
         members = {s["ids"][k] for k in np.flatnonzero(self._receivers(s))}
-        for vid in members - set(self.channel.receivers):
+        # sorted: the attach order decides which receiver gets which loss draw, and a set's order
+        # follows the string hash (PYTHONHASHSEED), which differs from process to process
+        for vid in sorted(members - set(self.channel.receivers)):
             self.channel.attach(vid)
-        for vid in set(self.channel.receivers) - members:
+        for vid in sorted(set(self.channel.receivers) - members):
             self.channel.detach(vid)
             self.latest.pop(vid, None)
         if t + 1e-9 >= self._next_rsu_s:
