@@ -261,30 +261,38 @@ def _nn_tests(a: list[np.ndarray], b: list[np.ndarray], rng: np.random.Generator
     return rows, float(d0), p
 
 
-def _load_cache(path: Path | None) -> dict[tuple[str, int], dict[str, Any]]:
-    """Finished runs of an earlier (or interrupted) bias check: (variant, seed) -> row."""
+def _load_cache(path: Path | None, cfg: str) -> dict[tuple[str, int], dict[str, Any]]:
+    """Finished runs of an earlier (or interrupted) bias check with the same city and run settings
+    ``cfg``: (variant, seed) -> row. Rows of other settings are skipped; rows without ``cfg`` (caches
+    written before it was recorded) are taken as they are."""
     out: dict[tuple[str, int], dict[str, Any]] = {}
     if path is not None and path.exists():
         for line in path.read_text().splitlines():
             r = json.loads(line)
-            out[(r["variant"], r["seed"])] = {**r, "nn": np.asarray(r["nn"], float)}
+            if r.get("cfg", cfg) == cfg:
+                out[(r["variant"], r["seed"])] = {**r, "nn": np.asarray(r["nn"], float)}
     return out
 
 
 def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, extra: list[str],
          variants: dict[str, list[str]], cache: Path | None = None, analyse_only: bool = False,
-         first_seed: int = 0) -> None:
+         first_seed: int = 0, reference_only: bool = False) -> None:
     """The paired fidelity check: every seed runs all-6-DOF once and each multi-fidelity variant
     (its ``--set`` list) once, with the same seed (common random numbers). With ``cache`` every
     finished run is appended there (JSON lines) and reused: an interrupted check resumes, and
-    ``analyse_only`` analyses the seeds whose runs are all there. Seeds ``first_seed`` ...
+    ``analyse_only`` analyses the seeds whose runs are all there. The all-6-DOF runs do not depend on
+    the boundaries, so a cache's ``jsbsim`` rows serve every later variant of the same city and run
+    settings (``reference_only`` runs just those, and reports nothing). Seeds ``first_seed`` ...
     ``first_seed + seeds - 1`` (choose boundaries on other seeds than the final check's)."""
     base = [f"backends.air.params.city.n={n}", f"backends.air.params.city.size_m={size_m}", f"duration={duration_s}",
             "backends.air.params.city.vertiports=20", "controllers.avoid.type=city_potential_field", *extra]
     modes = {"jsbsim": ["backends.air.params.fidelity.mode=jsbsim"],
              **{name: ["backends.air.params.fidelity.mode=multi", *sets] for name, sets in variants.items()}}
-    done = _load_cache(cache)
+    cfg = " ".join(base)
+    done = _load_cache(cache, cfg)
     seed_range = range(first_seed, first_seed + seeds)
+    if reference_only:
+        modes = {"jsbsim": modes["jsbsim"]}
     todo = [(name, s) for s in seed_range for name in modes if (name, s) not in done]
     if todo and not analyse_only:
         with ProcessPoolExecutor(workers) as ex:
@@ -296,7 +304,10 @@ def bias(n: int, size_m: float, seeds: int, duration_s: float, workers: int, ext
                 done[(name, s)] = r
                 if cache is not None:
                     with cache.open("a") as f:
-                        f.write(json.dumps({**r, "variant": name, "seed": s, "nn": r["nn"].tolist()}) + "\n")
+                        f.write(json.dumps({**r, "variant": name, "seed": s, "cfg": cfg, "nn": r["nn"].tolist()}) + "\n")
+    if reference_only:
+        print(f"all-6-DOF rows of seeds {first_seed}-{first_seed + seeds - 1} in {cache}")
+        return
     complete = [s for s in seed_range if all((name, s) in done for name in modes)]
     full = [done[("jsbsim", s)] for s in complete]
     for name in variants:
@@ -385,15 +396,19 @@ def main(argv: list[str] | None = None) -> int:
                     help="a multi-fidelity variant of the bias check (repeatable; they share the all-6-DOF runs)")
     ap.add_argument("--cache", type=Path, help="bias check: append every finished run here (JSON lines) and reuse it")
     ap.add_argument("--analyse-only", action="store_true", help="bias check: analyse the cached runs, run nothing")
+    ap.add_argument("--reference-only", action="store_true",
+                    help="bias check: run only the all-6-DOF rows into --cache (they serve every boundary)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scenario override for every run (repeatable), e.g. a fidelity boundary")
     a = ap.parse_args(argv)
+    if a.reference_only and a.cache is None:
+        ap.error("--reference-only needs --cache (the file that keeps the all-6-DOF rows)")
     if a.shards:
         shard_speedup(a.n[0], a.shards, a.duration, a.seed, a.repeat, a.set, a.profile or a.profile_out is not None,
                       a.profile_out)
     elif a.bias:
         bias(a.bias_n, a.size, a.seeds, a.duration, a.workers, a.set, _variants(a.variant), a.cache, a.analyse_only,
-             a.first_seed)
+             a.first_seed, a.reference_only)
     else:
         cost_curve(a.n, a.duration, a.seed, a.set)
     return 0
