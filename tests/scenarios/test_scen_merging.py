@@ -25,7 +25,7 @@ SCENARIO = SCENARIOS / "merging.yaml"
 
 def _lane_changes(variant: str, duration_s: float, seed: int, params: dict | None = None
                   ) -> tuple[np.ndarray, np.ndarray, dict, list[int]]:
-    """Run a variant; (x past the nose, speed) of every ramp vehicle leaving the acceleration lane,
+    """Run a variant; (x past the nose, speed) of every ramp vehicle moving onto the mainline,
     the run's metrics, and the lane-change modes seen on held and on released ramp vehicles."""
     from corridor.run import build
     from corridor.scenario import apply_overrides, load, validate
@@ -48,7 +48,9 @@ def _lane_changes(variant: str, duration_s: float, seed: int, params: dict | Non
         road = snap.road
         for k, vid in enumerate(snap.ids[road.sl]):
             lane = road.tables.lane_names[road.lane[k]]
-            if last_lane.get(vid) == "merge_0" and lane != "merge_0":
+            # a ramp vehicle moves onto the mainline: off the acceleration lane, or at the nose straight
+            #   from the junction (with the gap opened early most do: seed 1, 29 of 33)
+            if last_lane.get(vid) in ("merge_0", ":n_merge_0_0") and lane not in ("merge_0", ":n_merge_0_0"):
                 xs.append(snap.position[road.offset + k, 0] - x_nose)
                 vs.append(snap.speed[road.offset + k])
             last_lane[vid] = lane
@@ -167,3 +169,38 @@ def test_fifo_vehicles_have_heard_the_newcomer_put_ahead_of_them() -> None:
         near, untracked = pool.submit(_untracked_predecessors, 150.0, 101).result()
     assert near >= 200
     assert untracked <= 0.01 * near, (untracked, near)
+
+
+def _hard_brakes(variant: str, duration_s: float, seed: int) -> dict:
+    """Run a variant with the scenario's draws for ``seed``; the run's metrics."""
+    from corridor.batch import draws_for
+    from corridor.run import build
+    from corridor.scenario import apply_overrides, load, validate
+
+    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
+    raw = apply_overrides(raw, {**sc.sweep[variant], **draws_for(sc, seed)})
+    sim = build(validate(raw, variant), seed, Path(tempfile.mkdtemp()))
+    ctx = sim.ctx
+    for c in ctx.components.values():
+        c.setup(ctx)
+    for _ in range(round(duration_s / ctx.dt)):
+        sim.step()
+    metrics: dict = {}
+    for c in ctx.components.values():
+        metrics.update(c.finish(ctx))
+        c.close()
+    return metrics
+
+
+def test_v2x_followers_open_the_gap_to_a_newcomer_without_hard_braking() -> None:
+    """A follower whose predecessor from the other road is put ahead of it opens the gap comfortably,
+    from the assignment on; only the safety layer brakes harder.  Before the fix the gap-opening rule
+    asked -6 to -14 m/s² when the follower reached virtual following (100 m before the conflict
+    point) with the predecessor a few metres ahead and slower, and the safety layer braked at 6 m/s²
+    there (dev seed 100, 200 s after a 30 s warm-up: 36 hard brakes before, 1 after; 300 s runs of
+    seeds 100 / 101 after a 120 s warm-up: 34 / 20 before, 0 / 2 after)."""
+    with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
+        m = pool.submit(_hard_brakes, "v2x_fifo", 200.0, 100).result()  # libsumo: one per process
+    assert m["collisions"] == 0
+    assert m["v2x_commands"] > 0
+    assert m["hard_brakes"] <= 3, m["hard_brakes"]
