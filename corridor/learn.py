@@ -144,7 +144,43 @@ def problem(scenario: str | Path, keys: str, objective: str, constraints: Sequen
     for c in cons:
         c.check_columns(cols, "--constraint")
     ctrl, full, theta0 = resolve_keys(sc, raw, var, keys)
-    return Problem(sc, raw, path, var, ctrl, full, theta0, theta0 > 0, obj, cons, set_overrides(sets))
+    pairs, bounds = hysteresis_pairs(sc, raw, var, ctrl, full, theta0)
+    return Problem(sc, raw, path, var, ctrl, full, theta0, theta0 > 0, obj, cons, set_overrides(sets),
+                   pairs=pairs, bounds=bounds)
+
+
+def hysteresis_pairs(sc: Any, raw: dict[str, Any], variant: str, ctrl: str, keys: list[str], theta0: np.ndarray,
+                     ) -> tuple[list[tuple[int, int, int]], list[tuple[int, float, int]]]:
+    """The learned keys' hysteresis pairs (``Problem.pairs``) and clamps (``Problem.bounds``), from the
+    controller's ``boundaries`` model ``hysteresis``; a start that inverts one is refused."""
+    from corridor.scenario import apply_overrides, validate
+    from corridor.variants import component_class
+
+    vsc = validate(apply_overrides(raw, dict(sc.sweep[variant])), f"{sc.name} [{variant}]")
+    model = component_class("controllers", vsc.controllers[ctrl]).Params.model_fields["boundaries"].annotation
+    hyst: dict[str, tuple[str, int]] = dict(getattr(model, "hysteresis", {}) or {})
+    now = boundary_params(sc, raw, variant)[ctrl]
+    short = [k.split(".params.boundaries.", 1)[1] for k in keys]
+    pairs: list[tuple[int, int, int]] = []
+    bounds: list[tuple[int, float, int]] = []
+    for follower, (anchor, d) in hyst.items():
+        for param in {k.split(".", 1)[1] for k in now if k.startswith(f"{follower}.")}:
+            f, a = f"{follower}.{param}", f"{anchor}.{param}"
+            if a not in now:
+                continue
+            if d * (now[f] - now[a]) < 0:
+                raise CorridorError(f"--learn: {f} = {now[f]:g} and {a} = {now[a]:g} invert the hysteresis "
+                                    f"({f} must be {'>=' if d > 0 else '<='} {a}); fix the start")
+            if f in short and a in short:
+                pairs.append((short.index(f), short.index(a), d))
+            elif f in short:
+                bounds.append((short.index(f), now[a], d))
+            elif a in short:
+                bounds.append((short.index(a), now[f], -d))
+    for i, j, _d in pairs:
+        if not (theta0[i] > 0 and theta0[j] > 0):
+            raise CorridorError(f"--learn: {short[i]} and {short[j]} must be positive to be learned as a pair")
+    return pairs, bounds
 
 
 # ---- stages ------------------------------------------------------------------------------------------
@@ -180,7 +216,7 @@ def blrl(pb: Problem, budget: int, seed: int, out: Path, run: Any) -> tuple[np.n
         if k >= 2:
             base = (r[ok].sum() - r[ok]) / (k - 1)  # leave-one-out baseline
             grad_theta = ((r[ok] - base)[:, None] * s[ok]).mean(axis=0)
-            grad_u = grad_theta * np.where(pb.log, theta, 1.0)  # chain rule: d theta / d u
+            grad_u = pb.grad_u(grad_theta, theta)
         norm = float(np.linalg.norm(grad_u))
         if norm > 0:
             u = u + STEP / math.sqrt(1 + stage) * grad_u / norm

@@ -30,12 +30,36 @@ class Problem:
     objective: Expression
     constraints: list[Expression]
     after: dict[str, Any] = field(default_factory=dict)  # --set values
+    # hysteresis pairs (the controller's ``hysteresis``): (follower, anchor, +1: theta_f >= theta_a, -1: <=)
+    # with both keys learned: the follower's coordinate is the margin |log(theta_f / theta_a)| >= 0
+    pairs: list[tuple[int, int, int]] = field(default_factory=list)
+    # one key of a pair learned: (key, the other's fixed value, +1: theta >= it, -1: <=), a clamp
+    bounds: list[tuple[int, float, int]] = field(default_factory=list)
 
     def theta(self, u: np.ndarray) -> np.ndarray:
-        return np.where(self.log, np.exp(u), u)
+        """theta of the learner's coordinates ``u``: log theta (positive keys), a follower's margin
+        max(u, 0) in log units over its anchor, so a learned exit never crosses its enter."""
+        th = np.where(self.log, np.exp(u), u)
+        for i, j, d in self.pairs:
+            th[i] = th[j] * math.exp(d * max(float(u[i]), 0.0))
+        for i, ref, d in self.bounds:
+            th[i] = max(th[i], ref) if d > 0 else min(th[i], ref)
+        return th
 
     def u0(self) -> np.ndarray:
-        return np.where(self.log, np.log(np.where(self.log, self.theta0, 1.0)), self.theta0)
+        u = np.where(self.log, np.log(np.where(self.log, self.theta0, 1.0)), self.theta0)
+        for i, j, d in self.pairs:
+            u[i] = d * math.log(self.theta0[i] / self.theta0[j])
+        return u
+
+    def grad_u(self, grad_theta: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """d J / d u from d J / d theta.  A pair's shared draw moves anchor and follower together: its
+        score (on the anchor's column) is the gradient of the anchor's coordinate, which moves both;
+        it says nothing of the margin, whose gradient is 0 (the follower's column repeats the anchor's)."""
+        g = grad_theta * np.where(self.log, theta, 1.0)  # chain rule: d theta / d log theta
+        for i, _j, _d in self.pairs:
+            g[i] = 0.0
+        return g
 
     def overrides(self, theta: np.ndarray, temperature: float | None) -> dict[str, Any]:
         out: dict[str, Any] = {k: float(v) for k, v in zip(self.keys, theta, strict=True)}

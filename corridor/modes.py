@@ -50,6 +50,9 @@ class Boundary:
     fn: BoundaryFn
     theta: Mapping[str, float] = field(default_factory=dict)
     strict: bool = False
+    # the boundary whose stochastic draw this one shares (an enter/exit pair: one perturbation e^eps
+    # moves both, so a drawn pair keeps the order of its hysteresis); None: its own
+    draws_with: str | None = None
 
     def value(self, x: Any) -> float:
         """g(x; theta) (dimensionless or in the unit its docstring names; only its sign and zero matter)."""
@@ -87,18 +90,26 @@ class Transition:
 class SwitchingParams(BaseModel):
     """Boundary-localised stochastic switching (Grudic & Ungar's BLRL policy), off by default.
 
-    The temperature T is measured in the boundary's own parameters, not in the units of g: each
+    The temperature T is measured in the boundary's own parameters, not in the units of g: a
     decision is taken as if the boundary's positive parameters were multiplied by e^eps, eps logistic
-    with scale T (log units, the space ``--learn`` steps in).  With c* the log-scale factor at which
-    g(x; theta e^c*) = 0, the guard holds with probability sigma(-c*/T) (sigma(c*/T) when g falls as
-    theta grows): a Bernoulli draw, once per boundary and time, where |c*| < ``band`` x T; farther
-    away (or where g is NaN, or the boundary has no positive parameter) its sign decides as usual.
-    So T reads the same for a g in metres, seconds or a ratio, and the band follows theta: around a
-    10 km range gate it spans ranges of 10 km x e^(+-band T), around 150 m ranges of 150 m x e^(+-band T).
-    Each draw is a ``switch_draw`` event carrying its score-function gradient
-    d log pi(a) / d theta_k = (a - p) x d logit / d theta_k (implicit differentiation of c*, the
-    derivatives of g by central differences), which the run sums into its row
-    (``blrl.score.<component>.<boundary>.<param>``) for the learner.
+    with scale T (log units, the space ``--learn`` steps in), truncated to |eps| < ``band`` x T.  With
+    c* the log-scale factor at which g(x; theta e^c*) = 0, the guard holds with probability about
+    sigma(-c*/T) (sigma(c*/T) when g falls as theta grows) where |c*| < ``band`` x T; farther away (or
+    where g is NaN, or the boundary has no positive parameter) its sign decides as usual.
+
+    **One draw per band visit.**  eps is drawn when the automaton's state enters a boundary's band
+    (the first update at which the boundary is evaluated there) and held until an evaluation finds
+    the state outside the band: in between the guard is the sign of g(x; theta e^eps), a
+    deterministic boundary moved by the draw.  An agent crossing the band meets one boundary and
+    switches once, as under the deterministic policy, instead of a Bernoulli draw at every update
+    (which switched back and forth tick by tick).  Boundaries with the same ``draws_with`` (an
+    enter/exit pair) share the draw, so the drawn pair keeps its hysteresis.
+
+    Each draw is one ``switch_draw`` event carrying the score-function gradient of its log density:
+    d log f / d log theta = tanh(eps / 2T) / T for the shift of the boundary (its positive parameters
+    together; split between them by their share of dg at the draw), for every boundary of the group,
+    which the run sums into its row (``blrl.score.<component>.<boundary>.<param>``, per unit of the
+    parameter) for the learner.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -112,6 +123,10 @@ def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
     if not (math.isfinite(g0) and math.isfinite(g1)) or g1 == g0:
         return t1
     return t0 + (t1 - t0) * (-g0) / (g1 - g0)
+
+
+def _sigmoid(z: float) -> float:
+    return 1.0 / (1.0 + math.exp(-z))
 
 
 def _scale(theta: Mapping[str, float], keys: Sequence[str], c: float) -> dict[str, float]:
@@ -198,7 +213,7 @@ class HybridAutomaton:
         # boundary name -> outcome decided from outside (a learning agent's action): the guard takes it
         # instead of the sign of g (g is still evaluated and logged)
         self.decided: dict[str, bool] = {}
-        self._drawn: dict[str, tuple[float, bool]] = {}  # boundary -> (t, outcome) of its last draw
+        self._held: dict[str, float] = {}  # draw group -> eps [log units] held for the current band visit
         self.pending_draws: list[dict[str, Any]] = []
 
     def time_in_mode(self, t: float) -> float:
@@ -220,34 +235,74 @@ class HybridAutomaton:
         return fires, t_cross
 
     def _draw(self, b: Boundary, t: float, g: float, x: Any) -> bool:
-        """The guard's outcome: a draw near boundary ``b`` (one per boundary and time), else g's sign."""
-        last = self._drawn.get(b.name)
-        if last is not None and last[0] == t:
-            return last[1]
-        near = self._near(b, x, g)
-        if near is None:
+        """The guard's outcome near boundary ``b``: the held draw's moved boundary, else g's sign."""
+        group = b.draws_with or b.name
+        pos = self._positive(b)
+        if not self._in_band(b, x, g, pos):
+            self._held.pop(group, None)  # the band visit ended (or never began): deterministic
             return b.holds(g)
-        logit, dlogit = near
-        p = 1.0 / (1.0 + math.exp(-logit))
-        a = bool(self.rng.random() < p)  # type: ignore[union-attr]
-        self._drawn[b.name] = (t, a)
-        score = {k: (float(a) - p) * v for k, v in dlogit.items()}
-        self.pending_draws.append({"boundary": b.name, "a": a, "p": p, "g": g, "score": score})
-        return a
+        eps = self._held.get(group)
+        if eps is None:
+            eps = self._new_draw(b, group, g, x, pos)
+        return b.holds(_scaled_g(b, x, pos, eps))
+
+    @staticmethod
+    def _positive(b: Boundary) -> list[str]:
+        return [k for k, v in b.theta.items() if float(v) > 0.0]
+
+    def _in_band(self, b: Boundary, x: Any, g: float, pos: Sequence[str]) -> bool:
+        """Whether a log-scale shift of b's positive parameters within band x T flips the guard at ``x``."""
+        sw = self.switching
+        if sw is None or not math.isfinite(g) or not pos:
+            return False
+        span = sw.band * float(sw.temperature)  # type: ignore[arg-type]
+        lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)
+        return math.isfinite(lo) and math.isfinite(hi) and lo * hi < 0.0
+
+    def _new_draw(self, b: Boundary, group: str, g: float, x: Any, pos: Sequence[str]) -> float:
+        """Draw eps for ``group`` (held until the band is left) and queue its ``switch_draw`` event."""
+        sw = self.switching
+        temp, band = float(sw.temperature), sw.band  # type: ignore[union-attr,arg-type]
+        lo, hi = _sigmoid(-band), _sigmoid(band)
+        q = lo + (hi - lo) * float(self.rng.random())  # type: ignore[union-attr]
+        eps = temp * math.log(q / (1.0 - q))  # truncated logistic, scale T
+        self._held[group] = eps
+        near = self._near(b, x, g)
+        p = _sigmoid(near[0]) if near is not None else float(b.holds(g))
+        shift = math.tanh(eps / (2.0 * temp)) / temp  # d log f(eps) / d log theta of the moved boundary
+        score: dict[str, float] = {}
+        for other in self.boundaries.values():
+            if (other.draws_with or other.name) == group:
+                for k, v in self._split(other, x).items():
+                    score[f"{other.name}.{k}"] = shift * v
+        self.pending_draws.append({"boundary": b.name, "a": b.holds(_scaled_g(b, x, pos, eps)), "p": p,
+                                   "eps": eps, "g": g, "score": score})
+        return eps
+
+    def _split(self, b: Boundary, x: Any) -> dict[str, float]:
+        """Per positive parameter k of ``b``: w_k / theta_k, the share of the boundary's log-scale shift.
+
+        w_k is k's share of the log-scale derivative of g at ``x`` (equal shares where it is undefined).
+        """
+        pos = self._positive(b)
+        if len(pos) > 1:
+            dg = {k: self._dg(b, x, k) * float(b.theta[k]) for k in pos}
+            tot = sum(dg.values())
+            if math.isfinite(tot) and tot != 0.0:
+                return {k: dg[k] / tot / float(b.theta[k]) for k in pos}
+        return {k: 1.0 / len(pos) / float(b.theta[k]) for k in pos}
 
     def _near(self, b: Boundary, x: Any, g: float) -> tuple[float, dict[str, float]] | None:
         """(logit of p, d logit / d theta) near ``b``, else None (the switch is deterministic).
 
-        Near: a log-scale shift of b's positive parameters within band x T flips the guard at ``x``.
+        p is the probability that the guard holds at ``x`` under a fresh draw (logged with each draw).
         """
         sw = self.switching
-        pos = [k for k, v in b.theta.items() if float(v) > 0.0]
-        if sw is None or not math.isfinite(g) or not pos:
+        pos = self._positive(b)
+        if sw is None or not self._in_band(b, x, g, pos):
             return None
         temp, span = float(sw.temperature), sw.band * float(sw.temperature)  # type: ignore[arg-type]
         lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)
-        if not (math.isfinite(lo) and math.isfinite(hi)) or lo * hi >= 0.0:
-            return None
         from scipy.optimize import brentq
 
         c = float(brentq(lambda u: _scaled_g(b, x, pos, u), -span, span, xtol=1e-9))
@@ -298,7 +353,7 @@ class HybridAutomaton:
         finally:
             if events is not None:
                 for d in self.pending_draws:
-                    events.emit(t, self.name, "switch_draw", f"{d['boundary']}: {int(d['a'])} (p {d['p']:.3f})",
+                    events.emit(t, self.name, "switch_draw", f"{d['boundary']}: eps {d['eps']:+.3f} (p {d['p']:.3f})",
                                 **self.event_data, **d)
 
     def _evaluate_new(self, x: Any) -> None:

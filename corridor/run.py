@@ -115,7 +115,7 @@ def switch_scores(ctx: RunContext) -> dict[str, float]:
     out: dict[str, float] = {"blrl.draws": float(len(draws))}
     for e in draws:
         for k, v in e.data["score"].items():
-            col = f"blrl.score.{e.source}.{e.data['boundary']}.{k}"
+            col = f"blrl.score.{e.source}.{k}"  # k: boundary.param (every boundary sharing the draw)
             out[col] = out.get(col, 0.0) + float(v)
     return out
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -74,6 +75,13 @@ class MergeBoundaries(BaseModel):
     yield_exit: DistTheta = Field(default_factory=DistTheta)  # mainline: yield -> free
     yield_hold: LagTheta = Field(default_factory=LagTheta)  # mainline: pass -> open the gap again
     yield_pass: LagTheta = Field(default_factory=LagTheta)  # mainline: open -> pass (the ramp vehicle fell behind)
+
+    # hysteresis pairs, follower -> (anchor, +1: follower's theta >= anchor's, -1: <=); with the order
+    # inverted both guards hold in a band and the vehicle switches at every update.  yield: enter at
+    # d <= yield_enter, leave at d > yield_exit; gap: reject at s <= -lag_r L, accept at s > -lag_a L.
+    # The pair shares its stochastic draw (corridor.modes.Boundary.draws_with); --learn keeps the order.
+    hysteresis: ClassVar[dict[str, tuple[str, int]]] = {
+        "yield_exit": ("yield_enter", 1), "gap_accept": ("gap_reject", -1), "yield_hold": ("yield_pass", -1)}
 
 
 @dataclass
@@ -143,7 +151,8 @@ def merge_automaton(name: str, vid: str, road: str, theta: Mapping[str, Mapping[
                     rng: np.random.Generator | None = None) -> HybridAutomaton:
     """The automaton of vehicle ``vid`` on route ``road`` ("ramp" or "main": its top mode, for good)."""
     def bnd(key: str, fn: Callable[[MergeState, Mapping[str, float]], float], strict: bool = False) -> Boundary:
-        return Boundary(key, fn, dict(theta[key]), strict=strict)
+        anchor = MergeBoundaries.hysteresis.get(key, (key, 0))[0]
+        return Boundary(key, fn, dict(theta[key]), strict=strict, draws_with=anchor)
 
     modes = [Mode("ramp", children=(Mode("approach"), Mode("merge", children=(Mode("behind"), Mode("ahead"))))),
              Mode("main", children=(Mode("free"), Mode("yield", children=(Mode("open"), Mode("pass")))))]

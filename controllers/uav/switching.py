@@ -27,6 +27,8 @@ picture, which is the behaviour before the boundaries existed (same rows).
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -59,6 +61,11 @@ class UavBoundaries(BaseModel):
     avoid_enter: ProbeTheta = Field(default_factory=ProbeTheta)
     avoid_exit: ProbeTheta = Field(default_factory=ProbeTheta)
     return_done: ReturnTheta = Field(default_factory=ReturnTheta)
+
+    # hysteresis pair, follower -> (anchor, +1: follower's theta >= anchor's): avoid at d_min(ttc_e) <=
+    # dist_e, stop at d_min(ttc_x) >= dist_x; with dist_x < dist_e (or ttc_x < ttc_e) both hold in a band.
+    # The pair shares its stochastic draw (corridor.modes.Boundary.draws_with); --learn keeps the order.
+    hysteresis: ClassVar[dict[str, tuple[str, int]]] = {"avoid_exit": ("avoid_enter", 1)}
 
 
 class SwitchState:
@@ -106,11 +113,12 @@ def course_margin(x: SwitchState, theta: dict[str, float]) -> float:
 def uav_automaton(name: str, uid: str, b: UavBoundaries, switching: SwitchingParams | None = None,
                   rng: np.random.Generator | None = None) -> HybridAutomaton:
     """The mission/avoid/return automaton of UAV ``uid`` with boundaries ``b``."""
-    enter = Boundary("avoid_enter", threat_margin, b.avoid_enter.model_dump())
+    enter = Boundary("avoid_enter", threat_margin, b.avoid_enter.model_dump(), draws_with="avoid_enter")
     modes = [Mode("mission"), Mode("avoid", children=(Mode("clear"), Mode("deflect"))), Mode("return")]
     transitions = [
         Transition("mission", "avoid", enter, "threat predicted"),
-        Transition("avoid", "return", Boundary("avoid_exit", clear_margin, b.avoid_exit.model_dump()), "clear"),
+        Transition("avoid", "return", Boundary("avoid_exit", clear_margin, b.avoid_exit.model_dump(),
+                                                      draws_with="avoid_enter"), "clear"),
         Transition("return", "avoid", enter, "threat predicted"),
         Transition("return", "mission", Boundary("return_done", course_margin, b.return_done.model_dump()),
                    "back on course"),

@@ -43,8 +43,8 @@ def _sigma(z: float) -> float:
 
 def test_stochastic_switch_only_near_the_boundary_with_its_score() -> None:
     """g = (100 - d) / 100, T = 0.05 log units (band 4 T = 0.2: d within 100 e^(+-0.2) = 82..122 m):
-    at d = 300 the switch is deterministic (no draw); at d = 103 it is a draw with
-    p = sigma(log(100 / 103) / T) and score (a - p) / (T dist_m)."""
+    at d = 300 the switch is deterministic (no draw); at d = 103 it is a draw (eps, held for the band
+    visit) with p = sigma(log(100 / 103) / T) and score tanh(eps / 2T) / (T dist_m)."""
     ha, ev = _automaton(0.05), EventLog()
     ha.update(0.0, 300.0, ev)
     assert ha.mode == "mission" and not ev.of_kind("switch_draw")
@@ -52,7 +52,9 @@ def test_stochastic_switch_only_near_the_boundary_with_its_score() -> None:
     (d,) = ev.of_kind("switch_draw")
     p = _sigma(math.log(100.0 / 103.0) / 0.05)
     assert d.data["p"] == pytest.approx(p, rel=1e-6)
-    assert d.data["score"]["dist_m"] == pytest.approx((float(d.data["a"]) - p) / (0.05 * 100.0), rel=1e-4)
+    eps = d.data["eps"]
+    assert d.data["score"]["enter.dist_m"] == pytest.approx(math.tanh(eps / 0.1) / (0.05 * 100.0), rel=1e-6)
+    assert d.data["a"] == (eps >= math.log(103.0 / 100.0))
     assert ha.mode == ("avoid" if d.data["a"] else "mission")
 
 
@@ -73,15 +75,15 @@ def test_the_temperature_reads_in_theta_whatever_the_units_of_g() -> None:
 
 def test_the_band_follows_theta_and_scores_every_scaled_parameter() -> None:
     """g = a b - x (a, b > 0): both parameters are scaled, c* = log(x / (a b)) / 2, so
-    p = sigma(log(a b / x) / (2 T)) and d logit / d a = 1 / (2 T a).  A 10 km gate at T = 0.5 draws
+    p = sigma(log(a b / x) / (2 T)), and the shift's score splits as 1 / (2 a), 1 / (2 b).  A 10 km gate at T = 0.5 draws
     for an aircraft 3 km away (inside 10 km x e^(+-2)); T in units of g = 0.1 did not."""
     ha, ev = _automaton(0.5, fn=lambda x, th: th["a"] * th["b"] - x, theta={"a": 50.0, "b": 4.0}), EventLog()
     ha.update(0.0, 300.0, ev)
     (d,) = ev.of_kind("switch_draw")
     assert d.data["p"] == pytest.approx(_sigma(math.log(200.0 / 300.0) / 1.0), rel=1e-6)
-    logit_a, logit_b = (d.data["score"][k] / (float(d.data["a"]) - d.data["p"]) for k in ("a", "b"))
-    assert logit_a == pytest.approx(1.0 / (2 * 0.5 * 50.0), rel=1e-4)
-    assert logit_b == pytest.approx(1.0 / (2 * 0.5 * 4.0), rel=1e-4)
+    shift = math.tanh(d.data["eps"] / 1.0) / 0.5
+    assert d.data["score"]["enter.a"] == pytest.approx(shift / (2 * 50.0), rel=1e-4)
+    assert d.data["score"]["enter.b"] == pytest.approx(shift / (2 * 4.0), rel=1e-4)
     ha, ev = _automaton(0.5, theta={"dist_m": 10000.0}), EventLog()
     ha.update(0.0, 3000.0, ev)
     assert ev.of_kind("switch_draw")[0].data["p"] == pytest.approx(_sigma(math.log(10000.0 / 3000.0) / 0.5))
