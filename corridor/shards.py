@@ -212,7 +212,8 @@ def balanced_edges(x_m: np.ndarray, fixed: np.ndarray, size: int) -> np.ndarray 
         lo, hi = (lo, mid) if np.maximum(0.0, mid - f).sum() > n else (mid, hi)
     counts = np.maximum(0.0, lo - f)
     cut = np.clip(np.round(np.cumsum(counts)[:-1] * n / counts.sum()).astype(int), 1, n - 1)
-    return 0.5 * (xs[cut - 1] + xs[cut])
+    edges: np.ndarray = 0.5 * (xs[cut - 1] + xs[cut])
+    return edges
 
 
 def merge_events(logs: list[list[Event]]) -> list[Event]:
