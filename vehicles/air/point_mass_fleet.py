@@ -263,12 +263,15 @@ class PointMassFleet:
             self.advance_waypoints()
 
     def state_rows(self, rows: np.ndarray) -> np.ndarray:
-        """(k, 9) what ``step`` changes in ``rows``: position, velocity, tilt, yaw."""
-        return np.column_stack([self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows]])
+        """(k, 10) what ``step`` changes in ``rows``: position, velocity, tilt, yaw and the vertical
+        acceleration (the second-order climb response's state: without it a rank that did not step a
+        row would continue it from a stale acceleration and the ranks' fleets would part)."""
+        return np.column_stack([self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows], self.acc_v[rows]])
 
     def set_state_rows(self, rows: np.ndarray, st: np.ndarray) -> None:
         """Take ``state_rows`` of ``rows`` (stepped elsewhere)."""
         self.pos[rows], self.vel[rows], self.tilt[rows], self.yaw[rows] = st[:, 0:3], st[:, 3:6], st[:, 6:8], st[:, 8]
+        self.acc_v[rows] = st[:, 9]
 
     def advance_waypoints(self) -> None:
         for q, (cmd, i) in list(self._wp.items()):
