@@ -13,6 +13,7 @@ import multiprocessing
 import tempfile
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -82,20 +83,29 @@ def test_ramp_vehicles_merge_at_speed_without_collisions(variant: str, hold: boo
     assert np.percentile(xs, 10) > ctl_point - 15.0
 
 
+def _set_up(variant: str, duration_s: float, seed: int, draws: bool = False) -> tuple[Any, Any, Any]:
+    """A built and set-up run of ``variant`` (30 s warm-up; with the scenario's draws for ``seed`` if
+    ``draws``): (simulation, its context, the merge controller)."""
+    from corridor.batch import draws_for
+    from corridor.run import build
+    from corridor.scenario import apply_overrides, load, validate
+
+    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
+    sets = {**sc.sweep[variant], **(draws_for(sc, seed) if draws else {})}
+    sim = build(validate(apply_overrides(raw, sets), variant), seed, Path(tempfile.mkdtemp()))
+    ctx = sim.ctx
+    for c in ctx.components.values():
+        c.setup(ctx)
+    return sim, ctx, ctx.components["merge"]
+
+
 def _ramp_control_after_merging(duration_s: float, seed: int) -> tuple[int, int]:
     """Run ``v2x_cps``; (ramp vehicles seen on a mainline lane past the nose, vehicle-ticks in which
     one that was already on such a lane at the controller's previous tick was still driven as a ramp
     vehicle: commanded with its automaton in a ``ramp`` mode)."""
-    from corridor.run import build
-    from corridor.scenario import apply_overrides, load, validate
     from corridor.snapshot import Role
 
-    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
-    sim = build(validate(apply_overrides(raw, sc.sweep["v2x_cps"]), "v2x_cps"), seed, Path(tempfile.mkdtemp()))
-    ctx = sim.ctx
-    for c in ctx.components.values():
-        c.setup(ctx)
-    ctl = ctx.components["merge"]
+    sim, ctx, ctl = _set_up("v2x_cps", duration_s, seed)
     merged_before: set[str] = set()
     seen: set[str] = set()
     wrong = 0
@@ -132,15 +142,7 @@ def test_a_ramp_vehicle_that_moved_onto_the_mainline_leaves_ramp_control() -> No
 def _untracked_predecessors(duration_s: float, seed: int) -> tuple[int, int]:
     """Run ``v2x_fifo``; (vehicle-ticks near the conflict point behind a connected predecessor from the
     other road, those of them in which the vehicle had no V2X track of that predecessor)."""
-    from corridor.run import build
-    from corridor.scenario import apply_overrides, load, validate
-
-    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
-    sim = build(validate(apply_overrides(raw, sc.sweep["v2x_fifo"]), "v2x_fifo"), seed, Path(tempfile.mkdtemp()))
-    ctx = sim.ctx
-    for c in ctx.components.values():
-        c.setup(ctx)
-    ctl = ctx.components["merge"]
+    sim, ctx, ctl = _set_up("v2x_fifo", duration_s, seed)
     near, untracked = 0, 0
     for _ in range(round(duration_s / ctx.dt)):
         sim.step()
@@ -173,16 +175,7 @@ def test_fifo_vehicles_have_heard_the_newcomer_put_ahead_of_them() -> None:
 
 def _hard_brakes(variant: str, duration_s: float, seed: int) -> dict:
     """Run a variant with the scenario's draws for ``seed``; the run's metrics."""
-    from corridor.batch import draws_for
-    from corridor.run import build
-    from corridor.scenario import apply_overrides, load, validate
-
-    sc, raw = load(SCENARIO, [f"duration={duration_s}", "warmup=30"])
-    raw = apply_overrides(raw, {**sc.sweep[variant], **draws_for(sc, seed)})
-    sim = build(validate(raw, variant), seed, Path(tempfile.mkdtemp()))
-    ctx = sim.ctx
-    for c in ctx.components.values():
-        c.setup(ctx)
+    sim, ctx, _ = _set_up(variant, duration_s, seed, draws=True)
     for _ in range(round(duration_s / ctx.dt)):
         sim.step()
     metrics: dict = {}
