@@ -522,7 +522,7 @@ class V2XMerging(Controller):
                         v_lead = max(v_lead, 0.0)
                     acc = self._gap_opening_accel(acc, gap, float(speed[k]), v_lead)
             acc = self._physical_leader_cap(s, k, acc)
-            v_next = min(max(float(speed[k] + acc * self.period), 0.0), lim.v_max_mps)  # np.clip
+            v_next = self._command_speed(float(speed[k]), acc)
             if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
@@ -586,6 +586,21 @@ class V2XMerging(Controller):
         safety layer not binding)."""
         a_gap = max(self._merge_gap_accel(gap_m, v, v_lead), self.p.limits.a_min_mps2)
         return safe_accel(gap_m, v, v_lead, min(acc, a_gap), self.safety)
+
+    def _command_speed(self, v: float, acc: float) -> float:
+        """The speed [m/s] commanded for the next period: ``v + acc·period``, at least 0 and at most
+        ``limits.v_max_mps``, except that a vehicle above ``v_max`` (a driver's speed factor) comes down
+        to it at ``limits.a_min_mps2`` (comfortable braking), not in one step.
+
+        In speed mode 27 SUMO executes any slowing up to the type's emergency decel at once; clipped
+        to ``v_max`` in one step, a mainline car at 33.7 m/s was set to 30 m/s (-37 m/s²) by its first
+        command. Released at the next tick, its EIDM driver kept braking from that acceleration with its
+        jerk limit (-36 m/s², easing 0.6 m/s² a step) to a standstill on the open road, and the car
+        behind it ran into it (held-out seed 3805499706 of the merge benchmark, 180 s, at 43 s; 3 of 200
+        held-out runs). A braking ``acc`` below ``a_min`` (the safety layer's) is still passed on."""
+        lim = self.p.limits
+        v_cap = max(lim.v_max_mps, v + lim.a_min_mps2 * self.period)
+        return min(max(v + acc * self.period, 0.0), v_cap)
 
     def _merge_gap_accel(self, gap_m: float, v: float, v_lead: float) -> float:
         """Constant-time-gap rule towards the virtual leader: open the gap that the lane change needs.

@@ -58,3 +58,35 @@ def test_the_safety_layer_keeps_its_authority_to_brake_hard(variant: str) -> Non
     acc = comp._gap_opening_accel(0.0, gap, v, v_lead)
     assert acc == pytest.approx(-comp.safety.b_ego_mps2)  # the layer's full braking (6 m/s²)
     assert acc < HARD_BRAKE_MPS2
+
+
+@pytest.mark.parametrize("variant", ["v2x_fifo", "v2x_cps"])
+def test_a_vehicle_above_v_max_is_brought_down_comfortably_not_in_one_step(variant: str) -> None:
+    comp = _controller(variant)
+    lim, dt = comp.p.limits, comp.period
+    v = lim.v_max_mps + 3.7  # [m/s] a driver with a speed factor above 1 (33.7 m/s at v_max 30)
+    v_next = comp._command_speed(v, lim.a_min_mps2)
+    assert v_next == pytest.approx(v + lim.a_min_mps2 * dt)  # comfortable braking, not a 3.7 m/s step
+    assert comp._command_speed(v, 0.0) == pytest.approx(v + lim.a_min_mps2 * dt)  # cruising: still comes down
+    assert comp._command_speed(v, -comp.safety.b_ego_mps2) == pytest.approx(v - comp.safety.b_ego_mps2 * dt)  # safety
+    assert comp._command_speed(lim.v_max_mps - 0.1, lim.a_max_mps2) == pytest.approx(lim.v_max_mps)  # the cap holds
+    assert comp._command_speed(0.1, lim.a_min_mps2) == 0.0  # never backwards
+
+
+def test_the_held_out_run_whose_first_command_stopped_a_car_on_the_open_road_has_no_collision() -> None:
+    """Held-out seed 3805499706 of the merge learning benchmark (issue 28 (b): v2x_cps, 180 s, warm-up
+    60 s, its draws): clipped to v_max in one step, `main_car.0.0` fell from 33.7 to 30 m/s (-37 m/s²),
+    its EIDM driver kept braking from there to a standstill, and `main_car.0.1` ran into it at 43 s."""
+    from corridor.run import RunSpec, execute
+    from corridor.scenario.overrides import load_raw
+
+    path = scenario_file("merging")
+    raw = load_raw(path, ["duration=180", "warmup=60"])
+    draws = {"channels.v2x.loss.p": 0.01025621552585739,
+             "road.demand.flows.main_car.connected_share": 0.9858391428817979,
+             "road.demand.flows.ramp_car.connected_share": 0.8779775196262836,
+             "road.demand.scale": 0.9746564157042139}
+    row = execute(RunSpec(run_id="held-out-110", scenario="merging", source=str(path), variant="v2x_cps",
+                          seed=3805499706, base=raw, overrides={**raw["sweep"]["v2x_cps"], **draws}, draws=draws))
+    assert row["status"] == "ok", row["error"]
+    assert row["collisions"] == 0
