@@ -51,6 +51,8 @@ class Probe:
         self.cur: dict[str, dict[str, Any]] = {}  # this tick's decisions, vehicle -> terms
         self.fallback_t: dict[str, float] = {}
         self.pred: dict[str, tuple[str | None, float]] = {}  # vehicle -> (predecessor, since [s])
+        self.change: dict[str, dict[str, Any]] = {}  # vehicle -> how its predecessor last changed
+        self.seq_before: list[str] = []
         self._vid: str | None = None
         for name in ("_automaton", "_pre_opening_accel", "_gap_opening_accel", "_physical_leader_cap", "_fallback"):
             setattr(ctl, name, getattr(self, "_w" + name)(getattr(ctl, name)))
@@ -58,6 +60,21 @@ class Probe:
     def begin(self, t: float) -> None:
         """Start the tick at ``t`` [s]."""
         self.cur, self.t = {}, t
+        self.seq_before = list(self.ctl.coord.sequence)  # the RSU's order before this tick's coordination
+
+    def _change(self, vid: str, old: str | None, new: str | None) -> dict[str, Any]:
+        """How the predecessor in the crossing order changed from ``old`` to ``new`` (at assignment: old None)."""
+        seq = self.ctl.coord.sequence
+        if old is None:
+            why = "first assignment"
+        elif old not in seq:
+            why = "old predecessor left the order (crossed or left the conflict)"
+        elif vid in seq and seq.index(old) > seq.index(vid):
+            why = "old predecessor now behind (re-sequenced)"
+        else:
+            why = "a vehicle put between (inserted or re-sequenced)"
+        return {"prev_pred": old, "pred_change": why,
+                "new_pred_was_ordered": new in self.seq_before if new is not None else None}
 
     def _w_automaton(self, f: Any) -> Any:
         def w(vid: str, road: str) -> Any:
@@ -66,8 +83,9 @@ class Probe:
             p = self.pred.get(vid)
             if p is None or p[0] != a.pred:
                 self.pred[vid] = (a.pred, self.t)
+                self.change[vid] = self._change(vid, p[0] if p is not None else None, a.pred)
             self.cur[vid] = {"road": road, "pred": a.pred, "pred_road": a.pred_road,
-                             "pred_since_s": self.pred[vid][1]}
+                             "pred_since_s": self.pred[vid][1], **self.change[vid]}
             return f(vid, road)
         return w
 
