@@ -54,7 +54,8 @@ class Probe:
         self.change: dict[str, dict[str, Any]] = {}  # vehicle -> how its predecessor last changed
         self.seq_before: list[str] = []
         self._vid: str | None = None
-        for name in ("_automaton", "_pre_opening_accel", "_gap_opening_accel", "_physical_leader_cap", "_fallback"):
+        self.state: dict[str, Any] = {}
+        for name in ("_sense", "_automaton", "_pre_opening_accel", "_gap_opening_accel", "_physical_leader_cap", "_fallback"):
             setattr(ctl, name, getattr(self, "_w" + name)(getattr(ctl, name)))
 
     def begin(self, t: float) -> None:
@@ -73,8 +74,31 @@ class Probe:
             why = "old predecessor now behind (re-sequenced)"
         else:
             why = "a vehicle put between (inserted or re-sequenced)"
-        return {"prev_pred": old, "pred_change": why,
+        return {"prev_pred": old, "pred_change": why, "prev_pred_fate": self._fate(old),
                 "new_pred_was_ordered": new in self.seq_before if new is not None else None}
+
+    def _w_sense(self, f: Any) -> Any:
+        def w(ctx: Any) -> Any:
+            state = f(ctx)
+            self.state = state or {}
+            return state
+        return w
+
+    def _fate(self, vid: str | None) -> str | None:
+        """Where vehicle ``vid`` is now, seen from the conflict point."""
+        s = self.state
+        k = s.get("row", {}).get(vid) if vid is not None else None
+        if vid is None:
+            return None
+        if k is None:
+            return "left the road"
+        if s["dist"][k] <= 0.0:
+            return "past the conflict point"
+        if s["merged"][k]:
+            return "merged onto the mainline"
+        if not (s["ramp"][k] or s["right"][k]):
+            return "moved to the left lane"
+        return "still on a conflicting lane"
 
     def _w_automaton(self, f: Any) -> Any:
         def w(vid: str, road: str) -> Any:
