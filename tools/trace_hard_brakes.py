@@ -132,8 +132,8 @@ class Probe:
         def w(s: dict[str, Any], k: int, acc: float) -> float:
             out = f(s, k, acc)
             rec = self.cur[s["ids"][k]]
-            v = float(s["speed"][k])  # the command as _decide sends it: a speed, clipped to [0, v_max]
-            v_next = min(max(v + out * self.ctl.period, 0.0), self.ctl.p.limits.v_max_mps)
+            v = float(s["speed"][k])  # the command as _decide sends it: a speed in [0, v_max] (a faster
+            v_next = self.ctl._command_speed(v, out)  # vehicle comes down to v_max comfortably)
             rec.update(cap_in=acc, cap_out=out, a_sent=(v_next - v) / self.ctl.period, commanded=True)
             ha = self.ctl.automata.get(s["ids"][k])
             rec["ha_mode"] = ha.mode if ha is not None else None
