@@ -222,6 +222,7 @@ class Channel:
         self._last_sent = np.zeros((0, 0))  # [dst, src] newest received send time, NaN = none
         self._has_col = np.zeros(0, dtype=bool)  # [src] a column of _last_sent that may hold a time
         self._positions: dict[str, np.ndarray] = {}
+        self._pos_floats: dict[str, list[float]] | None = None  # the same positions as float lists (on demand)
         self._recv_idx = np.zeros(0, dtype=np.int64)  # attached receivers, attach order
         self._recv_row = np.zeros(0, dtype=np.int64)  # node index -> its row in _recv_idx (-1: none)
         self._recv_pos = np.zeros((0, 3))  # [m], NaN rows = unknown
@@ -263,13 +264,16 @@ class Channel:
     def set_positions(self, positions: Mapping[str, np.ndarray]) -> None:
         """Positions [m] (2-D or 3-D, local frame) used for range checks of the following sends."""
         self._positions = {k: _as3(v) for k, v in positions.items()}
+        self._pos_floats = None
         self._recv_dirty = True
 
     def set_positions_arrays(self, ids: Iterable[str], pos_m: np.ndarray) -> None:
         """Same as ``set_positions`` from a snapshot's struct of arrays (ids[N], position[N, 2|3])."""
         pos = np.asarray(pos_m, dtype=float)
         if pos.ndim == 2 and pos.shape[1] == 3:  # each row is already the float 3-vector ``_as3`` makes
+            ids = list(ids)
             self._positions = dict(zip(ids, pos, strict=True))
+            self._pos_floats = dict(zip(ids, pos.tolist()))  # one conversion for the addressed sends
             self._recv_dirty = True
             return
         self.set_positions(dict(zip(ids, pos, strict=True)))
@@ -381,6 +385,9 @@ class Channel:
         """
         src_entry = [self._node(m[0]) for m in orig]
         index, attached, positions = self._index, self._attached, self._positions
+        floats = self._pos_floats
+        if floats is None:
+            floats = self._pos_floats = {k: v.tolist() for k, v in positions.items()}
         r2 = self.cfg.range_m ** 2
         entry_of: list[int] = []  # per copy: its entry, receiver node, range flag
         dst_idx: list[int] = []
@@ -398,11 +405,11 @@ class Channel:
                 j = index.get(d, -1)  # type: ignore[arg-type]
                 if j < 0 or j == si or not attached[j]:
                     continue
-                q = positions.get(d)  # type: ignore[arg-type]
+                q = floats.get(d)  # type: ignore[arg-type]
                 if q is None:
                     near = True  # unknown position: not range checked
                 else:
-                    qx, qy, qz = q.tolist()
+                    qx, qy, qz = q
                     dx, dy, dz = qx - sx, qy - sy, qz - sz
                     d2 = dx * dx + dy * dy + dz * dz
                     near = d2 != d2 or d2 <= r2  # NaN: not range checked
