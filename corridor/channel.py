@@ -222,6 +222,7 @@ class Channel:
         self._last_sent = np.zeros((0, 0))  # [dst, src] newest received send time, NaN = none
         self._has_col = np.zeros(0, dtype=bool)  # [src] a column of _last_sent that may hold a time
         self._positions: dict[str, np.ndarray] = {}
+        self._pos_floats: dict[str, list[float]] | None = None  # the same positions as float lists (on demand)
         self._recv_idx = np.zeros(0, dtype=np.int64)  # attached receivers, attach order
         self._recv_row = np.zeros(0, dtype=np.int64)  # node index -> its row in _recv_idx (-1: none)
         self._recv_pos = np.zeros((0, 3))  # [m], NaN rows = unknown
@@ -263,13 +264,16 @@ class Channel:
     def set_positions(self, positions: Mapping[str, np.ndarray]) -> None:
         """Positions [m] (2-D or 3-D, local frame) used for range checks of the following sends."""
         self._positions = {k: _as3(v) for k, v in positions.items()}
+        self._pos_floats = None
         self._recv_dirty = True
 
     def set_positions_arrays(self, ids: Iterable[str], pos_m: np.ndarray) -> None:
         """Same as ``set_positions`` from a snapshot's struct of arrays (ids[N], position[N, 2|3])."""
         pos = np.asarray(pos_m, dtype=float)
         if pos.ndim == 2 and pos.shape[1] == 3:  # each row is already the float 3-vector ``_as3`` makes
+            ids = list(ids)
             self._positions = dict(zip(ids, pos, strict=True))
+            self._pos_floats = dict(zip(ids, pos.tolist()))  # one conversion for the addressed sends
             self._recv_dirty = True
             return
         self.set_positions(dict(zip(ids, pos, strict=True)))
@@ -334,6 +338,10 @@ class Channel:
             return totals
         if not group.size:
             return [0] * len(orig)
+        if all(d is not None for ds in dsts for d in ds):  # every receiver named (unicasts, multicasts)
+            addressed = self._send_addressed(t_s, orig, dsts)
+            if addressed is not None:
+                return addressed
         self._refresh_receivers()
         src_entry = np.array([self._node(m[0]) for m in orig])
         nan3 = np.full(3, np.nan)  # unknown sender position: no range check (as in send)
@@ -363,9 +371,75 @@ class Channel:
         kept_dst, kept_t = dst_idx[keep], t_recv[keep]  # message-major: one slice per entry
         counts_g = np.bincount(group[msg], minlength=len(orig)).tolist()  # copies per entry
         kept_g = np.bincount(group[msg[keep]], minlength=len(orig)).tolist()
+        return self._enqueue(t_s, orig, src_entry.tolist(), counts_g, kept_g, kept_dst, kept_t)
+
+    def _send_addressed(self, t_s: float, orig: list[tuple[str, Any, np.ndarray | None, Any]],
+                        dsts: list[Sequence[str | None]]) -> list[int] | None:
+        """``send_many`` under Bernoulli loss when every receiver is named (no broadcast).
+
+        The copies are found in Python floats, entry by entry (a tick's few dozen copies cost less so
+        than the (messages x receivers) arrays and the receivers' position table), then drawn and put
+        in flight as the array path does: the same copies in the same order, the same draws, the same
+        bits (the squared distance summed x, y, z in that order, as numpy's row sum of three).  None:
+        a sender position that is not a float 3-vector (the array path handles it).
+        """
+        src_entry = [self._node(m[0]) for m in orig]
+        index, attached, positions = self._index, self._attached, self._positions
+        floats = self._pos_floats
+        if floats is None:
+            floats = self._pos_floats = {k: v.tolist() for k, v in positions.items()}
+        r2 = self.cfg.range_m ** 2
+        entry_of: list[int] = []  # per copy: its entry, receiver node, range flag
+        dst_idx: list[int] = []
+        in_range: list[bool] = []
+        counts = [0] * len(orig)
+        for e, ((src, _, pos, _), ds, si) in enumerate(zip(orig, dsts, src_entry, strict=True)):
+            p = positions.get(src) if pos is None else pos
+            if p is None:
+                sx = sy = sz = math.nan
+            elif type(p) is np.ndarray and p.shape == (3,) and p.dtype == np.float64:
+                sx, sy, sz = p.tolist()
+            else:
+                return None
+            for d in ds:
+                j = index.get(d, -1)  # type: ignore[arg-type]
+                if j < 0 or j == si or not attached[j]:
+                    continue
+                q = floats.get(d)  # type: ignore[arg-type]
+                if q is None:
+                    near = True  # unknown position: not range checked
+                else:
+                    qx, qy, qz = q
+                    dx, dy, dz = qx - sx, qy - sy, qz - sz
+                    d2 = dx * dx + dy * dy + dz * dz
+                    near = d2 != d2 or d2 <= r2  # NaN: not range checked
+                entry_of.append(e)
+                dst_idx.append(j)
+                in_range.append(near)
+                counts[e] += 1
+        n = len(dst_idx)
+        u = self._rng.random(2 * n)  # a unicast's loss and delay uniforms are the next two
+        near_a = np.array(in_range, dtype=bool)
+        lost = near_a & (u[0::2] < self.cfg.loss.p)
+        t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u[1::2]
+        n_near = sum(in_range)
+        self._n_sent += n
+        self._n_oor += n - n_near
+        self._n_lost += int(np.count_nonzero(lost))
+        keep = self._admit(near_a & ~lost, t_recv)
+        kept_dst, kept_t = np.array(dst_idx, dtype=np.int64)[keep], t_recv[keep]
+        kept_g = np.bincount(np.array(entry_of, dtype=np.int64)[keep], minlength=len(orig)).tolist()
+        return self._enqueue(t_s, orig, src_entry, counts, kept_g, kept_dst, kept_t)
+
+    def _enqueue(self, t_s: float, orig: list[tuple[str, Any, Any, Any]], src_entry: list[int], counts_g: list[int],
+                 kept_g: list[int], kept_dst: np.ndarray, kept_t: np.ndarray) -> list[int]:
+        """One in-flight batch per entry with kept copies (message-major ``kept_dst`` / ``kept_t``).
+
+        An entry with copies takes a send order; returns the copies kept per entry.
+        """
         out = []
         t_sent, a = float(t_s), 0
-        for c, k, si, (src, payload, _, _) in zip(counts_g, kept_g, src_entry.tolist(), orig, strict=True):
+        for c, k, si, (src, payload, _, _) in zip(counts_g, kept_g, src_entry, orig, strict=True):
             if c == 0:
                 out.append(0)
                 continue

@@ -58,6 +58,7 @@ that leaves is taken to have crossed at its assigned time.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -172,7 +173,7 @@ class Coordinator:
                 continue
             self._st.n_done += 1
             t_cross = s.t_s if crossed_s is None else crossed_s.get(s.vid, np.nan)
-            if not np.isnan(t_cross) and (self._st.tail is None or t_cross >= self._st.tail[0]):
+            if not math.isnan(t_cross) and (self._st.tail is None or t_cross >= self._st.tail[0]):
                 self._st.tail = (t_cross, s.road)
         self._st.slots = keep
 
@@ -183,14 +184,14 @@ class Coordinator:
 
     def _needs_repair(self) -> bool:
         return any(
-            s.earliest_s > s.t_s + self.cfg.repair_tol_s for s in self._st.slots if not np.isnan(s.t_s)
+            s.earliest_s > s.t_s + self.cfg.repair_tol_s for s in self._st.slots if not math.isnan(s.t_s)
         )
 
     def _n_frozen(self, t_s: float) -> int:
         """Length of the committed prefix of the sequence."""
         n = 0
         for s in self._st.slots:
-            if np.isnan(s.t_s) or s.t_s > t_s + self.cfg.freeze_s:
+            if math.isnan(s.t_s) or s.t_s > t_s + self.cfg.freeze_s:
                 break
             n += 1
         return n
@@ -204,7 +205,7 @@ class Coordinator:
             too_close = s.t_s < t_head - 1e-9
             missed = s.earliest_s > s.t_s + self.cfg.repair_tol_s
             too_late = s.t_s > t_need + self.cfg.repack_tol_s
-            if np.isnan(s.t_s) or too_close or missed or too_late:
+            if math.isnan(s.t_s) or too_close or missed or too_late:
                 s.t_s = t_need
             prev = (s.t_s, s.road)
 

@@ -23,6 +23,7 @@ Time is shifted to ``τ = t - t0`` inside the solution (the system matrix is the
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -242,11 +243,11 @@ def merge_accel(
     lim = limits or MotionLimits()
     if tf - t0 < min_horizon_s or x0 >= L:
         target = v0 if vf is None else vf
-        return float(np.clip((target - v0) / max(min_horizon_s, 1e-3), lim.a_min_mps2, lim.a_max_mps2))
+        return float(min(max((target - v0) / max(min_horizon_s, 1e-3), lim.a_min_mps2), lim.a_max_mps2))  # np.clip
     if vf is not None:
         vf = min(vf, max(2.0 * (L - x0) / (tf - t0) - v0, 0.0))
     a, b, _, _ = cubic_coefficients(x0, v0, tf - t0, L - x0, vf)
-    return float(np.clip(b, lim.a_min_mps2, lim.a_max_mps2))
+    return float(min(max(b, lim.a_min_mps2), lim.a_max_mps2))  # np.clip's value, without its ~5 us
 
 
 def min_time_to_go(dist_m: float, v0: float, lim: MotionLimits) -> float:
@@ -265,5 +266,5 @@ def time_to_go(dist_m: float, v0: float, v_max: float, a_max: float) -> float:
     t_acc = (v_max - v0) / a_max
     d_acc = v0 * t_acc + 0.5 * a_max * t_acc**2
     if d_acc >= dist_m:
-        return float((-v0 + np.sqrt(v0**2 + 2.0 * a_max * dist_m)) / a_max)
+        return float((-v0 + math.sqrt(v0**2 + 2.0 * a_max * dist_m)) / a_max)  # IEEE sqrt: np.sqrt's bits
     return float(t_acc + (dist_m - d_acc) / v_max)

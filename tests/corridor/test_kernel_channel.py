@@ -304,7 +304,8 @@ def test_send_many_unicasts_and_broadcasts_mixed_equal_send_after_send() -> None
 
 
 @pytest.mark.parametrize("with_broadcasts", [True, False])  # False: the unicast-only path
-def test_send_many_multicast_equals_unicasts_send_after_send_as_one_message(with_broadcasts: bool) -> None:
+@pytest.mark.parametrize("dims", [2, 3])  # 3: float 3-vectors, the addressed path in Python floats
+def test_send_many_multicast_equals_unicasts_send_after_send_as_one_message(with_broadcasts: bool, dims: int) -> None:
     """A multicast entry (a list of receivers, including detached, unknown, repeated-free, the sender
     itself, and an empty list) draws, counts and delivers what one unicast send per listed receiver
     does, in order; its copies in flight form one batch (one message of deliver_batches)."""
@@ -315,9 +316,14 @@ def test_send_many_multicast_equals_unicasts_send_after_send_as_one_message(with
     rng = np.random.default_rng(8)
     pool = [*ids, "listener", "nobody"]
     got_ref, got_new, batches_seen = [], [], 0
+    addressed = new._send_addressed
+    used: list[bool] = []  # which path each send_many took (the addressed path needs 3-vectors, no broadcast)
+    new._send_addressed = lambda *a: (r := addressed(*a), used.append(r is not None))[0]  # type: ignore[method-assign]
     for k in range(30):
         t = 0.1 * k
         pos = np.c_[np.linspace(0.0, 400.0, 12) + 3.0 * t, np.zeros(12)]
+        if dims == 3:  # off the plane, with digits that make the squared distance's sum order matter
+            pos = np.c_[pos + rng.normal(0.0, 1.0, (12, 2)), rng.normal(0.0, 30.0, 12)]
         ref.set_positions_arrays(ids, pos)
         new.set_positions_arrays(ids, pos)
         msgs = []
@@ -338,7 +344,8 @@ def test_send_many_multicast_equals_unicasts_send_after_send_as_one_message(with
     assert [(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.payload) for d in got_ref] == [c[:5] for c in ordered]
     assert len(got_ref) > 200 and batches_seen > 50
     assert ref.stats() == new.stats() and ref.stats().out_of_range > 0 and ref.stats().lost_random > 0
-
+    if dims == 3 and not with_broadcasts:
+        assert used == [True] * 30  # every send_many went through the addressed path
 
 def test_send_many_falls_back_to_send_for_bursty_loss() -> None:
     loss = GilbertElliottLoss(p_good_to_bad=0.2, p_bad_to_good=0.3)

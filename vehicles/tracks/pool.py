@@ -126,7 +126,7 @@ class TrackPool:
         """Forget every track whose newest measurement is older than ``stale_after_s``."""
         if not any(self._rows.values()):
             return
-        old = t_s - self.t_s > self.stale_after_s
+        old = (t_s - self.t_s > self.stale_after_s).tolist()  # a list: one Python test per track
         for table in self._rows.values():
             stale = [s for s, row in table.items() if old[row]]
             for s in stale:
