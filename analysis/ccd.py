@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from corridor.analysis.safety import tree_is_cheaper
+
 MAX_STEP_M = 100.0  # [m] per interval: farther is a teleport (1000 m/s at dt = 0.1 s, 200 m/s at 0.5 s:
 #   above any road vehicle, small UAS or light aircraft simulated here)
 
@@ -122,8 +124,6 @@ def _prev_rows(prev_ids: np.ndarray, cur_ids: np.ndarray) -> np.ndarray:
     return np.array([prev_row.get(k, -1) for k in cur_ids.tolist()], dtype=np.int64)
 
 
-SPARSE_ABOVE = 250_000  # [cells] a larger (A, N) matrix: the candidate pairs come from a k-d tree
-
 
 def _sphere_pairs_tree(p0: np.ndarray, p1: np.ndarray, rad: np.ndarray, a: np.ndarray, rows: np.ndarray,
                        step: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -171,7 +171,7 @@ def swept_overlaps(prev: Poses, cur: Poses, rows_a: np.ndarray | None = None,
     if len(a) == 0 or len(rows) < 2:
         return empty
     rad = 0.5 * np.linalg.norm(cur.size, axis=1)  # bounding-sphere radius
-    if len(a) * len(rows) > SPARSE_ABOVE:
+    if tree_is_cheaper(len(a), len(rows)):  # the candidate pairs from a k-d tree, else the dense (A, N) matrix
         i, j, s = _sphere_pairs_tree(p0, cur.position, rad, a, rows, step)
     else:  # candidate pairs (a row, any swept row): relative segments, closest approach, sphere test
         d0 = p0[a][:, None, :] - p0[rows][None, :, :]
