@@ -420,7 +420,7 @@ class Channel:
         n = len(dst_idx)
         u = self._rng.random(2 * n)  # a unicast's loss and delay uniforms are the next two
         near_a = np.array(in_range, dtype=bool)
-        lost = near_a & (u[0::2] < self.cfg.loss.p)
+        lost = near_a & (u[0::2] < cast(BernoulliLoss, self.cfg.loss).p)  # the caller sends here only with Bernoulli loss
         t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u[1::2]
         n_near = sum(in_range)
         self._n_sent += n
