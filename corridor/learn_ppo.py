@@ -5,6 +5,9 @@ boundaries.  PPO trains a policy network on ``corridor.envs.CorridorEnv``: one a
 the controller's agents, e.g. one UAV) decides, every controller period, the switch whose
 boundaries ``KEYS`` name (``avoid_enter.*`` / ``avoid_exit.*``: the pair ``(avoid_enter,
 avoid_exit)``), from highway-env's Kinematics observation; the other agents keep their boundaries.
+With the merge's boundaries (``merge_enter.*``, ``gap_accept.*``, ``yield_enter.*``, ...), whose
+vehicles come and go, it trains on ``corridor.decision_env.DecisionEnv`` instead: one policy shared
+by every vehicle, one step per pending switch decision inside blrl's band.
 The reward is the row's ``objective - PENALTY x violated constraints`` at the end of the run (the
 same expression ``blrl`` and ``cma`` maximise).
 
