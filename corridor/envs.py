@@ -247,3 +247,5 @@ def merge_parallel_env(n_agents: int = 4, **kwargs: Any) -> EgoParallelEnv:
     """PettingZoo ``ParallelEnv`` of the merge: the first ``n_agents`` connected vehicles departing from
     ``agent_params["ego_depart_s"]`` (60 s) on are agents ``cv_0`` ... (``corridor.ego_env.EgoParallelEnv``)."""
     return EgoParallelEnv(n_agents=n_agents, **{**MERGE, **kwargs})
+
+from corridor import decision_env as _decision_env  # noqa: E402,F401  (registers corridor/MergeDecisions-v0)

@@ -5,6 +5,9 @@ boundaries.  PPO trains a policy network on ``corridor.envs.CorridorEnv``: one a
 the controller's agents, e.g. one UAV) decides, every controller period, the switch whose
 boundaries ``KEYS`` name (``avoid_enter.*`` / ``avoid_exit.*``: the pair ``(avoid_enter,
 avoid_exit)``), from highway-env's Kinematics observation; the other agents keep their boundaries.
+With the merge's boundaries (``merge_enter.*``, ``gap_accept.*``, ``yield_enter.*``, ...), whose
+vehicles come and go, it trains on ``corridor.decision_env.DecisionEnv`` instead: one policy shared
+by every vehicle, one step per pending switch decision inside blrl's band.
 The reward is the row's ``objective - PENALTY x violated constraints`` at the end of the run (the
 same expression ``blrl`` and ``cma`` maximise).
 
@@ -48,6 +51,7 @@ SWITCHES = {"avoid_enter": ("avoid_enter", "avoid_exit"), "avoid_exit": ("avoid_
 POLICY = "ppo_policy.zip"
 NORMALISER = "ppo_vecnormalize.pkl"
 CHECKPOINTS = "checkpoints"  # DIR/checkpoints/epNNNNN/{POLICY, NORMALISER}: the policy after NNNNN training runs
+GAMMA_DECISIONS = 1.0  # the merge's decision points: the run's one reward, undiscounted over its decisions
 CHECKPOINT_EVERY = 48  # runs between checkpoints (blrl's budget on uav_encounter), besides 4, 8, 16, 32
 
 
@@ -59,36 +63,67 @@ def checkpoint_episodes(budget: int) -> list[int]:
     return sorted({e for e in [*early, *range(CHECKPOINT_EVERY, n, CHECKPOINT_EVERY)] if 0 < e < n})
 
 
-def check(pb: Problem, resume: bool, executor: str) -> tuple[str, str]:
-    """The env's switch for ``pb``'s keys; refuses what PPO does not map (one line each)."""
+def check(pb: Problem, resume: bool, executor: str) -> tuple[str, ...]:
+    """The boundaries the env decides for ``pb``'s keys (the avoid pair, or the merge's boundaries the
+    keys name); refuses what PPO does not map (one line each)."""
+    try:
+        import stable_baselines3  # noqa: F401
+
+        from corridor.decision_env import MERGE_BOUNDARIES
+    except ImportError:
+        raise CorridorError("--method ppo needs stable-baselines3: pip install -e '.[rl]'") from None
     names = {k.split(".params.boundaries.", 1)[1].split(".", 1)[0] for k in pb.keys}
     pairs = {SWITCHES.get(n) for n in names}
-    if None in pairs or len(pairs) != 1:
-        raise CorridorError(f"--method ppo: the Gymnasium environment decides the avoid_enter/avoid_exit switch; "
-                            f"--learn names {', '.join(sorted(names))}")
+    if names <= set(MERGE_BOUNDARIES):
+        switch: tuple[str, ...] = tuple(n for n in MERGE_BOUNDARIES if n in names)
+    elif None in pairs or len(pairs) != 1:
+        raise CorridorError(f"--method ppo: corridor.envs decides the avoid_enter/avoid_exit switch, corridor.decision_env "
+                            f"the merge's boundaries ({', '.join(MERGE_BOUNDARIES)}); --learn names {', '.join(sorted(names))}")
+    else:
+        pair = pairs.pop()
+        assert pair is not None
+        switch = pair
     if resume:
         raise CorridorError("--resume: --method ppo keeps no per-stage training state; start afresh")
     if executor != "local":
         raise CorridorError(f"--executor {executor}: --method ppo steps its environment in this process")
-    try:
-        import stable_baselines3  # noqa: F401
-    except ImportError:
-        raise CorridorError("--method ppo needs stable-baselines3: pip install -e '.[rl]'") from None
-    pair = pairs.pop()
-    assert pair is not None
-    return pair
+    return switch
 
 
-def make_env(pb: Problem, sets: list[str], switch: tuple[str, str]) -> Any:
+def decision_points(switch: tuple[str, ...]) -> bool:
+    """Whether ``switch`` is decided in the decision-point environment (the merge) rather than per period."""
+    return tuple(switch) not in set(SWITCHES.values())
+
+
+def make_env(pb: Problem, sets: list[str], switch: tuple[str, ...]) -> Any:
+    if decision_points(switch):
+        from corridor.decision_env import DecisionEnv
+
+        return DecisionEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
+                           boundaries=switch, objective=pb.objective.text,
+                           constraints=tuple(c.text for c in pb.constraints), penalty=PENALTY)
     from corridor.envs import CorridorEnv
 
-    return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets, switch=switch,
+    return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
+                       switch=(switch[0], switch[1]),
                        objective=pb.objective.text, constraints=tuple(c.text for c in pb.constraints),
                        penalty=PENALTY)
 
 
 def decisions_per_run(env: Any) -> int:
-    """Steps of one episode (the decision periods after the first, which the boundaries decide)."""
+    """Steps of one episode: the decision periods after the first, which the boundaries decide; in the
+    decision-point environment the decisions of the run of seed 0 under uniformly random actions (what
+    PPO's first policy does; a policy that switches later meets more decisions)."""
+    if hasattr(env, "boundaries"):
+        rng = np.random.default_rng(0)
+        env.reset(seed=0)
+        n = 0
+        while True:
+            n += 1
+            _, _, terminated, _, _ = env.step(int(rng.integers(2)))
+            if terminated:
+                env.close()
+                return max(n, 1)
     env.reset(seed=0)
     ep = env.unwrapped.episode
     n = math.ceil((ep.sim.n_ticks - ep.tick) / ep.ticks_per_decision)
@@ -96,63 +131,85 @@ def decisions_per_run(env: Any) -> int:
     return max(int(n), 1)
 
 
-def train(pb: Problem, budget: int, seed: int, out: Path, sets: list[str], switch: tuple[str, str]
+def train(pb: Problem, budget: int, seed: int, out: Path, sets: list[str], switch: tuple[str, ...]
           ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
-    """PPO for ``budget // EPISODES_PER_STAGE`` stages; (curve, every training row)."""
+    """PPO for ``budget // EPISODES_PER_STAGE`` stages; (curve, every training row).
+
+    The avoid switch: every run has the same number of steps, a rollout is ``EPISODES_PER_STAGE`` runs.
+    The merge's decision points: runs differ in decisions, a rollout is ``EPISODES_PER_STAGE`` x the
+    decisions of a probe run (seed 0 at theta0), a stage holds the runs that ended in it, training stops
+    after the update of the first rollout by which ``budget // EPISODES_PER_STAGE x EPISODES_PER_STAGE``
+    runs have ended (so a few more may have; the run cut by that rollout's end is not counted), and the
+    terminal reward is not discounted (``GAMMA_DECISIONS``: thousands of decisions share one reward at the run's end).
+    """
     from stable_baselines3 import PPO
     from stable_baselines3.common.callbacks import BaseCallback
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
+    variable = decision_points(switch)
     steps = decisions_per_run(make_env(pb, sets, switch))
     venv = VecNormalize(DummyVecEnv([lambda: make_env(pb, sets, switch)]), norm_obs=True, norm_reward=False)
     n_steps = steps * EPISODES_PER_STAGE
+    extra: dict[str, Any] = {"gamma": GAMMA_DECISIONS} if variable else {}
     model = PPO("MlpPolicy", venv, n_steps=n_steps, batch_size=steps, n_epochs=N_EPOCHS,
-                learning_rate=LEARNING_RATE, seed=seed, device="cpu", verbose=0)
+                learning_rate=LEARNING_RATE, seed=seed, device="cpu", verbose=0, **extra)
     curve: list[dict[str, Any]] = []
     rows: list[dict[str, Any]] = []
-    saves = set(checkpoint_episodes(budget))
+    episodes = (budget // EPISODES_PER_STAGE) * EPISODES_PER_STAGE
+    pending = sorted(checkpoint_episodes(budget))
+    ended = [0]  # training runs ended so far
+
+    def flush(stage_rows: list[dict[str, Any]]) -> None:
+        import pandas as pd
+
+        stage = len(curve)
+        batch = [{**r, "run_id": f"{pb.variant}-train{stage:03d}-{i:05d}", "learn.stage": f"{stage:03d}"}
+                 for i, r in enumerate(stage_rows)]
+        (out / "stages" / f"{stage:03d}").mkdir(parents=True, exist_ok=True)
+        pd.DataFrame(batch).to_parquet(out / "stages" / f"{stage:03d}" / "rows.parquet", index=False)
+        r = np.array([pb.reward(x) for x in batch])
+        curve.append({"stage": stage, "theta": None, **summary(r, batch, pb)})
+        rows.extend(batch)
 
     class Stages(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
             self.stage_rows: list[dict[str, Any]] = []
+            self.stop = False
 
         def _on_rollout_start(self) -> None:
-            done = len(curve) * EPISODES_PER_STAGE  # runs the policy (and its normaliser) has been trained on
-            if done in saves:
-                dest = out / CHECKPOINTS / f"ep{done:05d}"
+            self.stop = variable and ended[0] >= episodes  # the decision points: the budget's runs trained on
+            # the policy (and its normaliser) trained on every run ended before this rollout
+            while pending and ended[0] >= pending[0]:
+                done = pending.pop(0)
+                dest = out / CHECKPOINTS / f"ep{(ended[0] if variable else done):05d}"
                 dest.mkdir(parents=True, exist_ok=True)
                 model.save(dest / POLICY)
                 venv.save(str(dest / NORMALISER))
 
         def _on_step(self) -> bool:
+            if self.stop:
+                return False
             for done, info in zip(self.locals["dones"], self.locals["infos"], strict=True):
                 if done:
                     row = {k: v for k, v in info.items() if k not in ("terminal_observation", "TimeLimit.truncated")}
                     self.stage_rows.append({**row, "status": "ok"})
+                    ended[0] += 1
             return True
 
         def _on_rollout_end(self) -> None:
-            stage = len(curve)
-            import pandas as pd
-
-            batch = [{**r, "run_id": f"{pb.variant}-train{stage:03d}-{i:05d}", "learn.stage": f"{stage:03d}"}
-                     for i, r in enumerate(self.stage_rows)]
-            (out / "stages" / f"{stage:03d}").mkdir(parents=True, exist_ok=True)
-            pd.DataFrame(batch).to_parquet(out / "stages" / f"{stage:03d}" / "rows.parquet", index=False)
-            r = np.array([pb.reward(x) for x in batch])
-            curve.append({"stage": stage, "theta": None, **summary(r, batch, pb)})
-            rows.extend(batch)
+            if self.stage_rows:  # the decision points: a rollout may end no run (they go on into the next)
+                flush(self.stage_rows)
             self.stage_rows = []
 
-    model.learn(total_timesteps=n_steps * (budget // EPISODES_PER_STAGE), callback=Stages())
+    model.learn(total_timesteps=n_steps * (budget // EPISODES_PER_STAGE) * (1000 if variable else 1), callback=Stages())
     model.save(out / POLICY)
     venv.save(str(out / NORMALISER))
     venv.close()
     return curve, rows
 
 
-def evaluate_policy(folder: str | Path, pb: Problem, sets: list[str], switch: tuple[str, str], seed: int,
+def evaluate_policy(folder: str | Path, pb: Problem, sets: list[str], switch: tuple[str, ...], seed: int,
                     draws: dict[str, Any] | None = None) -> dict[str, Any]:
     """One run of the saved PPO policy (deterministic actions) at ``seed`` with ``draws``: its row."""
     from stable_baselines3 import PPO
@@ -167,15 +224,15 @@ def evaluate_policy(folder: str | Path, pb: Problem, sets: list[str], switch: tu
     try:
         while True:
             action, _ = model.predict(norm.normalize_obs(obs[None]), deterministic=True)
-            obs, _, _, truncated, info = env.step(int(action[0]))
-            if truncated:
+            obs, _, terminated, truncated, info = env.step(int(action[0]))
+            if terminated or truncated:
                 return {**info, "status": "ok"}
     finally:
         env.close()
         norm.close()
 
 
-def holdout(pb: Problem, folder: Path, n: int, seed: int, sets: list[str], switch: tuple[str, str], run: Any,
+def holdout(pb: Problem, folder: Path, n: int, seed: int, sets: list[str], switch: tuple[str, ...], run: Any,
             training_seeds: set[int]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     """theta0 (batch runner) against the PPO policy (env) on the same ``n`` held-out seeds and draws."""
     if n < 1:

@@ -40,6 +40,9 @@ Guard = Callable[[Any], bool]
 Reset = Callable[[Any], Any]
 Action = Callable[[float], None]
 BoundaryFn = Callable[[Any, Mapping[str, float]], float]
+# a decision taken from outside at a boundary (a learning agent, corridor.decision_env):
+# (automaton, boundary, t [s], g, x) -> whether the guard holds, or None to leave it to the automaton
+Decider = Callable[["HybridAutomaton", "Boundary", float, float, Any], "bool | None"]
 
 
 @dataclass(frozen=True)
@@ -125,6 +128,20 @@ def crossing_time(t0: float, g0: float, t1: float, g1: float) -> float:
     return t0 + (t1 - t0) * (-g0) / (g1 - g0)
 
 
+def in_band(b: Boundary, x: Any, g: float, switching: SwitchingParams | None) -> bool:
+    """Whether a log-scale shift of b's positive parameters within ``band`` x T flips the guard at ``x``.
+
+    That is where ``SwitchingParams`` draws; never with deterministic switching, a NaN g or no positive
+    parameter.
+    """
+    pos = [k for k, v in b.theta.items() if float(v) > 0.0]
+    if switching is None or switching.temperature is None or not math.isfinite(g) or not pos:
+        return False
+    span = switching.band * float(switching.temperature)
+    lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)
+    return math.isfinite(lo) and math.isfinite(hi) and lo * hi < 0.0
+
+
 def _sigmoid(z: float) -> float:
     return 1.0 / (1.0 + math.exp(-z))
 
@@ -176,6 +193,8 @@ class HybridAutomaton:
         for tr in transitions:
             self._out[tr.src].append(tr)
         self.boundaries = {tr.guard.name: tr.guard for tr in transitions if isinstance(tr.guard, Boundary)}
+        # asked first at every boundary guard whose discrete ``when`` holds (None: the automaton decides)
+        self.decider: Decider | None = None
         self.reset(0.0)
 
     # ---- the tree ----------------------------------------------------------------------------------
@@ -226,6 +245,8 @@ class HybridAutomaton:
             return bool(tr.guard(x)), None
         g = self.g_now[tr.guard.name]
         holds = self.decided.get(tr.guard.name)
+        if holds is None and self.decider is not None and (tr.when is None or bool(tr.when(x))):
+            holds = self.decider(self, tr.guard, t, g, x)
         if holds is None:
             holds = self._draw(tr.guard, t, g, x) if self.switching is not None else tr.guard.holds(g)
         fires = holds and (tr.when is None or bool(tr.when(x)))
@@ -252,12 +273,7 @@ class HybridAutomaton:
 
     def _in_band(self, b: Boundary, x: Any, g: float, pos: Sequence[str]) -> bool:
         """Whether a log-scale shift of b's positive parameters within band x T flips the guard at ``x``."""
-        sw = self.switching
-        if sw is None or not math.isfinite(g) or not pos:
-            return False
-        span = sw.band * float(sw.temperature)  # type: ignore[arg-type]
-        lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)
-        return math.isfinite(lo) and math.isfinite(hi) and lo * hi < 0.0
+        return in_band(b, x, g, self.switching)
 
     def _new_draw(self, b: Boundary, group: str, g: float, x: Any, pos: Sequence[str]) -> float:
         """Draw eps for ``group`` (held until the band is left) and queue its ``switch_draw`` event."""

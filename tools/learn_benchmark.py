@@ -143,7 +143,7 @@ def _policy_run(folder: str, seed: int, draws: dict[str, Any], policy: str | Non
         _WORKER.update(folder=folder, data=data, pb=problem_of(data))
     data = _WORKER["data"]
     return evaluate_policy(Path(policy or folder), _WORKER["pb"], list(data["sets"]),
-                           (data["switch"][0], data["switch"][1]), seed, draws)
+                           tuple(data["switch"]), seed, draws)
 
 
 def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, workers: int,

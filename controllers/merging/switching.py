@@ -110,6 +110,15 @@ class MergeState:
             self._gap = self.probe() if (self.cross_pred and self.probe is not None) else VirtualGap(False)
         return self._gap
 
+    def features(self) -> dict[str, float]:
+        """What the guards read, as numbers (a learning agent's observation, ``corridor.decision_env``):
+        the distance [m], whether the predecessor is on the other road, and its virtual gap [m], speed
+        [m/s], track age [s] and length [m] (0 when it is not known).  Reading them changes nothing."""
+        g = self.gap()
+        known = [g.gap_m, g.v_lead_mps, g.age_s, g.lead_len_m] if g.known else [0.0] * 4
+        return dict(zip(("dist_m", "cross_pred", "gap_known", "gap_m", "v_lead_mps", "age_s", "lead_len_m"),
+                        [self.dist_m, float(self.cross_pred), float(g.known), *known], strict=True))
+
 
 def approach_margin(x: MergeState, theta: Mapping[str, float]) -> float:
     """dist_m - d [m]: >= 0 within ``dist_m`` of the conflict point."""

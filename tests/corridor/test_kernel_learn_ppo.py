@@ -80,3 +80,38 @@ def test_checkpoints_early_in_powers_of_two_then_every_48_runs_before_the_final_
     assert checkpoint_episodes(32) == [4, 8, 16]
     assert checkpoint_episodes(480) == [4, 8, 16, 32, 48, 96, 144, 192, 240, 288, 336, 384, 432]
     assert checkpoint_episodes(50) == [4, 8, 16, 32]  # 12 stages of 4: the final policy is the one after 48
+
+
+MERGE = ["merging", "--variant", "v2x_cps", "--method", "ppo", "--quiet",
+         "--learn", "merge_enter.dist_m,yield_enter.dist_m,yield_exit.dist_m,gap_accept.lag_lengths",
+         "--objective", "-delay_mean_s", "--constraint", "collisions == 0", "--constraint", "hard_brakes <= 3",
+         "--set", "duration=40", "--set", "warmup=0"]
+
+
+def test_ppo_on_the_merge_decides_the_named_boundaries_end_to_end(tmp_path: Path) -> None:
+    """(b): the vehicles come and go, so PPO trains on the decision-point environment (one shared policy,
+    one decision a step): stages of the runs that ended, the policy and its checkpoint, the held-out
+    comparison; the policy's held-out row re-runs identically."""
+    from corridor.learn import problem
+    from corridor.learn_ppo import evaluate_policy
+
+    out = tmp_path / "learn"
+    assert main([*MERGE, "--budget", "8", "--holdout", "2", "--out", str(out)]) == 0
+    data = json.loads((out / "learn.json").read_text())
+    assert data["theta"] is None and data["switch"] == ["merge_enter", "gap_accept", "yield_enter", "yield_exit"]
+    assert data["training_runs"] >= 8 and sum(c["runs"] for c in data["curve"]) == data["training_runs"]
+    assert len(data["curve"]) >= 2  # the policy was updated before the budget ended
+    rows = pd.concat([pd.read_parquet(p) for p in sorted((out / "stages").glob("*/rows.parquet"))])
+    assert len(rows) == data["training_runs"] and (rows["status"] == "ok").all()
+    assert rows["delay_mean_s"].notna().all() and (rows["decisions"] > 0).all()
+    assert [p.name for p in (out / "checkpoints").iterdir()] and (out / "ppo_policy.zip").is_file()
+    h = data["holdout"]
+    assert h["runs"] == 2 and h["overlap_training_seeds"] == 0 and h["paired_diff_mean"] is not None
+    runs = pd.read_parquet(out / "runs.parquet")
+    hold1 = runs[runs["learn.stage"] == "hold1"].iloc[0]
+    hold0 = runs[runs["learn.stage"] == "hold0"].set_index("run_id")
+    sets = ["duration=40", "warmup=0"]
+    pb = problem("merging", ",".join(data["keys"]), "-delay_mean_s", data["constraints"], 8, "ppo", "v2x_cps", sets)
+    draws = {k: hold0.loc[hold1["run_id"].replace("hold1", "hold0"), f"draw.{k}"] for k in pb.sc.randomize}
+    again = evaluate_policy(out, pb, sets, tuple(data["switch"]), int(hold1["seed"]), draws)
+    assert again["delay_mean_s"] == hold1["delay_mean_s"] and again["decisions"] == hold1["decisions"]

@@ -99,3 +99,36 @@ def test_unknown_and_duplicate_modes_are_refused() -> None:
 
 def test_crossing_time_with_infinite_values_falls_back_to_the_tick() -> None:
     assert crossing_time(0.0, float("-inf"), 1.0, 2.0) == 1.0
+
+
+def test_a_decider_takes_the_guard_inside_the_band_and_nowhere_else() -> None:
+    """The learning agent's hook (corridor.decision_env): asked only where blrl would draw (a shift of the
+    limit within band x T = 0.2 log units flips the guard: 8.19 < v < 12.21 m/s), and only while the
+    transition's discrete condition holds; elsewhere the sign of g decides as before."""
+    from corridor.modes import SwitchingParams, in_band
+
+    band = SwitchingParams(temperature=0.1, band=2.0)
+    asked: list[float] = []
+
+    def never_inside(ha: HybridAutomaton, b: Boundary, t: float, g: float, x: dict) -> bool | None:
+        if not in_band(b, x, g, band):
+            return None
+        asked.append(x["v"])
+        return False
+
+    speeds = [5.0, 9.0, 11.0, 13.0]
+    plain, hooked = _speed_automaton(10.0), _speed_automaton(10.0)
+    hooked.decider = never_inside
+    for k, v in enumerate(speeds):
+        plain.update(float(k), {"v": v})
+        hooked.update(float(k), {"v": v})
+    assert plain.history[0][0] == 2.0  # over the limit at 11 m/s
+    assert asked == [9.0, 11.0] and hooked.history[0][0] == 3.0  # held inside the band, out at 13 m/s
+    assert not in_band(plain.boundaries["too_fast"], {"v": 11.0}, 1.0, None)  # deterministic: no band
+    gated = HybridAutomaton("car", ["cruise", "brake"], "cruise", [Transition(
+        "cruise", "brake", plain.boundaries["too_fast"], "over the limit", when=lambda x: x["brakes_ok"])])
+    gated.decider = never_inside
+    asked.clear()
+    for k, v in enumerate(speeds):
+        gated.update(float(k), {"v": v, "brakes_ok": False})
+    assert asked == [] and gated.mode == "cruise"
