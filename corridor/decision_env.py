@@ -54,6 +54,7 @@ from corridor.modes import Boundary, HybridAutomaton, SwitchingParams, in_band
 from corridor.objective import Expression, value, violations
 from corridor.run import ScratchRun, event_counts
 from corridor.scenario import load
+from corridor.snapshot import nearest_indices
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 MERGE_BOUNDARIES = ("merge_enter", "gap_accept", "gap_reject", "yield_enter", "yield_exit", "yield_hold", "yield_pass")
@@ -187,12 +188,8 @@ class DecisionEnv(gym.Env):
             return out
         pos, vel = np.asarray(s.position, float)[:, :2], np.asarray(s.velocity, float)[:, :2]
         out[0] = [1.0, 0.0, 0.0, *(vel[idx] / SPEED_MPS)]
-        rel = pos - pos[idx]
-        d2 = np.einsum("kd,kd->k", rel, rel)
-        d2[idx] = np.inf
-        near = np.argsort(d2, kind="stable")[: self.n_nearest]
-        near = near[np.isfinite(d2[near])]
-        out[1:1 + len(near)] = np.column_stack([np.ones(len(near)), rel[near] / LENGTH_M,
+        near = nearest_indices(pos, idx, self.n_nearest)
+        out[1:1 + len(near)] = np.column_stack([np.ones(len(near)), (pos[near] - pos[idx]) / LENGTH_M,
                                                 (vel[near] - vel[idx]) / SPEED_MPS])
         return out
 

@@ -45,6 +45,7 @@ from corridor.errors import CorridorError
 from corridor.objective import Expression, value, violations
 from corridor.run import ScratchRun, event_counts
 from corridor.scenario import load
+from corridor.snapshot import nearest_indices
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 FEATURES = 7  # presence, x, y, z, vx, vy, vz
@@ -128,10 +129,8 @@ class _Episode:
             return out
         pos, vel = np.asarray(s.position, float), np.asarray(s.velocity, float)
         out[0] = np.concatenate([[1.0], pos[idx], vel[idx]])
-        others = np.array([k for k in range(len(s.ids)) if k != idx], int)
-        if others.size:
-            rel = pos[others] - pos[idx]
-            near = others[np.argsort(np.einsum("kd,kd->k", rel, rel), kind="stable")[: self.n_nearest]]
+        near = nearest_indices(pos, idx, self.n_nearest)
+        if near.size:
             rows = np.column_stack([np.ones(len(near)), pos[near] - pos[idx], vel[near] - vel[idx]])
             out[1:1 + len(near)] = rows
         return np.clip(out, -BOUND, BOUND)

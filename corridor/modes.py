@@ -259,7 +259,7 @@ class HybridAutomaton:
         """The guard's outcome near boundary ``b``: the held draw's moved boundary, else g's sign."""
         group = b.draws_with or b.name
         pos = self._positive(b)
-        if not self._in_band(b, x, g, pos):
+        if not in_band(b, x, g, self.switching):
             self._held.pop(group, None)  # the band visit ended (or never began): deterministic
             return b.holds(g)
         eps = self._held.get(group)
@@ -270,10 +270,6 @@ class HybridAutomaton:
     @staticmethod
     def _positive(b: Boundary) -> list[str]:
         return [k for k, v in b.theta.items() if float(v) > 0.0]
-
-    def _in_band(self, b: Boundary, x: Any, g: float, pos: Sequence[str]) -> bool:
-        """Whether a log-scale shift of b's positive parameters within band x T flips the guard at ``x``."""
-        return in_band(b, x, g, self.switching)
 
     def _new_draw(self, b: Boundary, group: str, g: float, x: Any, pos: Sequence[str]) -> float:
         """Draw eps for ``group`` (held until the band is left) and queue its ``switch_draw`` event."""
@@ -315,7 +311,7 @@ class HybridAutomaton:
         """
         sw = self.switching
         pos = self._positive(b)
-        if sw is None or not self._in_band(b, x, g, pos):
+        if sw is None or not in_band(b, x, g, sw):
             return None
         temp, span = float(sw.temperature), sw.band * float(sw.temperature)  # type: ignore[arg-type]
         lo, hi = _scaled_g(b, x, pos, -span), _scaled_g(b, x, pos, span)

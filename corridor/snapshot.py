@@ -359,6 +359,19 @@ class WorldSnapshot:
         )
 
 
+def nearest_indices(pos: np.ndarray, idx: int, n: int) -> np.ndarray:
+    """Rows of the ``n`` entities nearest to row ``idx`` of ``pos``, nearest first, ties in row order.
+
+    Row ``idx`` itself and rows at a non-finite distance are left out.
+    """
+    rel = pos - pos[idx]
+    d2 = np.einsum("kd,kd->k", rel, rel)
+    d2[idx] = np.inf
+    near = np.argsort(d2, kind="stable")[:n]
+    out: np.ndarray = near[np.isfinite(d2[near])]
+    return out
+
+
 def fill_geometry(snapshots: Sequence[WorldSnapshot]) -> Geometry | None:
     """Derive the lazy geometry of many snapshots (a block of ticks) in one numpy pass.
 
