@@ -42,10 +42,23 @@ def svg(fig: Figure, cls: str) -> str:
     return f'<figure class="plot {html.escape(cls)}">{text}</figure>'
 
 
+SIDE_LEGEND_MAX = 16  # entries that fit beside a WIDE figure's axes; more go below it, in columns
+BELOW_COLUMNS, ROW_IN = 4, 0.16  # columns of a legend below the axes; [in] the figure grows per row
+
+
 def _legend(ax: object) -> None:
     handles, labels = ax.get_legend_handles_labels()  # type: ignore[attr-defined]
-    if labels:
+    if not labels:
+        return
+    if len(labels) <= SIDE_LEGEND_MAX:
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)  # type: ignore[attr-defined]
+        return
+    # a sweep's dozens of variants: beside the axes they squeeze them to nothing, so they go below
+    fig = ax.figure  # type: ignore[attr-defined]
+    width_in, height_in = fig.get_size_inches()
+    fig.set_size_inches(width_in, height_in + ROW_IN * math.ceil(len(labels) / BELOW_COLUMNS))
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=BELOW_COLUMNS,  # type: ignore[attr-defined]
+              frameon=False)
 
 
 def line_chart(series: Sequence[tuple[str, np.ndarray, np.ndarray]], title: str, x_label: str, y_label: str,
