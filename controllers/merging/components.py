@@ -4,7 +4,7 @@ times; connected vehicles follow energy-optimal trajectories to them, under a sa
 Per tick (period 0.1 s), in pipeline order:
 1. *communicate*: connected vehicles near the merge broadcast CAMs over the lossy, delayed channel;
    the RSU and every controlled vehicle update Kalman tracks (1-D: distance to the merge point)
-   from what arrived, all of a tick's messages in one stacked pass (``TrackPool``: filterpy's
+   from what arrived, all of a tick's messages in one compiled pass (``NodeTrackPool``: filterpy's
    equations, bit for bit); the RSU's sensors see human-driven vehicles with noise.
 2. *coordinate*: the RSU gives every vehicle in the control zone a crossing time of the conflict
    point (part-way along the acceleration lane, ``merge_point_frac``) by ``fifo`` or ``cps``
@@ -46,7 +46,8 @@ from typing import Any, ClassVar, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
+from corridor.addressed_channel import AddressedChannel
+from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -71,7 +72,7 @@ from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator
-from corridor.vehicles.tracks.pool import TrackPool
+from corridor.vehicles.tracks.node_pool import NodeTrackPool
 
 RSU = "rsu"
 _RAMP = int(Role.RAMP)  # a plain int: numpy compares an IntEnum member several times slower
@@ -80,6 +81,8 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
+# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], receiver node lists, contents (k, 2)
+_Cams = tuple[list[int], np.ndarray, list[list[int]], np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,7 +187,9 @@ class V2XMerging(Controller):
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
-        self.tracks: TrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
+        self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
+        self._sent_assignments: dict[int, Assignment] = {}  # in flight, by the reference its copy carries
+        self._n_refs = 0
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._senders: set[str] = set()
@@ -215,15 +220,17 @@ class V2XMerging(Controller):
         self._on_ramp_lane = np.zeros(0, dtype=bool)
         self._joins_lane = np.zeros(0, dtype=bool)
         self._merged_lane = np.zeros(0, dtype=bool)
-        # the age of information it reports is its own (of the states the coordinator used): the
-        # channel's per-pair bookkeeping is not kept
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
+        # every message names its receivers: the general channel's addressed sends as node arrays in
+        # compiled code (the same draws, copies and statistics, corridor.addressed_channel); the age of
+        # information it reports is its own (of the states the coordinator used)
+        self.channel = AddressedChannel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
+        self._rsu_node = self.channel.node(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
-        self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
-                                stale_after_s=self.p.stale_after_s)
+        self.tracks = NodeTrackPool(self.channel.index, process_noise=self.p.track_process_noise, meas_noise=0.5,
+                                    vel_noise=0.3, stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
 
@@ -237,7 +244,7 @@ class V2XMerging(Controller):
         zone, assignments = self._coordinate(ctx.t, state, target)
         # the tick's CAMs and the RSU's assignments in one send_many (the same draws, in the same
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
-        self.channel.send_many(ctx.t, cams + assignments)
+        self._send(ctx.t, cams, assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
         self._last_state = state  # the overlays' vehicle positions
 
@@ -306,7 +313,7 @@ class V2XMerging(Controller):
         self._joins_lane = np.concatenate([self._joins_lane, [lm.joins_mainline(n) for n in new]])
         self._merged_lane = np.concatenate([self._merged_lane, [lm.past_nose_mainline(n) for n in new]])
 
-    def _communicate(self, t: float, s: dict[str, Any]) -> list[tuple[str, Any, np.ndarray, list[str]]]:
+    def _communicate(self, t: float, s: dict[str, Any]) -> _Cams:
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
         when the channel's delay is never zero (none of them could be delivered in this tick)."""
         zone_len = self.p.coordinator.control_zone_m
@@ -326,7 +333,11 @@ class V2XMerging(Controller):
         pos = s["pos"]
         idx = np.flatnonzero(near)
         sel = [ids[k] for k in idx.tolist()]
-        self.channel.set_positions_arrays([RSU, *sel], np.vstack(([self.x_merge, self.y_rsu, 0.0], pos[idx])))
+        node = self.channel.node
+        sel_pos = np.zeros((len(idx) + 1, 3))  # [m] the RSU, then the senders (2-D positions: z = 0)
+        sel_pos[0, :2] = self.x_merge, self.y_rsu
+        sel_pos[1:, : pos.shape[1]] = pos[idx]
+        self.channel.set_positions(np.array([self._rsu_node, *map(node, sel)], dtype=np.int64), sel_pos)
         due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
         # a CAM's content that its receivers use, as one row each: [position on the merge axis
         # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
@@ -356,11 +367,13 @@ class V2XMerging(Controller):
                 if src != vid:
                     followers.setdefault(src, []).append(vid)
         # a multicast per CAM: the same draws as one unicast send per copy
-        cams = [(vid, z, p, [RSU, *followers.get(vid, ())])
-                for vid, z, p in zip([ids[k] for k in due.tolist()], cam_z, cam_pos, strict=True)]
+        index, rsu = self.channel.index, self._rsu_node
+        senders = [ids[k] for k in due.tolist()]
+        cams: _Cams = ([index[v] for v in senders], cam_pos,
+                       [[rsu, *[index.get(f, -1) for f in followers.get(v, ())]] for v in senders], cam_z)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
-            self.channel.send_many(t, cams)
-            cams = []
+            self._send(t, cams, [])
+            cams = ([], cam_pos[:0], [], cam_z[:0])
         for vid in sorted(self._senders - set(sel)):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
@@ -375,40 +388,61 @@ class V2XMerging(Controller):
         ids, conflict = s["ids"], (s["ramp"] | s["right"]) & ~s["merged"]
         return [ids[k] for k in idx.tolist() if conflict[k] and ids[k] not in ordered]
 
-    def _receive(self, t: float) -> None:
-        """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each
-        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
-        names = self.channel.node_names
-        cams: list[Any] = []  # the batches of CAMs (payload: a row [position, speed], see _communicate)
-        assignments: list[tuple[float, int, str, Assignment]] = []
-        for b in self.channel.deliver_indexed(t):
-            if type(b.payload) is Assignment:
-                assignments.extend((tr, b.seq, names[di], b.payload)
-                                   for di, tr in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True))
-            else:
-                cams.append(b)
-        assignments.sort(key=lambda c: (c[0], c[1]))
-        for tr, _, dst, m in assignments:  # a vehicle keeps the last one delivered
-            self.assigned[dst] = (tr, m)
-        if cams:
-            self._fuse_cams(cams, names)
-
-    def _fuse_cams(self, batches: list[Any], names: list[str]) -> None:
-        """The copies of the CAM batches that their receivers track, fused in delivery order
-        ((t_recv, send order) per copy; a batch's copies in their order)."""
-        rx, listen = set(self.tracks.receivers), self._listen  # _tracks_sender, inlined: one test per copy
-        kept: list[tuple[float, int, str, str, float, np.ndarray]] = []  # (t_recv, seq, dst, src, t_sent, z)
-        for b in batches:  # a tick's few dozen copies: Python, not a dozen numpy calls
-            src, seq, t_sent, z = b.src, b.seq, b.t_sent_s, b.payload
-            for di, tr in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
-                d = names[di]
-                if d in rx and (d == RSU or src in listen.get(d, ())):
-                    kept.append((tr, seq, d, src, t_sent, z))
-        if not kept:
+    def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
+        """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
+        draws, in the same order, as one send each. An assignment travels as a reference
+        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
+        src, cam_pos, dsts, cam_z = cams
+        n_a = len(assignments)
+        if not src and not n_a:
             return
-        kept.sort(key=_recv_order)  # stable: ties keep the batch's copy order
-        self.tracks.fuse([c[2] for c in kept], [c[3] for c in kept], np.array([c[4] for c in kept]),
-                         np.array([c[5] for c in kept]))
+        index = self.channel.index
+        refs = []
+        for _, a, _, _ in assignments:
+            refs.append(self._n_refs)
+            self._sent_assignments[self._n_refs] = a
+            self._n_refs += 1
+        lists = [*dsts, *([index.get(vid, -1)] for _, _, _, vid in assignments)]
+        ptr = np.zeros(len(lists) + 1, dtype=np.int64)
+        np.cumsum([len(d) for d in lists], out=ptr[1:])
+        dst = np.fromiter((j for d in lists for j in d), dtype=np.int64, count=int(ptr[-1]))
+        pos = np.vstack([cam_pos, *(a[2] for a in assignments)]) if n_a else cam_pos
+        val = np.zeros((len(lists), 2))
+        val[: len(src)] = cam_z
+        ref = np.full(len(lists), -1, dtype=np.int64)
+        ref[len(src):] = refs
+        self.channel.send(t, np.array([*src, *[self._rsu_node] * n_a], dtype=np.int64), pos, ptr, dst, val, ref)
+
+    def _receive(self, t: float) -> None:
+        """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
+        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
+        d = self.channel.deliver(t)
+        self._forget_sent(t)
+        if not len(d):
+            return
+        is_a = d.ref >= 0
+        if is_a.any():
+            names, sent = self.channel.names, self._sent_assignments
+            k = np.flatnonzero(is_a).tolist()
+            assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
+                                     d.ref[k].tolist(), strict=True), key=_recv_order)
+            for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
+                self.assigned[names[dst]] = (tr, sent[ref])
+        index = self.channel.index
+        keys = sorted((index[v] << 32) | index[src] for v, srcs in self._listen.items() if v in index
+                      for src in srcs if src in index)  # (receiver, sender) pairs of the vehicles' tracks
+        self.tracks.fuse_delivered(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
+                                   np.array(keys, dtype=np.int64))
+
+    def _forget_sent(self, t: float) -> None:
+        """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the
+        channel's largest delay)."""
+        sent, horizon = self._sent_assignments, t - self.chan_cfg.latency_s - self.chan_cfg.jitter_s - 1.0
+        while sent:
+            ref = next(iter(sent))
+            if sent[ref].t_sent_s >= horizon:
+                break
+            del sent[ref]
 
     def _tracks_sender(self, dst: str, src: str) -> bool:
         """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
