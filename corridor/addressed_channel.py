@@ -129,27 +129,35 @@ def _draw_and_enqueue(t_s: float, t_base: float, jitter_s: float, loss: np.ndarr
     return n_fl, seq, n_lost, n_late, n_over
 
 
-_DELIVER_SIG = "i8(f8, b1[:], i8, i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], b1[:])"
+_DELIVER_SIG = ("i8(f8, b1[:], i8, i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8[:], i8[:], i8[:], f8[:], "
+                "f8[:], f8[:, :], i8[:])")
 
 
 @njit(_DELIVER_SIG, cache=True)
-def _split_due(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q_src: np.ndarray,
-               q_dst: np.ndarray, q_t_sent: np.ndarray, q_t_recv: np.ndarray, q_val: np.ndarray,
-               q_ref: np.ndarray, due: np.ndarray) -> int:
-    """Flag the due copies (``t_recv <= t_due`` and the receiver attached) in ``due`` and compact the
-    queue to the copies still in flight (receiver attached, not due), keeping their order. Returns
-    their count."""
-    k = 0
+def _pop_due(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q_src: np.ndarray,
+             q_dst: np.ndarray, q_t_sent: np.ndarray, q_t_recv: np.ndarray, q_val: np.ndarray, q_ref: np.ndarray,
+             o_seq: np.ndarray, o_src: np.ndarray, o_dst: np.ndarray, o_t_sent: np.ndarray, o_t_recv: np.ndarray,
+             o_val: np.ndarray, o_ref: np.ndarray) -> int:
+    """Move the due copies (``t_recv <= t_due``, the receiver attached) to ``o_*`` and compact the queue
+    to the copies still in flight (receiver attached, not due), both in their order; the others are
+    dropped. Returns the number of due copies (the queue's count is written to ``o_seq[-1]``)."""
+    k = n_due = 0
     for i in range(n_fl):
-        live = attached[q_dst[i]]
-        due[i] = live and q_t_recv[i] <= t_due
-        if live and not due[i]:
-            if k != i:
-                q_seq[k], q_src[k], q_dst[k] = q_seq[i], q_src[i], q_dst[i]
-                q_t_sent[k], q_t_recv[k] = q_t_sent[i], q_t_recv[i]
-                q_val[k, 0], q_val[k, 1], q_ref[k] = q_val[i, 0], q_val[i, 1], q_ref[i]
-            k += 1
-    return k
+        if not attached[q_dst[i]]:
+            continue
+        if q_t_recv[i] <= t_due:
+            o_seq[n_due], o_src[n_due], o_dst[n_due] = q_seq[i], q_src[i], q_dst[i]
+            o_t_sent[n_due], o_t_recv[n_due] = q_t_sent[i], q_t_recv[i]
+            o_val[n_due, 0], o_val[n_due, 1], o_ref[n_due] = q_val[i, 0], q_val[i, 1], q_ref[i]
+            n_due += 1
+            continue
+        if k != i:
+            q_seq[k], q_src[k], q_dst[k] = q_seq[i], q_src[i], q_dst[i]
+            q_t_sent[k], q_t_recv[k] = q_t_sent[i], q_t_recv[i]
+            q_val[k, 0], q_val[k, 1], q_ref[k] = q_val[i, 0], q_val[i, 1], q_ref[i]
+        k += 1
+    o_seq[o_seq.shape[0] - 1] = k
+    return n_due
 
 
 class Delivered:
@@ -188,6 +196,7 @@ class AddressedChannel:
         self._seq = 0
         self._n = 0  # copies in flight: the first _n rows of the queue
         self._q = _queue(64)
+        self._out = _queue(64)  # the latest delivery (and, last, the queue's count after it)
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
 
     # -- nodes, membership, positions ----------------------------------------------------------
@@ -250,17 +259,16 @@ class AddressedChannel:
 
     def deliver(self, t_s: float) -> Delivered:
         """Pop every copy with ``t_recv <= t_s`` (1e-9 s tolerance) to an attached receiver, in send
-        order (a message's copies in their listed order); copies to detached receivers are dropped."""
+        order (a message's copies in their listed order); copies to detached receivers are dropped.
+        The arrays are views of the channel's buffers, valid until the next ``deliver``."""
         n = self._n
-        q = self._q
-        if n == 0:
-            return Delivered(*(a[:0].copy() for a in q))
-        snap = tuple(a[:n].copy() for a in q)
-        due = np.empty(n, dtype=bool)
-        self._n = _split_due(t_s + _T_EPS_S, self._attached, n, *q, due)
-        out = Delivered(*(a[due] for a in snap))
-        self._n_delivered += len(out)
-        return out
+        if n + 1 > self._out[0].shape[0]:
+            self._out = _queue(2 * (n + 1))
+        out = self._out
+        n_due = _pop_due(t_s + _T_EPS_S, self._attached, n, *self._q, *out) if n else 0
+        self._n = int(out[0][-1]) if n else 0
+        self._n_delivered += n_due
+        return Delivered(*(a[:n_due] for a in out))
 
     @property
     def in_flight(self) -> int:

@@ -21,17 +21,26 @@ from numba import njit
 from corridor.vehicles.tracks.cv_kernel import _inv2, _mm, _mv
 from corridor.vehicles.tracks.stack import cv_terms
 
-_SELECT_SIG = "i8(i8[:], i8[:], f8[:], i8[:], i8, i8[:], i8[:], i8[:])"
+_ROWS_SIG = ("UniTuple(i8, 2)(i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8, i8[:], i8[:], i8, i8[:, :], "
+             "f8[:, :], f8[:, :], f8[:, :, :], f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], f8[:], b1[:])")
 
 
-@njit(_SELECT_SIG, cache=True)
-def _select(src: np.ndarray, dst: np.ndarray, t_recv: np.ndarray, ref: np.ndarray, rsu: int,
-            slot_of: np.ndarray, listen_keys: np.ndarray, out: np.ndarray) -> int:
-    """The copies (indices) that are measurements (``ref < 0``) for a receiver with a slot, which the
-    roadside unit ``rsu`` always tracks and a vehicle only where ``dst << 32 | src`` is in the sorted
-    ``listen_keys``; stably ordered by arrival (the copies come in send order). Returns their count."""
-    n = 0
+@njit(_ROWS_SIG, cache=True)
+def _select_rows(src: np.ndarray, dst: np.ndarray, t_sent: np.ndarray, t_recv: np.ndarray, z: np.ndarray,
+                 ref: np.ndarray, rsu: int, slot_of: np.ndarray, listen_keys: np.ndarray, n_free: int,
+                 row_of: np.ndarray, r: np.ndarray, x: np.ndarray, p: np.ndarray, t_row: np.ndarray,
+                 row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray, upd_row: np.ndarray,
+                 upd_z: np.ndarray, upd_dt: np.ndarray, ahead: np.ndarray) -> tuple[int, int]:
+    """The delivered copies that are measurements (``ref < 0``) for a receiver with a slot (the roadside
+    unit ``rsu`` tracks every sender, a vehicle only where ``dst << 32 | src`` is in the sorted
+    ``listen_keys``), stably ordered by arrival (the copies come in send order), then per copy in that
+    order: start the pair's track (state = the measurement, covariance ``r``), or list it as an update
+    (its row, measurement and interval ``upd_dt`` [s]; ``ahead``: > 0) when not older than the track,
+    moving the track's time on (``TrackPool.fuse``). ``free[:n_free]``: the free rows, taken from the end
+    (enough for every new pair). Returns (updates, free rows left)."""
     n_nodes = slot_of.shape[0]
+    sel = np.empty(src.shape[0], dtype=np.int64)
+    n = 0
     for i in range(src.shape[0]):
         d = dst[i]
         if ref[i] >= 0 or d >= n_nodes or slot_of[d] < 0:
@@ -41,32 +50,13 @@ def _select(src: np.ndarray, dst: np.ndarray, t_recv: np.ndarray, ref: np.ndarra
             k = np.searchsorted(listen_keys, key)
             if k >= listen_keys.shape[0] or listen_keys[k] != key:
                 continue
-        out[n] = i
+        sel[n] = i
         n += 1
+    sel = sel[:n]
     if n > 1:
-        order = np.argsort(t_recv[out[:n]], kind="mergesort")  # stable: ties keep the send order
-        out[:n] = out[:n][order]
-    return n
-
-
-_ROWS_SIG = ("i8(i8[:], i8, i8[:], i8[:], f8[:], f8[:, :], i8[:], i8[:, :], f8[:, :], f8[:, :], f8[:, :, :], "
-             "f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], i8[:], f8[:], b1[:])")
-
-
-@njit(_ROWS_SIG, cache=True)
-def _assign_rows(sel: np.ndarray, n_free: int, src: np.ndarray, dst: np.ndarray, t_sent: np.ndarray,
-                 z: np.ndarray, slot_of: np.ndarray, row_of: np.ndarray, r: np.ndarray, x: np.ndarray,
-                 p: np.ndarray, t_row: np.ndarray, row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray,
-                 upd_row: np.ndarray, upd_z: np.ndarray, upd_i: np.ndarray, upd_dt: np.ndarray,
-                 ahead: np.ndarray) -> int:
-    """Per selected copy in order: start the pair's track, or list it as an update (its row, the copy
-    and its interval ``upd_dt`` [s]; ``ahead``: > 0) when not older than the track, moving the track's
-    time on (``TrackPool.fuse``). ``free[:n_free]``: the free rows, taken from the end; ``n_free``
-    must cover every new pair. Returns the number of updates (``upd_z`` their measurements);
-    ``n_free`` left is written to ``upd_i[-1]``."""
+        sel = sel[np.argsort(t_recv[sel], kind="mergesort")]  # stable: ties keep the send order
     m = 0
-    for k in range(sel.shape[0]):
-        i = sel[k]
+    for i in sel:
         s = slot_of[dst[i]]
         row = row_of[s, src[i]]
         t = t_sent[i]
@@ -82,12 +72,11 @@ def _assign_rows(sel: np.ndarray, n_free: int, src: np.ndarray, dst: np.ndarray,
         if t < t_row[row]:
             continue  # older than the track: rejected
         dt = t - t_row[row]
-        upd_row[m], upd_i[m], upd_dt[m], ahead[m] = row, i, dt, dt > 0.0
+        upd_row[m], upd_dt[m], ahead[m] = row, dt, dt > 0.0
         upd_z[m, 0], upd_z[m, 1] = z[i, 0], z[i, 1]
         t_row[row] = t
         m += 1
-    upd_i[upd_i.shape[0] - 1] = n_free
-    return m
+    return m, n_free
 
 
 _FUSE_SIG = "void(i8[:], f8[:, :], f8[:, :, :], b1[:], f8[:], f8[:], f8[:], f8[:], f8[:, :], f8[:, :])"
@@ -172,6 +161,9 @@ class NodeTrackPool:
         self._free = np.zeros(0, dtype=np.int64)
         self._n_free = 0
         self._grow_rows(64)
+        # per fuse: the updates (row, measurement, interval [s], interval > 0), in order
+        self._upd_row, self._upd_z = np.empty(64, dtype=np.int64), np.empty((64, 2))
+        self._upd_dt, self._ahead = np.empty(64), np.empty(64, dtype=bool)
 
     # -- receivers ------------------------------------------------------------------------------
     def add_receiver(self, rx: str) -> None:
@@ -232,29 +224,26 @@ class NodeTrackPool:
                        z: np.ndarray, ref: np.ndarray, rsu: int, listen_keys: np.ndarray) -> None:
         """Fuse the delivered copies (node indices ``src`` -> ``dst``, measurements ``z`` (k, 2) taken at
         ``t_sent_s``, arriving at ``t_recv_s``, in send order) that are measurements (``ref < 0``) the
-        receiver tracks (see :func:`_select`), in the order (arrival, send order)."""
+        receiver tracks (see :func:`_select_rows`), in the order (arrival, send order)."""
         k = src.shape[0]
         if k == 0:
             return
-        sel = np.empty(k, dtype=np.int64)
-        n = _select(src, dst, t_recv_s, ref, rsu, self._slot_of, listen_keys, sel)
-        if n == 0:
-            return
-        sel = sel[:n]
-        if self._row_of.shape[1] <= int(src.max()):
-            self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * int(src.max()) + 2)
-        if self._n_free < n:
-            self._grow_rows(max(2 * self._cap, self._cap + n))
-        rows, zu = np.empty(n, dtype=np.int64), np.empty((n, 2))
-        idx, dt, ahead = np.empty(n + 1, dtype=np.int64), np.empty(n), np.empty(n, dtype=bool)
-        m = _assign_rows(sel, self._n_free, src, dst, t_sent_s, z, self._slot_of, self._row_of, self._r, self.x,
-                         self.P, self.t_s, self._row_slot, self._row_src, self._free, rows, zu, idx, dt, ahead)
-        self._n_free = int(idx[n])
+        if self._row_of.shape[1] < len(self.index):  # a column per node the channel knows
+            self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * len(self.index))
+        if self._n_free < k:
+            self._grow_rows(max(2 * self._cap, self._cap + k))
+        if self._upd_row.shape[0] < k:
+            self._upd_row, self._upd_z = np.empty(2 * k, dtype=np.int64), np.empty((2 * k, 2))
+            self._upd_dt, self._ahead = np.empty(2 * k), np.empty(2 * k, dtype=bool)
+        m, self._n_free = _select_rows(src, dst, t_sent_s, t_recv_s, z, ref, rsu, self._slot_of, listen_keys,
+                                       self._n_free, self._row_of, self._r, self.x, self.P, self.t_s, self._row_slot,
+                                       self._row_src, self._free, self._upd_row, self._upd_z, self._upd_dt,
+                                       self._ahead)
         if m == 0:
             return
-        ahead = ahead[:m]
-        d, q11, q12, q22 = cv_terms(dt[:m][ahead], self.q)  # numpy, as TrackPool's cv_fuse computes them
-        _fuse_rows(rows[:m], self.x, self.P, ahead, d, q11, q12, q22, zu[:m], self._r)
+        ahead = self._ahead[:m]
+        d, q11, q12, q22 = cv_terms(self._upd_dt[:m][ahead], self.q)  # numpy, as TrackPool's cv_fuse computes them
+        _fuse_rows(self._upd_row[:m], self.x, self.P, ahead, d, q11, q12, q22, self._upd_z[:m], self._r)
 
     def drop_stale(self, t_s: float) -> None:
         """Forget every track whose newest measurement is older than ``stale_after_s``."""
