@@ -212,7 +212,8 @@ class AddressedChannel:
 
     def attach(self, name: str) -> None:
         """Make ``name`` receive the copies addressed to it (idempotent)."""
-        self._attached[self.node(name)] = True
+        i = self.node(name)  # first: registering may grow the arrays
+        self._attached[i] = True
 
     def detach(self, name: str) -> None:
         """Stop delivering to ``name`` (its copies in flight are discarded at the next delivery)."""

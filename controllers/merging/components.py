@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import accumulate
 from operator import itemgetter
 from typing import Any, ClassVar, Literal
 
@@ -81,8 +82,9 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
-# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], receiver node lists, contents (k, 2)
-_Cams = tuple[list[int], np.ndarray, list[list[int]], np.ndarray]
+# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], the receiver nodes of all of them
+# (the RSU, then the sender's followers, sender by sender), their count per sender, contents (k, 2)
+_Cams = tuple[list[int], np.ndarray, list[int], list[int], np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -190,6 +192,7 @@ class V2XMerging(Controller):
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
         self._sent_assignments: dict[int, Assignment] = {}  # in flight, by the reference its copy carries
         self._n_refs = 0
+        self._listen_keys = np.zeros(0, dtype=np.int64)  # see _communicate
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._senders: set[str] = set()
@@ -351,6 +354,8 @@ class V2XMerging(Controller):
         # more than a re-sequencing can shift), so a new predecessor is already tracked.
         followers: dict[str, list[str]] = {}
         self._listen = {}
+        index, rsu = self.channel.index, self._rsu_node
+        keys: list[int] = []  # the vehicles' (receiver node << 32 | sender node) pairs, for the fuse
         order = self.coord.sequence
         # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
         # have heard it already (a CAM is a broadcast), so every ordered vehicle also listens to the
@@ -360,20 +365,29 @@ class V2XMerging(Controller):
             if vid not in self.tracks:
                 continue
             ahead = order[max(0, pos_ - self._listen_depth): pos_]
-            self._listen[vid] = set(ahead).union(newcomers)
+            listen = self._listen[vid] = set(ahead).union(newcomers)
+            rx = index[vid] << 32  # a receiver is attached, so the channel knows it
+            keys.extend([rx | index[src] for src in listen if src in index])
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
             for src in newcomers:
                 if src != vid:
                     followers.setdefault(src, []).append(vid)
+        keys.sort()
+        self._listen_keys = np.array(keys, dtype=np.int64)
         # a multicast per CAM: the same draws as one unicast send per copy
-        index, rsu = self.channel.index, self._rsu_node
         senders = [ids[k] for k in due.tolist()]
-        cams: _Cams = ([index[v] for v in senders], cam_pos,
-                       [[rsu, *[index.get(f, -1) for f in followers.get(v, ())]] for v in senders], cam_z)
+        receivers: list[int] = []
+        counts: list[int] = []
+        for v in senders:
+            fol = followers.get(v, ())
+            receivers.append(rsu)
+            receivers.extend([index.get(f, -1) for f in fol])
+            counts.append(1 + len(fol))
+        cams: _Cams = ([index[v] for v in senders], cam_pos, receivers, counts, cam_z)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
-            cams = ([], cam_pos[:0], [], cam_z[:0])
+            cams = ([], cam_pos[:0], [], [], cam_z[:0])
         for vid in sorted(self._senders - set(sel)):  # out of the area: forget it (stats, age of information)
             self.channel.detach(vid)
         self._senders = set(sel)
@@ -392,26 +406,29 @@ class V2XMerging(Controller):
         """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
         draws, in the same order, as one send each. An assignment travels as a reference
         (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
-        src, cam_pos, dsts, cam_z = cams
-        n_a = len(assignments)
-        if not src and not n_a:
+        src, pos, receivers, counts, cam_z = cams
+        n_c, n_a = len(src), len(assignments)
+        if not n_c and not n_a:
             return
-        index = self.channel.index
-        refs = []
-        for _, a, _, _ in assignments:
-            refs.append(self._n_refs)
-            self._sent_assignments[self._n_refs] = a
-            self._n_refs += 1
-        lists = [*dsts, *([index.get(vid, -1)] for _, _, _, vid in assignments)]
-        ptr = np.zeros(len(lists) + 1, dtype=np.int64)
-        np.cumsum([len(d) for d in lists], out=ptr[1:])
-        dst = np.fromiter((j for d in lists for j in d), dtype=np.int64, count=int(ptr[-1]))
-        pos = np.vstack([cam_pos, *(a[2] for a in assignments)]) if n_a else cam_pos
-        val = np.zeros((len(lists), 2))
-        val[: len(src)] = cam_z
-        ref = np.full(len(lists), -1, dtype=np.int64)
-        ref[len(src):] = refs
-        self.channel.send(t, np.array([*src, *[self._rsu_node] * n_a], dtype=np.int64), pos, ptr, dst, val, ref)
+        r0 = self._n_refs
+        if n_a:
+            index, sent = self.channel.index, self._sent_assignments
+            for r, a in enumerate(assignments, start=r0):
+                sent[r] = a[1]
+            self._n_refs += n_a
+            src = [*src, *[self._rsu_node] * n_a]
+            pos = np.empty((n_c + n_a, 3))
+            pos[:n_c] = cams[1]
+            rsu_pos = assignments[0][2]
+            pos[n_c:] = rsu_pos if all(a[2] is rsu_pos for a in assignments) else [a[2] for a in assignments]
+            receivers = [*receivers, *[index.get(a[3], -1) for a in assignments]]
+            counts = [*counts, *[1] * n_a]
+        ptr = np.array([0, *accumulate(counts)], dtype=np.int64)
+        val = np.zeros((n_c + n_a, 2))
+        val[:n_c] = cam_z
+        ref = np.full(n_c + n_a, -1, dtype=np.int64)
+        ref[n_c:] = range(r0, r0 + n_a)
+        self.channel.send(t, np.array(src, dtype=np.int64), pos, ptr, np.array(receivers, dtype=np.int64), val, ref)
 
     def _receive(self, t: float) -> None:
         """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
@@ -428,11 +445,8 @@ class V2XMerging(Controller):
                                      d.ref[k].tolist(), strict=True), key=_recv_order)
             for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
                 self.assigned[names[dst]] = (tr, sent[ref])
-        index = self.channel.index
-        keys = sorted((index[v] << 32) | index[src] for v, srcs in self._listen.items() if v in index
-                      for src in srcs if src in index)  # (receiver, sender) pairs of the vehicles' tracks
         self.tracks.fuse_delivered(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
-                                   np.array(keys, dtype=np.int64))
+                                   self._listen_keys)
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the

@@ -13,7 +13,7 @@ import pytest
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import BernoulliLoss, Channel, ChannelConfig, GilbertElliottLoss
 
-NAMES = ["rsu", *[f"v{i}" for i in range(12)]]
+NAMES = ["rsu", *[f"v{i}" for i in range(40)]]  # more than the channel's first 16 node slots
 
 
 def _random_tick(rng: np.random.Generator, t: float) -> tuple[list[str], np.ndarray, list[tuple[str, np.ndarray, list[str]]]]:
@@ -87,3 +87,17 @@ def test_addressed_channel_equals_the_general_channel(loss: Any, latency_s: floa
         assert st_ref.dropped_overflow > 0
     if t_end_s < 29.97:
         assert st_ref.dropped_after_end > 0
+
+
+def test_attach_beyond_the_first_node_slots() -> None:
+    """Attaching a node the channel has not seen grows its arrays first (then marks it attached)."""
+    ch = AddressedChannel(ChannelConfig(latency_s=0.02, jitter_s=0.0), np.random.default_rng(0))
+    names = [f"n{i}" for i in range(40)]
+    for n in names:
+        ch.attach(n)
+    ptr = np.array([0, len(names)], dtype=np.int64)
+    dst = np.array([ch.index[n] for n in names], dtype=np.int64)
+    ch.send(0.0, np.array([ch.node("sender")], dtype=np.int64), np.zeros((1, 3)), ptr, dst, np.zeros((1, 2)),
+            np.array([-1], dtype=np.int64))
+    got = ch.deliver(0.1)
+    assert [ch.names[d] for d in got.dst.tolist()] == names
