@@ -195,7 +195,6 @@ class V2XMerging(Controller):
         self._listen_keys = np.zeros(0, dtype=np.int64)  # see _communicate
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
-        self._senders: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
         self.stale_releases = 0
         self.commands_sent = 0
@@ -388,9 +387,6 @@ class V2XMerging(Controller):
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
             cams = ([], cam_pos[:0], [], [], cam_z[:0])
-        for vid in sorted(self._senders - set(sel)):  # out of the area: forget it (stats, age of information)
-            self.channel.detach(vid)
-        self._senders = set(sel)
         self._receive(t)
         self.tracks.drop_stale(t)
         return cams
@@ -475,6 +471,7 @@ class V2XMerging(Controller):
         predict, connected = self.tracks.predict_one, s["connected"].tolist()
         zone: list[ZoneVehicle] = []
         index: dict[str, int] = {}
+        ages: list[float] = []  # [s] of the RSU's tracks of the zone's vehicles (those it tracks: connected)
         for k in cand:
             vid = ids[k]
             if connected[k]:
@@ -482,6 +479,7 @@ class V2XMerging(Controller):
                 if est is None:
                     continue  # the RSU has not heard from it (yet): not coordinated
                 d, v = -est[0], max(est[1], 0.1)
+                ages.append(est[2])  # t - its newest CAM's send time (never negative)
             else:
                 d = float(dist[k] + self.sensor_rng.normal(0, self.p.sensor_noise_m))
                 v = float(max(speed[k] + self.sensor_rng.normal(0, self.p.sensor_noise_mps), 0.1))
@@ -496,12 +494,10 @@ class V2XMerging(Controller):
                 self.entered[vid] = earliest
             zone.append(ZoneVehicle(vid, "ramp" if s["ramp"][k] else "main", d, v, earliest, self.entered[vid]))
             index[vid] = k
-        for z in zone:  # age of information at the RSU, sampled per tick over coordinated vehicles
-            if self.tracks.has_track(RSU, z.id):
-                age = t - self.tracks.last_update_s(RSU, z.id)
-                self._aoi_sum += age
-                self._aoi_n += 1
-                self._aoi_max = max(self._aoi_max, age)
+        for age in ages:  # age of information at the RSU, sampled per tick over coordinated vehicles
+            self._aoi_sum += age
+            self._aoi_n += 1
+            self._aoi_max = max(self._aoi_max, age)
         # vehicles of the sequence that reached the merge point since the last call anchor the next
         # headway at their measured crossing time; the others left the conflict (lane change)
         row = s["row"]
