@@ -339,7 +339,9 @@ class V2XMerging(Controller):
         sel_pos = np.zeros((len(idx) + 1, 3))  # [m] the RSU, then the senders (2-D positions: z = 0)
         sel_pos[0, :2] = self.x_merge, self.y_rsu
         sel_pos[1:, : pos.shape[1]] = pos[idx]
-        self.channel.set_positions(np.array([self._rsu_node, *map(node, sel)], dtype=np.int64), sel_pos)
+        index = self.channel.index
+        nodes = np.array([self._rsu_node, *[index[v] if v in index else node(v) for v in sel]], dtype=np.int64)
+        self.channel.set_positions(nodes, sel_pos)
         due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
         # a CAM's content that its receivers use, as one row each: [position on the merge axis
         # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
@@ -353,7 +355,7 @@ class V2XMerging(Controller):
         # more than a re-sequencing can shift), so a new predecessor is already tracked.
         followers: dict[str, list[str]] = {}
         self._listen = {}
-        index, rsu = self.channel.index, self._rsu_node
+        rsu = self._rsu_node
         keys: list[int] = []  # the vehicles' (receiver node << 32 | sender node) pairs, for the fuse
         order = self.coord.sequence
         # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
