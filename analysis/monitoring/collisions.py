@@ -76,9 +76,14 @@ class CollisionMonitor(Component):
                     self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
         if len(s) < 2 or (s.role is self._plain[0] and s.kind is self._plain[1]):
             return  # the same (read-only) role and kind arrays as a tick that had no special row
-        if np.maximum.reduce(s.role) < _CONTROLLED and np.maximum.reduce(s.kind) <= _TRUCK:
+        cars = np.maximum.reduce(s.kind) <= _TRUCK  # every row a car or a truck (codes 0 and 1)
+        if cars and np.maximum.reduce(s.role) < _CONTROLLED:
             self._plain = (s.role, s.kind)
             return  # only backend-driven road vehicles: their backend reports collisions
+        road = s.road
+        if cars and road is not None and road.posed == frozenset() and road.offset == 0 and len(road) == len(s):
+            return  # every row a lane-driven road vehicle, none posed (a V2X run's speed-commanded ones, the
+            #   special rows below are none): their backend reports collisions
         special = np.flatnonzero(self._posed_rows(s) | ((s.kind != _CAR) & (s.kind != _TRUCK)))
         if not len(special):
             return  # only lane-driven road vehicles (some speed-commanded): their backend reports collisions

@@ -4,7 +4,7 @@ times; connected vehicles follow energy-optimal trajectories to them, under a sa
 Per tick (period 0.1 s), in pipeline order:
 1. *communicate*: connected vehicles near the merge broadcast CAMs over the lossy, delayed channel;
    the RSU and every controlled vehicle update Kalman tracks (1-D: distance to the merge point)
-   from what arrived, all of a tick's messages in one stacked pass (``TrackPool``: filterpy's
+   from what arrived, all of a tick's messages in one compiled pass (``NodeTrackPool``: filterpy's
    equations, bit for bit); the RSU's sensors see human-driven vehicles with noise.
 2. *coordinate*: the RSU gives every vehicle in the control zone a crossing time of the conflict
    point (part-way along the acceleration lane, ``merge_point_frac``) by ``fifo`` or ``cps``
@@ -40,13 +40,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import accumulate
 from operator import itemgetter
 from typing import Any, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from corridor.channel import DELIVERY_TOLERANCE_S, Channel, ChannelConfig
+from corridor.addressed_channel import AddressedChannel
+from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -71,7 +73,7 @@ from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
 from corridor.traffic.v2x import CamGenerator
-from corridor.vehicles.tracks.pool import TrackPool
+from corridor.vehicles.tracks.node_pool import NodeTrackPool
 
 RSU = "rsu"
 _RAMP = int(Role.RAMP)  # a plain int: numpy compares an IntEnum member several times slower
@@ -80,6 +82,9 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
+# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], the receiver nodes of all of them
+# (the RSU, then the sender's followers, sender by sender), their count per sender, contents (k, 2)
+_Cams = tuple[list[int], np.ndarray, list[int], list[int], np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -184,10 +189,12 @@ class V2XMerging(Controller):
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
-        self.tracks: TrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
+        self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
+        self._sent_assignments: dict[int, Assignment] = {}  # in flight, by the reference its copy carries
+        self._n_refs = 0
+        self._listen_keys = np.zeros(0, dtype=np.int64)  # see _communicate
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
-        self._senders: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
         self.stale_releases = 0
         self.commands_sent = 0
@@ -215,15 +222,17 @@ class V2XMerging(Controller):
         self._on_ramp_lane = np.zeros(0, dtype=bool)
         self._joins_lane = np.zeros(0, dtype=bool)
         self._merged_lane = np.zeros(0, dtype=bool)
-        # the age of information it reports is its own (of the states the coordinator used): the
-        # channel's per-pair bookkeeping is not kept
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
+        # every message names its receivers: the general channel's addressed sends as node arrays in
+        # compiled code (the same draws, copies and statistics, corridor.addressed_channel); the age of
+        # information it reports is its own (of the states the coordinator used)
+        self.channel = AddressedChannel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
+        self._rsu_node = self.channel.node(RSU)
         self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
-        self.tracks = TrackPool(dim=1, process_noise=self.p.track_process_noise, meas_noise=0.5, vel_noise=0.3,
-                                stale_after_s=self.p.stale_after_s)
+        self.tracks = NodeTrackPool(self.channel.index, process_noise=self.p.track_process_noise, meas_noise=0.5,
+                                    vel_noise=0.3, stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
 
@@ -237,7 +246,7 @@ class V2XMerging(Controller):
         zone, assignments = self._coordinate(ctx.t, state, target)
         # the tick's CAMs and the RSU's assignments in one send_many (the same draws, in the same
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
-        self.channel.send_many(ctx.t, cams + assignments)
+        self._send(ctx.t, cams, assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
         self._last_state = state  # the overlays' vehicle positions
 
@@ -306,7 +315,7 @@ class V2XMerging(Controller):
         self._joins_lane = np.concatenate([self._joins_lane, [lm.joins_mainline(n) for n in new]])
         self._merged_lane = np.concatenate([self._merged_lane, [lm.past_nose_mainline(n) for n in new]])
 
-    def _communicate(self, t: float, s: dict[str, Any]) -> list[tuple[str, Any, np.ndarray, list[str]]]:
+    def _communicate(self, t: float, s: dict[str, Any]) -> _Cams:
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
         when the channel's delay is never zero (none of them could be delivered in this tick)."""
         zone_len = self.p.coordinator.control_zone_m
@@ -326,7 +335,13 @@ class V2XMerging(Controller):
         pos = s["pos"]
         idx = np.flatnonzero(near)
         sel = [ids[k] for k in idx.tolist()]
-        self.channel.set_positions_arrays([RSU, *sel], np.vstack(([self.x_merge, self.y_rsu, 0.0], pos[idx])))
+        node = self.channel.node
+        sel_pos = np.zeros((len(idx) + 1, 3))  # [m] the RSU, then the senders (2-D positions: z = 0)
+        sel_pos[0, :2] = self.x_merge, self.y_rsu
+        sel_pos[1:, : pos.shape[1]] = pos[idx]
+        index = self.channel.index
+        nodes = np.array([self._rsu_node, *[index[v] if v in index else node(v) for v in sel]], dtype=np.int64)
+        self.channel.set_positions(nodes, sel_pos)
         due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
         # a CAM's content that its receivers use, as one row each: [position on the merge axis
         # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
@@ -340,6 +355,8 @@ class V2XMerging(Controller):
         # more than a re-sequencing can shift), so a new predecessor is already tracked.
         followers: dict[str, list[str]] = {}
         self._listen = {}
+        rsu = self._rsu_node
+        keys: list[int] = []  # the vehicles' (receiver node << 32 | sender node) pairs, for the fuse
         order = self.coord.sequence
         # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
         # have heard it already (a CAM is a broadcast), so every ordered vehicle also listens to the
@@ -349,21 +366,29 @@ class V2XMerging(Controller):
             if vid not in self.tracks:
                 continue
             ahead = order[max(0, pos_ - self._listen_depth): pos_]
-            self._listen[vid] = set(ahead).union(newcomers)
+            listen = self._listen[vid] = set(ahead).union(newcomers)
+            rx = index[vid] << 32  # a receiver is attached, so the channel knows it
+            keys.extend([rx | index[src] for src in listen if src in index])
             for src in ahead:
                 followers.setdefault(src, []).append(vid)
             for src in newcomers:
                 if src != vid:
                     followers.setdefault(src, []).append(vid)
+        keys.sort()
+        self._listen_keys = np.array(keys, dtype=np.int64)
         # a multicast per CAM: the same draws as one unicast send per copy
-        cams = [(vid, z, p, [RSU, *followers.get(vid, ())])
-                for vid, z, p in zip([ids[k] for k in due.tolist()], cam_z, cam_pos, strict=True)]
+        senders = [ids[k] for k in due.tolist()]
+        receivers: list[int] = []
+        counts: list[int] = []
+        for v in senders:
+            fol = followers.get(v, ())
+            receivers.append(rsu)
+            receivers.extend([index.get(f, -1) for f in fol])
+            counts.append(1 + len(fol))
+        cams: _Cams = ([index[v] for v in senders], cam_pos, receivers, counts, cam_z)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
-            self.channel.send_many(t, cams)
-            cams = []
-        for vid in sorted(self._senders - set(sel)):  # out of the area: forget it (stats, age of information)
-            self.channel.detach(vid)
-        self._senders = set(sel)
+            self._send(t, cams, [])
+            cams = ([], cam_pos[:0], [], [], cam_z[:0])
         self._receive(t)
         self.tracks.drop_stale(t)
         return cams
@@ -375,40 +400,61 @@ class V2XMerging(Controller):
         ids, conflict = s["ids"], (s["ramp"] | s["right"]) & ~s["merged"]
         return [ids[k] for k in idx.tolist() if conflict[k] and ids[k] not in ordered]
 
-    def _receive(self, t: float) -> None:
-        """Fuse the CAMs due now into the listeners' tracks (all in one stacked pass) and keep each
-        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
-        names = self.channel.node_names
-        cams: list[Any] = []  # the batches of CAMs (payload: a row [position, speed], see _communicate)
-        assignments: list[tuple[float, int, str, Assignment]] = []
-        for b in self.channel.deliver_indexed(t):
-            if type(b.payload) is Assignment:
-                assignments.extend((tr, b.seq, names[di], b.payload)
-                                   for di, tr in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True))
-            else:
-                cams.append(b)
-        assignments.sort(key=lambda c: (c[0], c[1]))
-        for tr, _, dst, m in assignments:  # a vehicle keeps the last one delivered
-            self.assigned[dst] = (tr, m)
-        if cams:
-            self._fuse_cams(cams, names)
-
-    def _fuse_cams(self, batches: list[Any], names: list[str]) -> None:
-        """The copies of the CAM batches that their receivers track, fused in delivery order
-        ((t_recv, send order) per copy; a batch's copies in their order)."""
-        rx, listen = set(self.tracks.receivers), self._listen  # _tracks_sender, inlined: one test per copy
-        kept: list[tuple[float, int, str, str, float, np.ndarray]] = []  # (t_recv, seq, dst, src, t_sent, z)
-        for b in batches:  # a tick's few dozen copies: Python, not a dozen numpy calls
-            src, seq, t_sent, z = b.src, b.seq, b.t_sent_s, b.payload
-            for di, tr in zip(b.dst_idx.tolist(), b.t_recv_s.tolist(), strict=True):
-                d = names[di]
-                if d in rx and (d == RSU or src in listen.get(d, ())):
-                    kept.append((tr, seq, d, src, t_sent, z))
-        if not kept:
+    def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
+        """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
+        draws, in the same order, as one send each. An assignment travels as a reference
+        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
+        src, pos, receivers, counts, cam_z = cams
+        n_c, n_a = len(src), len(assignments)
+        if not n_c and not n_a:
             return
-        kept.sort(key=_recv_order)  # stable: ties keep the batch's copy order
-        self.tracks.fuse([c[2] for c in kept], [c[3] for c in kept], np.array([c[4] for c in kept]),
-                         np.array([c[5] for c in kept]))
+        r0 = self._n_refs
+        if n_a:
+            index, sent = self.channel.index, self._sent_assignments
+            for r, a in enumerate(assignments, start=r0):
+                sent[r] = a[1]
+            self._n_refs += n_a
+            src = [*src, *[self._rsu_node] * n_a]
+            pos = np.empty((n_c + n_a, 3))
+            pos[:n_c] = cams[1]
+            rsu_pos = assignments[0][2]
+            pos[n_c:] = rsu_pos if all(a[2] is rsu_pos for a in assignments) else [a[2] for a in assignments]
+            receivers = [*receivers, *[index.get(a[3], -1) for a in assignments]]
+            counts = [*counts, *[1] * n_a]
+        ptr = np.array([0, *accumulate(counts)], dtype=np.int64)
+        val = np.zeros((n_c + n_a, 2))
+        val[:n_c] = cam_z
+        ref = np.full(n_c + n_a, -1, dtype=np.int64)
+        ref[n_c:] = range(r0, r0 + n_a)
+        self.channel.send(t, np.array(src, dtype=np.int64), pos, ptr, np.array(receivers, dtype=np.int64), val, ref)
+
+    def _receive(self, t: float) -> None:
+        """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
+        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
+        d = self.channel.deliver(t)
+        self._forget_sent(t)
+        if not len(d):
+            return
+        is_a = d.ref >= 0
+        if is_a.any():
+            names, sent = self.channel.names, self._sent_assignments
+            k = np.flatnonzero(is_a).tolist()
+            assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
+                                     d.ref[k].tolist(), strict=True), key=_recv_order)
+            for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
+                self.assigned[names[dst]] = (tr, sent[ref])
+        self.tracks.fuse_delivered(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
+                                   self._listen_keys)
+
+    def _forget_sent(self, t: float) -> None:
+        """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the
+        channel's largest delay)."""
+        sent, horizon = self._sent_assignments, t - self.chan_cfg.latency_s - self.chan_cfg.jitter_s - 1.0
+        while sent:
+            ref = next(iter(sent))
+            if sent[ref].t_sent_s >= horizon:
+                break
+            del sent[ref]
 
     def _tracks_sender(self, dst: str, src: str) -> bool:
         """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
@@ -427,6 +473,7 @@ class V2XMerging(Controller):
         predict, connected = self.tracks.predict_one, s["connected"].tolist()
         zone: list[ZoneVehicle] = []
         index: dict[str, int] = {}
+        ages: list[float] = []  # [s] of the RSU's tracks of the zone's vehicles (those it tracks: connected)
         for k in cand:
             vid = ids[k]
             if connected[k]:
@@ -434,6 +481,7 @@ class V2XMerging(Controller):
                 if est is None:
                     continue  # the RSU has not heard from it (yet): not coordinated
                 d, v = -est[0], max(est[1], 0.1)
+                ages.append(est[2])  # t - its newest CAM's send time (never negative)
             else:
                 d = float(dist[k] + self.sensor_rng.normal(0, self.p.sensor_noise_m))
                 v = float(max(speed[k] + self.sensor_rng.normal(0, self.p.sensor_noise_mps), 0.1))
@@ -448,12 +496,10 @@ class V2XMerging(Controller):
                 self.entered[vid] = earliest
             zone.append(ZoneVehicle(vid, "ramp" if s["ramp"][k] else "main", d, v, earliest, self.entered[vid]))
             index[vid] = k
-        for z in zone:  # age of information at the RSU, sampled per tick over coordinated vehicles
-            if self.tracks.has_track(RSU, z.id):
-                age = t - self.tracks.last_update_s(RSU, z.id)
-                self._aoi_sum += age
-                self._aoi_n += 1
-                self._aoi_max = max(self._aoi_max, age)
+        for age in ages:  # age of information at the RSU, sampled per tick over coordinated vehicles
+            self._aoi_sum += age
+            self._aoi_n += 1
+            self._aoi_max = max(self._aoi_max, age)
         # vehicles of the sequence that reached the merge point since the last call anchor the next
         # headway at their measured crossing time; the others left the conflict (lane change)
         row = s["row"]

@@ -1,0 +1,310 @@
+"""The :class:`~corridor.channel.Channel` of addressed messages, as arrays keyed by
+node index and handled in compiled code: what ``Channel.send_many`` does when every receiver is named
+(unicasts and multicasts), its in-flight queue and ``deliver_indexed``, without a Python object per
+message or per copy.
+
+A V2X merging tick sends a few dozen CAMs to the roadside unit and to the few vehicles behind each
+sender, and a few crossing-time assignments; the per-copy Python of the general channel (the copies
+found one by one, a batch object per message, the copies cut out of batches on delivery) was the
+largest part of that controller's CPU (docs/performance.md, "V2X merging: the floor").
+
+The model is the general channel's, copy for copy (module docstring of :mod:`corridor.channel`):
+the same copies in the same order (a receiver that is the sender, unknown or detached gets none; a
+receiver or sender without a known position, or a NaN position, is not range checked; the squared
+distance summed x, y, z in that order), one ``rng.random`` call per send for its ``n`` copies with the
+general channel's uniforms in its order (Bernoulli: per copy its loss, then its delay uniform, as
+``send_many``; Gilbert-Elliott: the same, then in range its link's transition uniform, as one ``send``
+per copy), the same loss, delay, end-of-run and overflow
+drops, the same send order (an entry with copies takes one), the copies delivered in send order and
+within a message in the listed order, a copy for a receiver detached meanwhile discarded, and the
+same statistics (:class:`~corridor.channel.ChannelStats`; no age of information: a consumer measures
+its own). ``tests/corridor/test_kernel_addressed_channel.py`` checks it against ``Channel`` on random
+sequences of sends, loss, positions, attach/detach and deliveries.
+
+A message's payload is two floats (``val``) and an integer reference (``ref``) that the channel carries
+unread; a consumer keeps whatever the reference stands for.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from corridor.channel import _T_EPS_S, BernoulliLoss, ChannelConfig, ChannelStats
+
+_COPIES_SIG = "i8(i8[:], f8[:, :], i8[:], i8[:], b1[:], b1[:], f8[:, :], f8, i8[:], i8[:], b1[:], i8[:])"
+
+
+@njit(_COPIES_SIG, cache=True)
+def _find_copies(src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray, attached: np.ndarray,
+                 known: np.ndarray, pos: np.ndarray, r2: float, entry_of: np.ndarray, dst_out: np.ndarray,
+                 near_out: np.ndarray, counts: np.ndarray) -> int:
+    """The copies of entries ``src`` (M,) at ``src_pos`` (M, 3) [m] to ``dst[ptr[e]:ptr[e + 1]]`` (node
+    indices, -1: unknown): per copy its entry, receiver and range flag (written from index 0); per
+    entry its count. Returns the number of copies (``Channel._send_addressed``'s loop)."""
+    n = 0
+    n_nodes = attached.shape[0]
+    for e in range(src.shape[0]):
+        si = src[e]
+        sx, sy, sz = src_pos[e, 0], src_pos[e, 1], src_pos[e, 2]
+        c = 0
+        for k in range(ptr[e], ptr[e + 1]):
+            j = dst[k]
+            if j < 0 or j >= n_nodes or j == si or not attached[j]:
+                continue
+            if known[j]:
+                dx, dy, dz = pos[j, 0] - sx, pos[j, 1] - sy, pos[j, 2] - sz
+                d2 = dx * dx + dy * dy + dz * dz
+                near = d2 != d2 or d2 <= r2  # NaN: not range checked
+            else:
+                near = True  # unknown position: not range checked
+            entry_of[n] = e
+            dst_out[n] = j
+            near_out[n] = near
+            n += 1
+            c += 1
+        counts[e] = c
+    return n
+
+
+_ENQUEUE_SIG = ("UniTuple(i8, 5)(f8, f8, f8, f8[:], b1[:, :], f8, i8, i8, i8, i8[:], i8[:], i8[:], b1[:], f8[:], "
+                "i8[:], f8[:, :], i8[:], i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:])")
+
+
+@njit(_ENQUEUE_SIG, cache=True)
+def _draw_and_enqueue(t_s: float, t_base: float, jitter_s: float, loss: np.ndarray, ge_bad: np.ndarray,
+                      t_last: float, room: int, seq0: int, n_fl: int, src: np.ndarray, entry_of: np.ndarray,
+                      dst: np.ndarray, near: np.ndarray, u: np.ndarray, counts: np.ndarray, val: np.ndarray,
+                      ref: np.ndarray, q_seq: np.ndarray, q_src: np.ndarray, q_dst: np.ndarray, q_t_sent: np.ndarray,
+                      q_t_recv: np.ndarray, q_val: np.ndarray, q_ref: np.ndarray) -> tuple[int, int, int, int, int]:
+    """Loss and delay of the ``len(entry_of)`` copies from the uniforms ``u``, the end-of-run (``t_last``
+    [s]) and overflow (``room`` copies) drops, and the kept copies appended to the in-flight queue ``q_*``
+    at ``n_fl`` in send order (``seq0`` the next send order).
+
+    ``loss``: ``[p]`` (Bernoulli: per copy a loss and a delay uniform), or ``[p_good_to_bad,
+    p_bad_to_good, loss_good, loss_bad]`` (Gilbert-Elliott, the link states ``ge_bad[src, dst]``: per copy
+    a loss and a delay uniform, then, in range, the transition uniform: ``Channel.send`` per copy).
+    Returns (copies in flight, next send order, lost, dropped after the end, dropped by overflow)."""
+    n_lost = n_late = n_over = 0
+    ge = loss.shape[0] == 4
+    k = 0  # the next uniform
+    n = entry_of.shape[0]
+    seq_of = np.empty(counts.shape[0], dtype=np.int64)
+    seq = seq0
+    for e in range(counts.shape[0]):  # an entry with copies takes a send order
+        seq_of[e] = seq
+        if counts[e] > 0:
+            seq += 1
+    for i in range(n):
+        u_loss, u_delay = u[k], u[k + 1]
+        k += 2
+        if not near[i]:
+            continue
+        p_loss = loss[0]
+        if ge:
+            e = entry_of[i]
+            bad = ge_bad[src[e], dst[i]]
+            bad = u[k] >= loss[1] if bad else u[k] < loss[0]
+            k += 1
+            ge_bad[src[e], dst[i]] = bad
+            p_loss = loss[3] if bad else loss[2]
+        if u_loss < p_loss:
+            n_lost += 1
+            continue
+        t_recv = t_base + jitter_s * u_delay
+        if t_recv > t_last:
+            n_late += 1
+            continue
+        if room <= 0:
+            n_over += 1
+            continue
+        room -= 1
+        e = entry_of[i]
+        q_seq[n_fl], q_src[n_fl], q_dst[n_fl] = seq_of[e], src[e], dst[i]
+        q_t_sent[n_fl], q_t_recv[n_fl] = t_s, t_recv
+        q_val[n_fl, 0], q_val[n_fl, 1], q_ref[n_fl] = val[e, 0], val[e, 1], ref[e]
+        n_fl += 1
+    return n_fl, seq, n_lost, n_late, n_over
+
+
+_DELIVER_SIG = ("i8(f8, b1[:], i8, i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8[:], i8[:], i8[:], f8[:], "
+                "f8[:], f8[:, :], i8[:])")
+
+
+@njit(_DELIVER_SIG, cache=True)
+def _pop_due(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q_src: np.ndarray,
+             q_dst: np.ndarray, q_t_sent: np.ndarray, q_t_recv: np.ndarray, q_val: np.ndarray, q_ref: np.ndarray,
+             o_seq: np.ndarray, o_src: np.ndarray, o_dst: np.ndarray, o_t_sent: np.ndarray, o_t_recv: np.ndarray,
+             o_val: np.ndarray, o_ref: np.ndarray) -> int:
+    """Move the due copies (``t_recv <= t_due``, the receiver attached) to ``o_*`` and compact the queue
+    to the copies still in flight (receiver attached, not due), both in their order; the others are
+    dropped. Returns the number of due copies (the queue's count is written to ``o_seq[-1]``)."""
+    k = n_due = 0
+    for i in range(n_fl):
+        if not attached[q_dst[i]]:
+            continue
+        if q_t_recv[i] <= t_due:
+            o_seq[n_due], o_src[n_due], o_dst[n_due] = q_seq[i], q_src[i], q_dst[i]
+            o_t_sent[n_due], o_t_recv[n_due] = q_t_sent[i], q_t_recv[i]
+            o_val[n_due, 0], o_val[n_due, 1], o_ref[n_due] = q_val[i, 0], q_val[i, 1], q_ref[i]
+            n_due += 1
+            continue
+        if k != i:
+            q_seq[k], q_src[k], q_dst[k] = q_seq[i], q_src[i], q_dst[i]
+            q_t_sent[k], q_t_recv[k] = q_t_sent[i], q_t_recv[i]
+            q_val[k, 0], q_val[k, 1], q_ref[k] = q_val[i, 0], q_val[i, 1], q_ref[i]
+        k += 1
+    o_seq[o_seq.shape[0] - 1] = k
+    return n_due
+
+
+class Delivered:
+    """The copies of one delivery, in delivery order (struct of arrays, one row per copy)."""
+
+    __slots__ = ("seq", "src", "dst", "t_sent_s", "t_recv_s", "val", "ref")
+
+    def __init__(self, seq: np.ndarray, src: np.ndarray, dst: np.ndarray, t_sent_s: np.ndarray,
+                 t_recv_s: np.ndarray, val: np.ndarray, ref: np.ndarray) -> None:
+        self.seq, self.src, self.dst = seq, src, dst  # send order, sender and receiver node indices
+        self.t_sent_s, self.t_recv_s = t_sent_s, t_recv_s  # [s]
+        self.val, self.ref = val, ref  # the payload: (k, 2) floats, (k,) reference
+
+    def __len__(self) -> int:
+        return int(self.seq.shape[0])
+
+
+class AddressedChannel:
+    """Addressed sends, the in-flight queue and deliveries of a channel by node index
+    (see the module docstring)."""
+
+    def __init__(self, cfg: ChannelConfig, rng: np.random.Generator, t_end_s: float | None = None) -> None:
+        self.cfg = cfg
+        self._rng = rng
+        lm = cfg.loss
+        self._loss = (np.array([lm.p]) if isinstance(lm, BernoulliLoss) else
+                      np.array([lm.p_good_to_bad, lm.p_bad_to_good, lm.loss_good, lm.loss_bad]))
+        self._ge_bad = np.zeros((16 if self._loss.size == 4 else 0,) * 2, dtype=bool)  # [src, dst] bad state
+        self._r2 = cfg.range_m ** 2
+        self._t_last = (math.inf if t_end_s is None else float(t_end_s)) + _T_EPS_S
+        self.index: dict[str, int] = {}  # node name -> node index
+        self.names: list[str] = []
+        self._attached = np.zeros(16, dtype=bool)
+        self._known = np.zeros(16, dtype=bool)  # position set by the latest set_positions
+        self._pos = np.zeros((16, 3))  # [m]
+        self._seq = 0
+        self._n = 0  # copies in flight: the first _n rows of the queue
+        self._q = _queue(64)
+        self._out = _queue(64)  # the latest delivery (and, last, the queue's count after it)
+        self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
+
+    # -- nodes, membership, positions ----------------------------------------------------------
+    def node(self, name: str) -> int:
+        """The node index of ``name`` (registered on first use)."""
+        i = self.index.get(name)
+        if i is None:
+            i = self.index[name] = len(self.names)
+            self.names.append(name)
+            if i >= self._attached.shape[0]:
+                self._grow_nodes(2 * self._attached.shape[0])
+        return i
+
+    def attach(self, name: str) -> None:
+        """Make ``name`` receive the copies addressed to it (idempotent)."""
+        i = self.node(name)  # first: registering may grow the arrays
+        self._attached[i] = True
+
+    def detach(self, name: str) -> None:
+        """Stop delivering to ``name`` (its copies in flight are discarded at the next delivery)."""
+        i = self.index.get(name)
+        if i is not None:
+            self._attached[i] = False
+
+    def set_positions(self, nodes: np.ndarray, pos_m: np.ndarray) -> None:
+        """Positions (k, 3) [m] of ``nodes`` for the range checks of the following sends (the others
+        unknown: not range checked), as ``Channel.set_positions_arrays``."""
+        self._known[:] = False
+        self._known[nodes] = True
+        self._pos[nodes] = pos_m
+
+    # -- sending and delivery -----------------------------------------------------------------
+    def send(self, t_s: float, src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray,
+             val: np.ndarray, ref: np.ndarray) -> None:
+        """Send entry ``e`` from node ``src[e]`` at ``src_pos[e]`` (3,) [m] to the nodes
+        ``dst[ptr[e]:ptr[e + 1]]`` (-1: a name the channel does not know) with payload ``val[e]`` (2,),
+        ``ref[e]``: ``Channel.send_many`` with every receiver named (one unicast per listed receiver, the
+        kept copies of an entry one sent message)."""
+        m = src.shape[0]
+        if ptr[m] == 0:  # nothing listed: send_many draws nothing
+            return
+        c = int(ptr[m])
+        entry_of, dst_c = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
+        near, counts = np.empty(c, dtype=bool), np.empty(m, dtype=np.int64)
+        n = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
+                         entry_of, dst_c, near, counts)
+        n_near = int(np.count_nonzero(near[:n]))
+        u = self._rng.random(2 * n + (n_near if self._loss.size == 4 else 0))
+        if self._n + n > self._q[0].shape[0]:
+            self._q = _queue(2 * (self._n + n), self._q, self._n)
+        room = max(self.cfg.max_in_flight - self._n, 0)
+        t_base = t_s + self.cfg.latency_s
+        self._n, self._seq, lost, late, over = _draw_and_enqueue(
+            float(t_s), t_base, self.cfg.jitter_s, self._loss, self._ge_bad, self._t_last, room, self._seq,
+            self._n, src, entry_of[:n], dst_c[:n], near[:n], u, counts, val, ref, *self._q)
+        self._n_sent += n
+        self._n_oor += n - n_near
+        self._n_lost += lost
+        self._n_late += late
+        self._n_overflow += over
+
+    def deliver(self, t_s: float) -> Delivered:
+        """Pop every copy with ``t_recv <= t_s`` (1e-9 s tolerance) to an attached receiver, in send
+        order (a message's copies in their listed order); copies to detached receivers are dropped.
+        The arrays are views of the channel's buffers, valid until the next ``deliver``."""
+        n = self._n
+        if n + 1 > self._out[0].shape[0]:
+            self._out = _queue(2 * (n + 1))
+        out = self._out
+        n_due = _pop_due(t_s + _T_EPS_S, self._attached, n, *self._q, *out) if n else 0
+        self._n = int(out[0][-1]) if n else 0
+        self._n_delivered += n_due
+        return Delivered(*(a[:n_due] for a in out))
+
+    @property
+    def in_flight(self) -> int:
+        """Copies sent but not yet delivered."""
+        return self._n
+
+    def stats(self) -> ChannelStats:
+        """The counters of ``Channel.stats`` (age of information: NaN, not kept)."""
+        in_range = self._n_sent - self._n_oor
+        return ChannelStats(sent=self._n_sent, delivered=self._n_delivered, lost_random=self._n_lost,
+                            out_of_range=self._n_oor,
+                            delivery_ratio=self._n_delivered / in_range if in_range else float("nan"),
+                            aoi_mean_s=float("nan"), aoi_max_s=float("nan"), dropped_after_end=self._n_late,
+                            dropped_overflow=self._n_overflow)
+
+    def _grow_nodes(self, cap: int) -> None:
+        n = self._attached.shape[0]
+        attached, known, pos = np.zeros(cap, dtype=bool), np.zeros(cap, dtype=bool), np.zeros((cap, 3))
+        attached[:n], known[:n], pos[:n] = self._attached, self._known, self._pos
+        self._attached, self._known, self._pos = attached, known, pos
+        if self._ge_bad.size:
+            ge = np.zeros((cap, cap), dtype=bool)
+            ge[:n, :n] = self._ge_bad
+            self._ge_bad = ge
+
+
+_Queue = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _queue(cap: int, old: _Queue | None = None, n: int = 0) -> _Queue:
+    """In-flight copies (send order, sender, receiver, send and arrival times [s], payload floats and
+    reference) with room for ``cap``, the first ``n`` taken from ``old``."""
+    q = (np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64), np.empty(cap, dtype=np.int64),
+         np.empty(cap), np.empty(cap), np.empty((cap, 2)), np.empty(cap, dtype=np.int64))
+    if old is not None:
+        for a, b in zip(q, old, strict=True):
+            a[:n] = b[:n]
+    return q

@@ -1,0 +1,86 @@
+"""The compiled node-indexed track pool (vehicles/tracks/node_pool) holds the same tracks, bit for bit,
+as the V2X merging controller's former path: the delivered copies filtered in Python (the receiver
+keeps tracks; the roadside unit tracks everyone, a vehicle the senders it listens to), sorted by
+(arrival, send order) and fused by ``TrackPool`` (itself checked against filterpy)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from corridor.vehicles.tracks.node_pool import NodeTrackPool
+from corridor.vehicles.tracks.pool import TrackPool
+
+NAMES = ["rsu", *[f"v{i}" for i in range(10)]]
+INDEX = {n: i for i, n in enumerate(NAMES)}
+RSU = "rsu"
+
+
+def _reference_fuse(pool: TrackPool, copies: list[tuple[int, int, int, float, float, float, float, int]],
+                    listen: dict[str, set[str]]) -> None:
+    """The former ``V2XMerging._fuse_cams``: copies (seq, src, dst, t_sent, t_recv, z0, z1, ref)."""
+    rx = set(pool.receivers)
+    kept = []
+    for seq, s, d, t_sent, t_recv, z0, z1, ref in copies:
+        src, dst = NAMES[s], NAMES[d]
+        if ref < 0 and dst in rx and (dst == RSU or src in listen.get(dst, ())):
+            kept.append((t_recv, seq, dst, src, t_sent, np.array([z0, z1])))
+    kept.sort(key=lambda c: (c[0], c[1]))
+    if kept:
+        pool.fuse([c[2] for c in kept], [c[3] for c in kept], np.array([c[4] for c in kept]),
+                  np.array([c[5] for c in kept]))
+
+
+def _tick_copies(rng: np.random.Generator, t: float, seq0: int) -> list[tuple[int, int, int, float, float, float, float, int]]:
+    """A delivery in send order: each message one sender, one send time (some older than a tick, so a
+    pair may get two, out of order), a measurement, and its copies."""
+    out = []
+    for m in range(rng.integers(0, 12)):
+        s = int(rng.integers(len(NAMES)))
+        t_sent = t - 0.1 * int(rng.integers(0, 3)) + 0.01 * int(rng.integers(0, 3))
+        z0, z1 = rng.normal(0, 50), rng.normal(20, 5)
+        ref = -1 if rng.random() < 0.9 else m
+        for d in rng.choice(len(NAMES), int(rng.integers(1, 4)), replace=False).tolist():
+            t_recv = t - 0.1 + 0.1 * float(rng.integers(0, 4)) / 3.0  # ties in arrival
+            out.append((seq0 + m, s, d, t_sent, t_recv, z0, z1, ref))
+    return out
+
+
+def test_node_pool_equals_track_pool_with_the_former_filter() -> None:
+    rng = np.random.default_rng(3)
+    ref = TrackPool(dim=1, process_noise=1.0, meas_noise=0.5, vel_noise=0.3, stale_after_s=0.45)
+    new = NodeTrackPool(INDEX, process_noise=1.0, meas_noise=0.5, vel_noise=0.3, stale_after_s=0.45)
+    for p in (ref, new):
+        p.add_receiver(RSU)
+    fused = 0
+    for step in range(400):
+        t = 0.1 * step
+        for name in NAMES[1:]:  # receivers come and go
+            u = rng.random()
+            for p in (ref, new):
+                if u < 0.05:
+                    p.remove_receiver(name)
+                elif u < 0.2:
+                    p.add_receiver(name)
+        listen = {v: {NAMES[k] for k in rng.choice(len(NAMES), 3).tolist()} for v in NAMES[1:] if rng.random() < 0.6}
+        copies = _tick_copies(rng, t, 100 * step)
+        _reference_fuse(ref, copies, listen)
+        keys = sorted((INDEX[v] << 32) | INDEX[s] for v, srcs in listen.items() for s in srcs)
+        a = np.array(copies, dtype=float).reshape(-1, 8)
+        new.fuse_delivered(a[:, 1].astype(np.int64), a[:, 2].astype(np.int64), a[:, 3], a[:, 4],
+                           np.ascontiguousarray(a[:, 5:7]), a[:, 7].astype(np.int64), INDEX[RSU],
+                           np.array(keys, dtype=np.int64))
+        if step % 3 == 0:
+            ref.drop_stale(t)
+            new.drop_stale(t)
+        assert new.receivers == ref.receivers
+        for rx in ref.receivers:
+            for src in NAMES:
+                assert new.has_track(rx, src) == ref.has_track(rx, src)
+                if ref.has_track(rx, src):
+                    fused += 1
+                    x, p = ref.state(rx, src)
+                    x2, p2 = new.state(rx, src)
+                    assert x2.tolist() == x.tolist() and p2.tolist() == p.tolist()  # the same bits
+                    assert new.last_update_s(rx, src) == ref.last_update_s(rx, src)
+                assert new.predict_one(rx, src, t + 0.05) == ref.predict_one(rx, src, t + 0.05)
+    assert fused > 2000

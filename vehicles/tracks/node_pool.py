@@ -1,0 +1,288 @@
+"""1-D constant-velocity Kalman tracks keyed by (receiver, source) node indices, fed straight from the
+copies an :class:`~corridor.addressed_channel.AddressedChannel` delivers: the filter of
+:class:`~corridor.vehicles.tracks.pool.TrackPool` (``dim=1``) without a Python step per message.
+
+The copies a tick delivers are filtered (the receiver keeps tracks; the roadside unit tracks every
+sender, a vehicle only the senders it listens to), ordered by (arrival, send order) (a message's copies
+in their order), and fused message by message in that order, as ``TrackPool.fuse`` applies them: a
+pair's first message starts its track (state = the measurement, covariance = R), a later one older than
+the track is rejected, the others predict by their interval and update (Joseph form). The arithmetic is
+:func:`~corridor.vehicles.tracks.cv_kernel.cv_fuse_1d`'s, and the process-noise terms come from
+:func:`~corridor.vehicles.tracks.stack.cv_terms` in numpy as there, so every track holds the same bits
+(``tests/vehicles/test_veh_node_pool.py`` checks it against ``TrackPool`` on recorded and random
+deliveries). Receivers are given slots; the tracks live in one struct of arrays (rows recycled).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from corridor.vehicles.tracks.cv_kernel import _inv2, _mm, _mv
+from corridor.vehicles.tracks.stack import cv_terms
+
+_ROWS_SIG = ("UniTuple(i8, 2)(i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8, i8[:], i8[:], i8, i8[:, :], "
+             "f8[:, :], f8[:, :], f8[:, :, :], f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], f8[:], b1[:])")
+
+
+@njit(_ROWS_SIG, cache=True)
+def _select_rows(src: np.ndarray, dst: np.ndarray, t_sent: np.ndarray, t_recv: np.ndarray, z: np.ndarray,
+                 ref: np.ndarray, rsu: int, slot_of: np.ndarray, listen_keys: np.ndarray, n_free: int,
+                 row_of: np.ndarray, r: np.ndarray, x: np.ndarray, p: np.ndarray, t_row: np.ndarray,
+                 row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray, upd_row: np.ndarray,
+                 upd_z: np.ndarray, upd_dt: np.ndarray, ahead: np.ndarray) -> tuple[int, int]:
+    """The delivered copies that are measurements (``ref < 0``) for a receiver with a slot (the roadside
+    unit ``rsu`` tracks every sender, a vehicle only where ``dst << 32 | src`` is in the sorted
+    ``listen_keys``), stably ordered by arrival (the copies come in send order), then per copy in that
+    order: start the pair's track (state = the measurement, covariance ``r``), or list it as an update
+    (its row, measurement and interval ``upd_dt`` [s]; ``ahead``: > 0) when not older than the track,
+    moving the track's time on (``TrackPool.fuse``). ``free[:n_free]``: the free rows, taken from the end
+    (enough for every new pair). Returns (updates, free rows left)."""
+    n_nodes = slot_of.shape[0]
+    sel = np.empty(src.shape[0], dtype=np.int64)
+    n = 0
+    for i in range(src.shape[0]):
+        d = dst[i]
+        if ref[i] >= 0 or d >= n_nodes or slot_of[d] < 0:
+            continue
+        if d != rsu:
+            key = (d << 32) | src[i]
+            k = np.searchsorted(listen_keys, key)
+            if k >= listen_keys.shape[0] or listen_keys[k] != key:
+                continue
+        sel[n] = i
+        n += 1
+    sel = sel[:n]
+    if n > 1:
+        sel = sel[np.argsort(t_recv[sel], kind="mergesort")]  # stable: ties keep the send order
+    m = 0
+    for i in sel:
+        s = slot_of[dst[i]]
+        row = row_of[s, src[i]]
+        t = t_sent[i]
+        if row < 0:
+            n_free -= 1
+            row = free[n_free]
+            row_of[s, src[i]] = row
+            row_slot[row], row_src[row] = s, src[i]
+            x[row, 0], x[row, 1] = z[i, 0], z[i, 1]
+            p[row, 0, 0], p[row, 0, 1], p[row, 1, 0], p[row, 1, 1] = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
+            t_row[row] = t
+            continue
+        if t < t_row[row]:
+            continue  # older than the track: rejected
+        dt = t - t_row[row]
+        upd_row[m], upd_dt[m], ahead[m] = row, dt, dt > 0.0
+        upd_z[m, 0], upd_z[m, 1] = z[i, 0], z[i, 1]
+        t_row[row] = t
+        m += 1
+    return m, n_free
+
+
+_FUSE_SIG = "void(i8[:], f8[:, :], f8[:, :, :], b1[:], f8[:], f8[:], f8[:], f8[:], f8[:, :], f8[:, :])"
+
+
+@njit(_FUSE_SIG, cache=True)
+def _fuse_rows(rows: np.ndarray, x: np.ndarray, p: np.ndarray, ahead: np.ndarray, dt: np.ndarray,
+               q11: np.ndarray, q12: np.ndarray, q22: np.ndarray, z: np.ndarray, r: np.ndarray) -> None:
+    """:func:`~corridor.vehicles.tracks.cv_kernel.cv_fuse_1d` in place on the pool's rows ``rows`` (a
+    row may repeat: its messages in order)."""
+    r00, r01, r10, r11 = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
+    j = 0
+    for m in range(rows.shape[0]):
+        i = rows[m]
+        x0, x1 = x[i, 0], x[i, 1]
+        p00, p01, p10, p11 = p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1]
+        if ahead[m]:
+            d = dt[j]
+            x0, x1 = _mv(1.0, d, 0.0, 1.0, x0, x1)
+            a00, a01, a10, a11 = _mm(1.0, d, 0.0, 1.0, p00, p01, p10, p11)
+            b00, b01, b10, b11 = _mm(a00, a01, a10, a11, 1.0, 0.0, d, 1.0)
+            p00, p01, p10, p11 = b00 + q11[j], b01 + q12[j], b10 + q12[j], b11 + q22[j]
+            j += 1
+        s00, s01, s10, s11 = _inv2(p00 + r00, p01 + r01, p10 + r10, p11 + r11)
+        k00, k01, k10, k11 = _mm(p00, p01, p10, p11, s00, s01, s10, s11)
+        y0, y1 = _mv(k00, k01, k10, k11, z[m, 0] - x0, z[m, 1] - x1)
+        x[i, 0], x[i, 1] = x0 + y0, x1 + y1
+        i00, i01, i10, i11 = 1.0 - k00, 0.0 - k01, 0.0 - k10, 1.0 - k11
+        a00, a01, a10, a11 = _mm(i00, i01, i10, i11, p00, p01, p10, p11)
+        a00, a01, a10, a11 = _mm(a00, a01, a10, a11, i00, i10, i01, i11)
+        b00, b01, b10, b11 = _mm(k00, k01, k10, k11, r00, r01, r10, r11)
+        b00, b01, b10, b11 = _mm(b00, b01, b10, b11, k00, k10, k01, k11)
+        p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1] = a00 + b00, a01 + b01, a10 + b10, a11 + b11
+
+
+_DROP_SIG = "i8(f8, f8, i8, i8[:], i8[:], i8[:], i8[:, :], f8[:], i8[:])"
+
+
+@njit(_DROP_SIG, cache=True)
+def _drop_rows(t_s: float, stale_after_s: float, n_free: int, free: np.ndarray, row_slot: np.ndarray,
+               row_src: np.ndarray, row_of: np.ndarray, t_row: np.ndarray, only_slot: np.ndarray) -> int:
+    """Free the live rows older than ``stale_after_s`` at ``t_s`` (``only_slot`` empty), or every row of
+    the slot ``only_slot[0]``. Returns the free count."""
+    for row in range(row_slot.shape[0]):
+        s = row_slot[row]
+        if s < 0:
+            continue
+        if only_slot.shape[0] > 0:
+            if s != only_slot[0]:
+                continue
+        elif not t_s - t_row[row] > stale_after_s:
+            continue
+        row_of[s, row_src[row]] = -1
+        row_slot[row] = -1
+        free[n_free] = row
+        n_free += 1
+    return n_free
+
+
+class NodeTrackPool:
+    """1-D CV tracks of receiver nodes on source nodes (see the module docstring).
+
+    ``index``: node name -> node index (the channel's, read as nodes appear); ``process_noise``
+    [m^2/s^3]; ``meas_noise`` [m] / ``vel_noise`` [m/s] measurement std; ``stale_after_s`` [s]."""
+
+    def __init__(self, index: dict[str, int], process_noise: float, meas_noise: float, vel_noise: float,
+                 stale_after_s: float) -> None:
+        self.index = index
+        self.q = float(process_noise)
+        self.stale_after_s = float(stale_after_s)
+        self._r = np.diag([float(meas_noise) ** 2, float(vel_noise) ** 2])
+        self._slots: dict[str, int] = {}  # receiver name -> slot (insertion order: ``receivers``)
+        self._free_slots: list[int] = []
+        self._slot_of = np.full(16, -1, dtype=np.int64)  # node -> slot (-1: not a receiver)
+        self._row_of = np.full((8, 16), -1, dtype=np.int64)  # [slot, source node] -> row
+        self._cap = 0
+        self.x = np.zeros((0, 2))
+        self.P = np.zeros((0, 2, 2))
+        self.t_s = np.zeros(0)  # [s] time of each row's state (= its newest measurement)
+        self._row_slot = np.zeros(0, dtype=np.int64)  # -1: a free row
+        self._row_src = np.zeros(0, dtype=np.int64)
+        self._free = np.zeros(0, dtype=np.int64)
+        self._n_free = 0
+        self._grow_rows(64)
+        # per fuse: the updates (row, measurement, interval [s], interval > 0), in order
+        self._upd_row, self._upd_z = np.empty(64, dtype=np.int64), np.empty((64, 2))
+        self._upd_dt, self._ahead = np.empty(64), np.empty(64, dtype=bool)
+
+    # -- receivers ------------------------------------------------------------------------------
+    def add_receiver(self, rx: str) -> None:
+        if rx in self._slots:
+            return
+        node = self.index[rx]
+        s = self._free_slots.pop() if self._free_slots else len(self._slots)
+        self._slots[rx] = s
+        if node >= self._slot_of.shape[0]:
+            self._slot_of = _grown(self._slot_of, 2 * node + 2, -1)
+        self._slot_of[node] = s
+        if s >= self._row_of.shape[0]:
+            self._row_of = _grown2(self._row_of, 2 * s + 2, self._row_of.shape[1])
+
+    def remove_receiver(self, rx: str) -> None:
+        """Forget a receiver and its tracks."""
+        s = self._slots.pop(rx, None)
+        if s is None:
+            return
+        self._n_free = _drop_rows(0.0, 0.0, self._n_free, self._free, self._row_slot, self._row_src,
+                                  self._row_of, self.t_s, np.array([s], dtype=np.int64))
+        self._slot_of[self.index[rx]] = -1
+        self._free_slots.append(s)
+
+    def __contains__(self, rx: object) -> bool:
+        return rx in self._slots
+
+    @property
+    def receivers(self) -> list[str]:
+        return list(self._slots)
+
+    def _row(self, rx: str, src: str) -> int:
+        s, j = self._slots.get(rx), self.index.get(src)
+        if s is None or j is None or j >= self._row_of.shape[1]:
+            return -1
+        return int(self._row_of[s, j])
+
+    def has_track(self, rx: str, src: str) -> bool:
+        return self._row(rx, src) >= 0
+
+    def last_update_s(self, rx: str, src: str) -> float:
+        """Time [s] of the newest measurement of ``src`` fused by ``rx`` (KeyError if none)."""
+        row = self._row(rx, src)
+        if row < 0:
+            raise KeyError((rx, src))
+        return float(self.t_s[row])
+
+    def state(self, rx: str, src: str) -> tuple[np.ndarray, np.ndarray]:
+        """The fused state [position, velocity] and covariance of ``rx``'s track of ``src`` (views;
+        KeyError if none)."""
+        row = self._row(rx, src)
+        if row < 0:
+            raise KeyError((rx, src))
+        return self.x[row], self.P[row]
+
+    # -- updates --------------------------------------------------------------------------------
+    def fuse_delivered(self, src: np.ndarray, dst: np.ndarray, t_sent_s: np.ndarray, t_recv_s: np.ndarray,
+                       z: np.ndarray, ref: np.ndarray, rsu: int, listen_keys: np.ndarray) -> None:
+        """Fuse the delivered copies (node indices ``src`` -> ``dst``, measurements ``z`` (k, 2) taken at
+        ``t_sent_s``, arriving at ``t_recv_s``, in send order) that are measurements (``ref < 0``) the
+        receiver tracks (see :func:`_select_rows`), in the order (arrival, send order)."""
+        k = src.shape[0]
+        if k == 0:
+            return
+        if self._row_of.shape[1] < len(self.index):  # a column per node the channel knows
+            self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * len(self.index))
+        if self._n_free < k:
+            self._grow_rows(max(2 * self._cap, self._cap + k))
+        if self._upd_row.shape[0] < k:
+            self._upd_row, self._upd_z = np.empty(2 * k, dtype=np.int64), np.empty((2 * k, 2))
+            self._upd_dt, self._ahead = np.empty(2 * k), np.empty(2 * k, dtype=bool)
+        m, self._n_free = _select_rows(src, dst, t_sent_s, t_recv_s, z, ref, rsu, self._slot_of, listen_keys,
+                                       self._n_free, self._row_of, self._r, self.x, self.P, self.t_s, self._row_slot,
+                                       self._row_src, self._free, self._upd_row, self._upd_z, self._upd_dt,
+                                       self._ahead)
+        if m == 0:
+            return
+        ahead = self._ahead[:m]
+        d, q11, q12, q22 = cv_terms(self._upd_dt[:m][ahead], self.q)  # numpy, as TrackPool's cv_fuse computes them
+        _fuse_rows(self._upd_row[:m], self.x, self.P, ahead, d, q11, q12, q22, self._upd_z[:m], self._r)
+
+    def drop_stale(self, t_s: float) -> None:
+        """Forget every track whose newest measurement is older than ``stale_after_s``."""
+        self._n_free = _drop_rows(float(t_s), self.stale_after_s, self._n_free, self._free, self._row_slot,
+                                  self._row_src, self._row_of, self.t_s, np.zeros(0, dtype=np.int64))
+
+    # -- queries --------------------------------------------------------------------------------
+    def predict_one(self, rx: str, src: str, t_s: float) -> tuple[float, float, float] | None:
+        """``TrackPool.predict_one``: (position [m], velocity [m/s], age [s]) of ``rx``'s track of
+        ``src`` extrapolated to ``t_s`` (never backwards), None if untracked."""
+        row = self._row(rx, src)
+        if row < 0:
+            return None
+        age = max(0.0, t_s - float(self.t_s[row]))
+        dt = round(age * 1e9) * 1e-9  # cv_terms' rounding (half to even, as np.round)
+        x0, x1 = float(self.x[row, 0]), float(self.x[row, 1])
+        return x0 + dt * x1, x1 + 0.0 * x0, age
+
+    # -- storage --------------------------------------------------------------------------------
+    def _grow_rows(self, cap: int) -> None:
+        n = self._cap
+        self.x = np.concatenate([self.x, np.zeros((cap - n, 2))])
+        self.P = np.concatenate([self.P, np.zeros((cap - n, 2, 2))])
+        self.t_s = np.concatenate([self.t_s, np.zeros(cap - n)])
+        self._row_slot = np.concatenate([self._row_slot, np.full(cap - n, -1, dtype=np.int64)])
+        self._row_src = np.concatenate([self._row_src, np.zeros(cap - n, dtype=np.int64)])
+        free = np.empty(cap, dtype=np.int64)
+        free[: self._n_free] = self._free[: self._n_free]
+        free[self._n_free : self._n_free + cap - n] = np.arange(cap - 1, n - 1, -1)
+        self._free, self._n_free, self._cap = free, self._n_free + cap - n, cap
+
+
+def _grown(a: np.ndarray, n: int, fill: int) -> np.ndarray:
+    out = np.full(n, fill, dtype=a.dtype)
+    out[: a.shape[0]] = a
+    return out
+
+
+def _grown2(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    out = np.full((rows, cols), -1, dtype=a.dtype)
+    out[: a.shape[0], : a.shape[1]] = a
+    return out
