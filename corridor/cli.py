@@ -109,13 +109,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                        help="maximised over the row, e.g. '-path_ratio_mean'")
     learn.add_argument("--constraint", action="append", default=None, metavar="EXPR",
                        help="a safety constraint on the row (repeatable; default 'collisions == 0')")
+    learn.add_argument("--penalty", default="count", choices=("count", "hinge"),
+                       help="per broken --constraint: 1 (count, default), or 1 + how far the row is past "
+                            "its bound (hinge: 'hard_brakes <= 3' at 8 costs 6)")
     learn.add_argument("--holdout", type=int, default=20, metavar="N",
                        help="held-out seeds on which the hand-tuned and learned boundaries are compared")
     args = p.parse_args(_glue_expressions(sys.argv[1:] if argv is None else list(argv)))
     if args.learn is not None:
         _check_learn(p, args)
-    elif args.objective is not None or args.constraint is not None:
-        p.error("--objective and --constraint go with --learn KEYS")
+    elif args.objective is not None or args.constraint is not None or args.penalty != "count":
+        p.error("--objective, --constraint and --penalty go with --learn KEYS")
     if args.runs < 1:
         p.error("--runs must be >= 1")
     if args.workers < 1:
@@ -209,7 +212,8 @@ def _learn(args: argparse.Namespace) -> int:
                        constraints=args.constraint or ("collisions == 0",),
                        variant=args.variant[0] if args.variant else None, holdout_runs=args.holdout, seed=args.seed,
                        sets=args.sets, out=args.out, resume=args.resume, overwrite=args.overwrite,
-                       executor=args.executor, workers=args.workers, address=args.address, progress=not args.quiet)
+                       executor=args.executor, workers=args.workers, address=args.address, progress=not args.quiet,
+                       penalty=args.penalty)
     if not args.quiet:
         print("\n".join(learn.learn_lines(data)))
     return 0

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from corridor.errors import CorridorError, clip
-from corridor.learn_core import PPO_EPISODES_PER_STAGE, Problem
+from corridor.learn_core import PENALTIES, PPO_EPISODES_PER_STAGE, Problem
 from corridor.learn_core import ci95 as _ci
 from corridor.learn_core import finite as _f
 from corridor.learn_core import is_nan as _nan
@@ -120,13 +120,15 @@ def resolve_keys(sc: Any, raw: dict[str, Any], variant: str, keys: str) -> tuple
 
 
 def problem(scenario: str | Path, keys: str, objective: str, constraints: Sequence[str], budget: int, method: str,
-            variant: str | None, sets: Sequence[str]) -> Problem:
+            variant: str | None, sets: Sequence[str], penalty: str = "count") -> Problem:
     """Check every input (one-line ``CorridorError``) and build the problem."""
     from corridor.rare_event import known_columns
     from corridor.scenario import load, resolve_scenario, set_overrides
 
     if method not in METHODS:
         raise CorridorError(f"--method {clip(str(method))}: --learn methods are {', '.join(METHODS)}")
+    if penalty not in PENALTIES:
+        raise CorridorError(f"--penalty {clip(str(penalty))}: one of {', '.join(PENALTIES)}")
     if not isinstance(budget, int) or budget < min_budget(method):
         raise CorridorError(f"--budget {budget}: {method} needs at least {min_budget(method)} runs "
                             f"({MIN_STAGES} stages)")
@@ -146,7 +148,7 @@ def problem(scenario: str | Path, keys: str, objective: str, constraints: Sequen
     ctrl, full, theta0 = resolve_keys(sc, raw, var, keys)
     pairs, bounds = hysteresis_pairs(sc, raw, var, ctrl, full, theta0)
     return Problem(sc, raw, path, var, ctrl, full, theta0, theta0 > 0, obj, cons, set_overrides(sets),
-                   pairs=pairs, bounds=bounds)
+                   pairs=pairs, bounds=bounds, penalty=penalty)
 
 
 def hysteresis_pairs(sc: Any, raw: dict[str, Any], variant: str, ctrl: str, keys: list[str], theta0: np.ndarray,
@@ -272,14 +274,14 @@ def learn(scenario: str | Path, keys: str, objective: str, *, budget: int, metho
           constraints: Sequence[str] = ("collisions == 0",), variant: str | None = None, holdout_runs: int = 20,
           seed: int | None = None, sets: Sequence[str] = (), out: str | Path | None = None, resume: bool = False,
           overwrite: bool = False, executor: str = "local", workers: int = 2, address: str | None = None,
-          progress: bool = False) -> dict[str, Any]:
+          progress: bool = False, penalty: str = "count") -> dict[str, Any]:
     """Learn boundary parameters (see the module docstring); returns ``learn.json``'s content."""
     import pandas as pd
 
     from corridor.batchdir import manifest_for, open_batch_dir
     from corridor.estimate import write_json
 
-    pb = problem(scenario, keys, objective, constraints, budget, method, variant, sets)
+    pb = problem(scenario, keys, objective, constraints, budget, method, variant, sets, penalty)
     if not isinstance(holdout_runs, int) or holdout_runs < 0:
         raise CorridorError(f"--holdout {holdout_runs}: must be a number of runs >= 0")
     if method == "ppo":
@@ -289,7 +291,8 @@ def learn(scenario: str | Path, keys: str, objective: str, *, budget: int, metho
     first = pb.sc.seed if seed is None else seed
     out_dir = Path(out) if out is not None else Path("results") / f"{pb.sc.name}-learn-{method}"
     settings = {"keys": pb.keys, "objective": objective, "constraints": list(constraints), "budget": budget,
-                "method": method, "variant": pb.variant, "seed": first, "holdout": holdout_runs}
+                "method": method, "variant": pb.variant, "seed": first, "holdout": holdout_runs,
+                **({"penalty": penalty} if penalty != "count" else {})}  # (count: the settings of older folders)
     bdir = open_batch_dir(out_dir, manifest_for(pb.sc.name, str(pb.path), {**pb.raw, "_learn": settings}, list(sets)),
                           resume, overwrite)
     all_rows: list[dict[str, Any]] = []

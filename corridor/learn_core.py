@@ -9,9 +9,10 @@ from typing import Any
 
 import numpy as np
 
-from corridor.objective import Expression, value, violations
+from corridor.objective import Expression, hinge_violations, value, violations
 
-PENALTY = 1.0  # objective units per broken constraint
+PENALTY = 1.0  # objective units per broken constraint (--penalty hinge: per broken constraint and unit past it)
+PENALTIES = ("count", "hinge")
 PPO_EPISODES_PER_STAGE = 4  # --method ppo: runs per PPO rollout (corridor.learn_ppo)
 
 
@@ -35,6 +36,8 @@ class Problem:
     pairs: list[tuple[int, int, int]] = field(default_factory=list)
     # one key of a pair learned: (key, the other's fixed value, +1: theta >= it, -1: <=), a clamp
     bounds: list[tuple[int, float, int]] = field(default_factory=list)
+    # "count": PENALTY x the broken constraints; "hinge": PENALTY x (1 + how far past it) per broken one
+    penalty: str = "count"
 
     def theta(self, u: np.ndarray) -> np.ndarray:
         """theta of the learner's coordinates ``u``: log theta (positive keys), a follower's margin
@@ -70,7 +73,8 @@ class Problem:
         if row.get("status") != "ok":
             return math.nan
         v = value(self.objective, row)
-        return (v if math.isfinite(v) else -PENALTY) - PENALTY * violations(self.constraints, row)
+        broken = (hinge_violations if self.penalty == "hinge" else violations)(self.constraints, row)
+        return (v if math.isfinite(v) else -PENALTY) - PENALTY * broken
 
 
 def stage_normals(seed: int, tag: str, stage: int, n: int, d: int) -> np.ndarray:

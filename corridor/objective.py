@@ -101,6 +101,29 @@ def value(expr: Expression, row: Mapping[str, Any]) -> float:
     return float(v) if not isinstance(v, bool) else float(v)
 
 
+def excess(constraint: Expression, row: Mapping[str, Any]) -> float:
+    """How far the row is past a broken single comparison ``a OP b`` (``hard_brakes <= 3`` at 8: 5.0;
+    ``a == b``: |a - b|); 0 when it holds, or for a constraint of another form; NaN as NaN."""
+    tree = constraint._tree
+    if bool(constraint(row)) or not (isinstance(tree, ast.Compare) and len(tree.ops) == 1):
+        return 0.0
+    a, b = constraint._eval(tree.left, row), constraint._eval(tree.comparators[0], row)
+    op = type(tree.ops[0])
+    d = a - b if op in (ast.Lt, ast.LtE) else b - a if op in (ast.Gt, ast.GtE) else abs(a - b) if op is ast.Eq else 0.0
+    return max(float(d), 0.0) if not math.isnan(d) else math.nan
+
+
+def hinge_violations(constraints: Iterable[Expression], row: Mapping[str, Any]) -> float:
+    """Sum over the broken constraints of 1 + its ``excess``: grows with how far a row is past a bound
+    (a missing column or NaN counts as 1, like ``violations``)."""
+    total = 0.0
+    for c in constraints:
+        if not bool(c(row)):
+            e = excess(c, row)
+            total += 1.0 + (e if math.isfinite(e) else 0.0)
+    return total
+
+
 def violations(constraints: Iterable[Expression], row: Mapping[str, Any]) -> int:
     """How many constraints the row breaks (a constraint on a missing column counts as broken)."""
     return sum(1 for c in constraints if not bool(c(row)))

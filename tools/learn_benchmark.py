@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-SAME = ("scenario", "variant", "keys", "objective", "constraints", "sets", "seed")
+SAME = ("scenario", "variant", "keys", "objective", "constraints", "sets", "seed", "penalty")
 WINDOW = 3  # stages in the trailing mean of episodes_to_95
 
 
@@ -119,7 +119,7 @@ def problem_of(data: dict[str, Any]) -> Any:
     from corridor.learn import problem
 
     return problem(data["source"], ",".join(data["keys"]), data["objective"], data["constraints"], data["budget"],
-                   data["method"], data["variant"], data["sets"])
+                   data["method"], data["variant"], data["sets"], data.get("penalty", "count"))
 
 
 def _theta_rows(pb: Any, theta: np.ndarray, n: int, seed: int, out: Path, tag: str, workers: int) -> list[dict[str, Any]]:
@@ -189,8 +189,30 @@ def training_seeds(folder: Path) -> set[int]:
     return {int(x) for x in train["seed"]}
 
 
-def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str], workers: int) -> list[dict[str, Any]]:
-    """One dict per folder (method): the held-out figures against the hand-tuned theta0."""
+def hand_tuned_theta(pb: Any, values: Sequence[str]) -> np.ndarray:
+    """theta0 with ``KEY=VALUE`` replaced (``--hand-tuned``: the start of the learners was not the hand-tuned
+    controller, e.g. a boundary that is off by default, ``open_ahead.dist_m=0``); one line on a bad one."""
+    from corridor.errors import CorridorError
+
+    th = pb.theta0.astype(float).copy()
+    for item in values:
+        key, sep, text = item.partition("=")
+        idx = [i for i, k in enumerate(pb.keys) if k == key or k.endswith(f".boundaries.{key}")]
+        try:
+            v = float(text)
+        except ValueError:
+            idx = []
+        if not sep or len(idx) != 1:
+            raise CorridorError(f"learn_benchmark: --hand-tuned {item!r}: KEY=NUMBER with KEY one of the learned "
+                                f"keys ({', '.join(k.split('.boundaries.', 1)[-1] for k in pb.keys)})")
+        th[idx[0]] = v
+    return th
+
+
+def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str], workers: int,
+                  hand: Sequence[str] = ()) -> list[dict[str, Any]]:
+    """One dict per folder (method): the held-out figures against the hand-tuned theta0 (``hand``: with
+    these ``KEY=VALUE`` instead of the learners' start)."""
     from corridor.learn_core import specs
 
     datas = [load_learn(f) for f in folders]
@@ -198,8 +220,9 @@ def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str]
     pb = problem_of(datas[0])
     seed = int(datas[0]["seed"])
     held = {int(s.seed) for s in specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold")}
-    base = _theta_rows(pb, pb.theta0, n, seed, out, "hand_tuned", workers)
-    cache: dict[tuple[float, ...], list[dict[str, Any]]] = {tuple(np.round(pb.theta0, 9)): base}
+    theta_hand = hand_tuned_theta(pb, hand)
+    base = _theta_rows(pb, theta_hand, n, seed, out, "hand_tuned" if not hand else "hand_tuned-" + "-".join(hand), workers)
+    cache: dict[tuple[float, ...], list[dict[str, Any]]] = {tuple(np.round(theta_hand, 9)): base}
     table = []
     for folder, data in zip(folders, datas, strict=True):
         tag = f"{data['method']}-{folder.name}"
@@ -214,7 +237,7 @@ def holdout_table(folders: list[Path], n: int, out: Path, metrics: Sequence[str]
                 cache[key] = _theta_rows(pb, th, n, seed, out, tag, workers)
             rows = cache[key]
             theta = ", ".join(f"{k.split('.params.boundaries.', 1)[1]} {v:.4g}" for k, v in zip(data["keys"], th, strict=True))
-        unchanged = data["theta"] is not None and key == tuple(np.round(pb.theta0, 9))
+        unchanged = data["theta"] is not None and key == tuple(np.round(theta_hand, 9))
         table.append({"method": data["method"], "folder": str(folder), "training_episodes": data["training_runs"],
                       "overlap_training_seeds": len(held & training_seeds(folder)),
                       "theta": theta, "episodes_to_95": 0 if unchanged else episodes_to_95(data["curve"]),
@@ -404,6 +427,8 @@ def main(argv: list[str] | None = None) -> int:
     h.add_argument("--workers", type=int, default=2)
     h.add_argument("--plot", type=Path, help="learning curves of the folders in one SVG")
     h.add_argument("--json", type=Path, help="write the table as JSON")
+    h.add_argument("--hand-tuned", action="append", default=[], metavar="KEY=VALUE",
+                   help="the hand-tuned controller's value of a learned key where the learners started elsewhere")
     c = sub.add_parser("checkpoints", help="a PPO folder's checkpoints against a blrl/cma result on held-out seeds")
     c.add_argument("ppo", type=Path)
     c.add_argument("--against", type=Path, required=True, help="the blrl or cma folder PPO must match")
@@ -428,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise CorridorError(f"--holdout {args.holdout}: need at least 2 seeds for an interval")
             for f in args.folders:
                 load_learn(f)  # one line before any run
-            table = holdout_table(args.folders, args.holdout, args.out, args.metric, args.workers)
+            table = holdout_table(args.folders, args.holdout, args.out, args.metric, args.workers, args.hand_tuned)
             print_holdout(table, args.metric)
             if args.json:
                 args.json.write_text(json.dumps(table, indent=1))

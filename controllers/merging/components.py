@@ -95,6 +95,8 @@ class Assignment:
     t_cross_s: float
     pred: str | None
     pred_road: str | None
+    cross_ahead: str | None = None  # the nearest vehicle of the other road ahead of ``pred`` in the order,
+    #   within the receiver's listening depth, when ``pred`` is on the receiver's road (boundary open_ahead)
 
 
 class V2XMerging(Controller):
@@ -516,7 +518,8 @@ class V2XMerging(Controller):
             if k is None or not s["connected"][k]:
                 continue
             pred = order[pos_ - 1] if pos_ > 0 else None
-            out.append((RSU, Assignment(t, times[vid], pred, road_of.get(pred) if pred else None), rsu_pos, vid))
+            ahead = self._cross_ahead(order, pos_, road_of) if self._opens_ahead else None
+            out.append((RSU, Assignment(t, times[vid], pred, road_of.get(pred) if pred else None, ahead), rsu_pos, vid))
         return index, out
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
@@ -548,13 +551,17 @@ class V2XMerging(Controller):
             road_k = "ramp" if s["ramp"][k] else "main"
             cross_pred = a.pred is not None and a.pred_road != road_k
             x = MergeState(road_k, float(dist[k]), cross_pred,
-                           probe=lambda vid=vid, a=a, k=k: self._virtual_gap(t, vid, a.pred, float(dist[k]), live, length))
+                           probe=lambda vid=vid, a=a, k=k: self._virtual_gap(t, vid, a.pred, float(dist[k]), live, length),
+                           cross_ahead=a.cross_ahead is not None and not cross_pred)
             ha = self._automaton(vid, road_k)
             ha.update(t, x, self.events, settle=3)
             near_merge = ha.in_mode("merge") or ha.in_mode("yield")
             # before virtual following starts: open the gap to a predecessor from the other road early,
             # comfortably (None: no braking needed, or no track of it)
             pre_open = self._pre_opening_accel(x, float(speed[k])) if cross_pred and not near_merge else None
+            if ha.in_mode("early"):  # open early to the ramp vehicle ahead of the mainline predecessor
+                ahead = self._virtual_gap(t, vid, a.cross_ahead, float(dist[k]), live, length)
+                pre_open = self._pre_opening_accel(MergeState(road_k, float(dist[k]), True, _gap=ahead), float(speed[k]))
             if road_k == "main" and not near_merge and pre_open is None:
                 # a mainline vehicle behind a mainline predecessor follows its physical leader, which
                 # is that predecessor: its own driver (SUMO) does that; only gap openers are commanded
@@ -601,6 +608,22 @@ class V2XMerging(Controller):
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
             ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
+
+    @property
+    def _opens_ahead(self) -> bool:
+        """Whether the ``open_ahead`` boundary can hold (its ``dist_m`` > 0; 0, the default, is off)."""
+        return self.theta["open_ahead"]["dist_m"] > 0.0
+
+    def _cross_ahead(self, order: list[str], pos: int, road_of: dict[str, str]) -> str | None:
+        """The nearest vehicle of the other road ahead in ``order`` of the vehicle at ``pos``, among the
+        ``_listen_depth`` vehicles it tracks, when its predecessor is on its own road (else None)."""
+        road = road_of.get(order[pos])
+        if pos == 0 or road_of.get(order[pos - 1]) != road:
+            return None
+        for j in range(pos - 2, max(pos - self._listen_depth, 0) - 1, -1):
+            if road_of.get(order[j]) not in (None, road):
+                return order[j]
+        return None
 
     def _virtual_gap(self, t: float, vid: str, pred: str | None, dist_m: float, live: dict[str, int],
                      length: np.ndarray) -> VirtualGap:

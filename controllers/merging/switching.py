@@ -5,6 +5,8 @@ Every vehicle holding an assignment of the roadside unit owns one ``HybridAutoma
     ramp{ approach --merge_enter--> merge{ behind <--gap_accept / gap_reject--> ahead } }
     main{ free --yield_enter [ramp predecessor]--> yield{ open <--yield_hold / yield_pass--> pass } }
       yield --yield_exit, or a predecessor on its own road--> free
+      free --open_ahead [mainline predecessor, a ramp vehicle ahead of it in the order]--> early
+      early --yield_enter [ramp predecessor]--> yield;  early --[no ramp vehicle ahead]--> free
 
 - ``ramp.approach``: on the ramp, the energy-optimal trajectory to the assigned crossing time.
 - ``ramp.merge``: near the conflict point, cruise at the stream's speed; ``behind`` keeps the gap
@@ -15,6 +17,12 @@ Every vehicle holding an assignment of the roadside unit owns one ``HybridAutoma
   follows its physical leader).  ``main.yield``: behind a ramp predecessor near the conflict point
   it is commanded and **yields** (``open``: opens the gap behind the ramp vehicle) unless the ramp
   vehicle has fallen behind it (``pass``: cruise).
+- ``main.early``: behind a mainline predecessor, but with a ramp vehicle ahead of that predecessor
+  in the crossing order (within the vehicle's listening depth): it opens the gap to that ramp
+  vehicle early and comfortably (as it would behind a ramp predecessor), so that when its own
+  predecessor leaves the order (crosses ahead of the ramp vehicle, or is a truck that never yields)
+  it does not inherit the ramp vehicle a few metres ahead (docs/guide/merging-flagship.md: 67 of
+  144 hard-brake onsets).  Not commanded when no braking is needed.
 
 The boundaries (g >= 0 holds; strict ones g > 0), with their parameters under
 ``controllers.X.params.boundaries``:
@@ -23,9 +31,11 @@ The boundaries (g >= 0 holds; strict ones g > 0), with their parameters under
     yield_exit(x; dist_m)                = d - dist_m          (strict)
     gap_reject, yield_pass(x; lag_lengths) = -(s + lag_lengths L)    s: virtual gap to the predecessor [m]
     gap_accept, yield_hold(x; lag_lengths) = s + lag_lengths L  (strict)    L: its length [m]
+    open_ahead(x; dist_m)                = dist_m - d          (strict)
 
 The defaults (``dist_m`` = ``virtual_leader_m``, 100 m; ``lag_lengths`` 1) are the constants the
-controller had before the boundaries existed, so its rows are unchanged.  ``s`` is not defined
+controller had before the boundaries existed, so its rows are unchanged; ``open_ahead``'s default
+``dist_m`` 0 never holds (a coordinated vehicle has d >= 0), so ``early`` is never entered.  ``s`` is not defined
 without a tracked predecessor from the other road (g is NaN: no jump; the controller falls back).
 """
 
@@ -42,7 +52,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.modes import Boundary, HybridAutomaton, Mode, SwitchingParams, Transition
 
 RAMP_MODES = ("ramp", "approach", "merge", "behind", "ahead")
-MAIN_MODES = ("main", "free", "yield", "open", "pass")
+MAIN_MODES = ("main", "free", "early", "yield", "open", "pass")
 DIST_BOUNDARIES = ("merge_enter", "yield_enter", "yield_exit")  # their dist_m defaults to virtual_leader_m
 
 
@@ -63,6 +73,15 @@ class LagTheta(BaseModel):
     #   behind (bumper to bumper) before its gap is given up
 
 
+class OpenTheta(BaseModel):
+    """Parameters of the early-opening boundary (0: off, today's controller)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    dist_m: float = Field(0.0, ge=0.0)  # [m] within this distance of the conflict point a vehicle behind a
+    #   predecessor on its own road opens the gap to the nearest other-road vehicle ahead in the order
+
+
 class MergeBoundaries(BaseModel):
     """The named boundaries of the merging automaton (scenario: ``controllers.X.params.boundaries``)."""
 
@@ -75,6 +94,8 @@ class MergeBoundaries(BaseModel):
     yield_exit: DistTheta = Field(default_factory=DistTheta)  # mainline: yield -> free
     yield_hold: LagTheta = Field(default_factory=LagTheta)  # mainline: pass -> open the gap again
     yield_pass: LagTheta = Field(default_factory=LagTheta)  # mainline: open -> pass (the ramp vehicle fell behind)
+    open_ahead: OpenTheta = Field(default_factory=OpenTheta)  # mainline: free -> early (open to a ramp vehicle
+    #   ahead of its mainline predecessor in the order)
 
     # hysteresis pairs, follower -> (anchor, +1: follower's theta >= anchor's, -1: <=); with the order
     # inverted both guards hold in a band and the vehicle switches at every update.  yield: enter at
@@ -103,6 +124,9 @@ class MergeState:
     dist_m: float  # [m] to the conflict point along the vehicle's road
     cross_pred: bool  # the predecessor in the crossing order is on the other road
     probe: Callable[[], VirtualGap] | None = None
+    # the predecessor is on the vehicle's own road, and a vehicle of the other road is ahead of it in
+    # the order, within the vehicle's listening depth (the RSU's ``Assignment.cross_ahead``)
+    cross_ahead: bool = False
     _gap: VirtualGap | None = field(default=None, repr=False)
 
     def gap(self) -> VirtualGap:
@@ -164,13 +188,18 @@ def merge_automaton(name: str, vid: str, road: str, theta: Mapping[str, Mapping[
         return Boundary(key, fn, dict(theta[key]), strict=strict, draws_with=anchor)
 
     modes = [Mode("ramp", children=(Mode("approach"), Mode("merge", children=(Mode("behind"), Mode("ahead"))))),
-             Mode("main", children=(Mode("free"), Mode("yield", children=(Mode("open"), Mode("pass")))))]
+             Mode("main", children=(Mode("free"), Mode("early"), Mode("yield", children=(Mode("open"), Mode("pass")))))]
     transitions = [
         Transition("approach", "merge", bnd("merge_enter", approach_margin), "near the conflict point"),
         Transition("behind", "ahead", bnd("gap_reject", give_up_margin), "predecessor fell behind"),
         Transition("ahead", "behind", bnd("gap_accept", keep_margin, strict=True), "gap behind predecessor"),
         Transition("free", "yield", bnd("yield_enter", approach_margin), "yield to ramp predecessor",
                    when=lambda x: x.cross_pred),
+        Transition("free", "early", bnd("open_ahead", approach_margin, strict=True),
+                   "open early to a ramp vehicle ahead", when=lambda x: x.cross_ahead and not x.cross_pred),
+        Transition("early", "yield", bnd("yield_enter", approach_margin), "yield to ramp predecessor",
+                   when=lambda x: x.cross_pred),
+        Transition("early", "free", lambda x: not x.cross_ahead or x.cross_pred, "no ramp vehicle ahead"),
         Transition("yield", "free", bnd("yield_exit", leave_margin, strict=True), "far from the conflict point"),
         Transition("yield", "free", lambda x: not x.cross_pred, "predecessor on own road"),
         Transition("open", "pass", bnd("yield_pass", give_up_margin), "ramp predecessor fell behind"),

@@ -177,3 +177,35 @@ def test_a_blrl_stage_at_todays_boundaries_draws_switches_and_has_a_gradient(tmp
     assert stage["runs"] == learn.RUNS_PER_STAGE and stage["temperature"] == learn.T0
     assert stage["draws"] > 0 and stage["grad_norm"] > 0.0
     assert not np.allclose(theta, pb.theta0)
+
+
+def test_hinge_penalty_grows_with_how_far_a_row_is_past_its_bound() -> None:
+    """--penalty hinge: 1 + the excess per broken comparison, so blrl's leave-one-out gradient still sees
+    a difference when every run of a stage breaks ``hard_brakes <= H`` (count: the same 1 for all)."""
+    from corridor.objective import excess, hinge_violations
+
+    cons = [Expression("collisions == 0"), Expression("hard_brakes <= 3")]
+    assert [excess(c, {"collisions": 0, "hard_brakes": 8}) for c in cons] == [0.0, 5.0]
+    assert excess(Expression("3 >= hard_brakes"), {"hard_brakes": 8}) == 5.0
+    assert excess(Expression("sep > 10"), {"sep": 4.0}) == 6.0
+    assert excess(Expression("a > 0 or b > 0"), {"a": -1, "b": -2}) == 0.0  # not a single comparison
+    assert hinge_violations(cons, {"collisions": 0, "hard_brakes": 3}) == 0.0
+    assert hinge_violations(cons, {"collisions": 0, "hard_brakes": 4}) == 2.0
+    assert hinge_violations(cons, {"collisions": 2, "hard_brakes": 8}) == 3.0 + 6.0
+    assert hinge_violations(cons, {"collisions": 0}) == 1.0  # a missing column: broken, no excess
+
+
+def test_the_penalty_option_reaches_the_learners_reward(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from corridor.learn import problem
+
+    args = ("merging", "merge_enter.dist_m", "-delay_mean_s", ["collisions == 0", "hard_brakes <= 3"], 16, "blrl",
+            "v2x_cps", [])
+    row = {"status": "ok", "delay_mean_s": 9.0, "collisions": 0, "hard_brakes": 8}
+    assert problem(*args).reward(row) == -9.0 - 1.0
+    assert problem(*args, penalty="hinge").reward(row) == -9.0 - 6.0
+    assert problem(*args, penalty="hinge").reward({**row, "hard_brakes": 2}) == -9.0
+    with pytest.raises(CorridorError, match="--penalty 'square': one of count, hinge"):
+        problem(*args, penalty="square")
+    with pytest.raises(SystemExit) as exc:
+        main(["uav_encounter", "--penalty", "hinge", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2 and "--penalty go with --learn" in capsys.readouterr().err

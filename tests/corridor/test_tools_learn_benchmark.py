@@ -147,3 +147,20 @@ def test_ppo_checkpoints_are_matched_against_a_learned_theta_on_the_same_held_ou
     assert "first match: 4 training runs" in capsys.readouterr().out
     with pytest.raises(CorridorError, match="must be a --method ppo folder"):
         lb.checkpoint_table(cma, ppo, 2, bench, 2)
+
+
+def test_hand_tuned_values_replace_the_start_where_the_learners_started_elsewhere() -> None:
+    """--hand-tuned open_ahead.dist_m=0: the learners started the (off by default) boundary at 150 m, the
+    comparison is against today's controller."""
+    from corridor.learn import problem
+
+    pb = problem("merging", "merge_enter.dist_m,open_ahead.dist_m", "-delay_mean_s", ["collisions == 0"], 16,
+                 "blrl", "v2x_cps", ["sweep.v2x_cps.controllers.merge.params.boundaries.open_ahead.dist_m=150"])
+    assert pb.theta0.tolist() == [100.0, 150.0]
+    assert lb.hand_tuned_theta(pb, ["open_ahead.dist_m=0"]).tolist() == [100.0, 0.0]
+    assert lb.hand_tuned_theta(pb, []).tolist() == [100.0, 150.0]
+    full = "controllers.merge.params.boundaries.open_ahead.dist_m=0"
+    assert lb.hand_tuned_theta(pb, [full]).tolist() == [100.0, 0.0]
+    for bad in ("open_ahead.dist_m", "yield_enter.dist_m=3", "open_ahead.dist_m=x"):
+        with pytest.raises(CorridorError, match="--hand-tuned"):
+            lb.hand_tuned_theta(pb, [bad])
