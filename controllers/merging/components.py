@@ -49,7 +49,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
-from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
+from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
     lane_leaders,
@@ -187,7 +187,7 @@ class V2XMerging(Controller):
         super().__init__(name)
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
-        self.coord = Coordinator(params.policy, params.coordinator)
+        self.coord = Coordinator(params.policy, params.coordinator, self._slot_check(params))
         self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
@@ -608,6 +608,14 @@ class V2XMerging(Controller):
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
             ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
+
+    @staticmethod
+    def _slot_check(p: Params) -> SlotCheck | None:
+        """The coordinator's ``slot_feasible`` boundary (None at its default, inf: every slot is feasible)."""
+        decel = p.boundaries.slot_feasible.decel_mps2
+        if not math.isfinite(decel):
+            return None
+        return SlotCheck(decel, time_gap_s=p.merge_time_gap_s, s0_m=p.merge_gap_s0_m)
 
     @property
     def _opens_ahead(self) -> bool:

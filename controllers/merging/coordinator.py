@@ -41,6 +41,11 @@ Policies
           to the conflict point: -0.03 s, CI [-0.07, +0.01]; 20 seeds without: +0.01 s [-0.09, +0.10]),
           also with headways set to those figures.
 
+Slot feasibility (``cps``, the boundary ``slot_feasible``; off by default): with a ``SlotCheck`` the
+search skips an order that puts a vehicle directly behind one from the other road when, on the RSU's
+picture, it would have to brake harder than ``decel_mps2`` to open its gap before the conflict point
+(``SlotCheck.margin``).  Without one (the default) every order is feasible, as before.
+
 Frozen vehicles: a vehicle whose assigned crossing is within ``freeze_s`` of now keeps its position
 in the sequence (its trajectory is committed).  Times are re-packed along the sequence on every call
 (both policies): a vehicle keeps its assigned time while that time still respects the headway to its
@@ -106,6 +111,33 @@ class _Slot:
     earliest_s: float
     t_s: float  # assigned crossing time
     entered_s: float  # [s] FCFS key: the arrival expected at zone entry (ZoneVehicle.entered_s)
+    dist_m: float = math.nan  # [m] to the merge point, as last seen (a SlotCheck reads it)
+    speed_mps: float = math.nan  # [m/s]
+
+
+@dataclass(frozen=True)
+class SlotCheck:
+    """The ``slot_feasible`` boundary: g = ``decel_mps2`` - the constant deceleration [m/s²] a follower
+    needs to open its gap (``s0_m`` + its speed x ``time_gap_s``) behind a leader from the other road,
+    projected on the merge point, before it reaches that point (the leader at constant speed); g >= 0
+    holds (the slot is feasible)."""
+
+    decel_mps2: float  # [m/s^2] the most a follower may be asked to brake (inf: every slot is feasible)
+    time_gap_s: float = 1.0  # [s] the controller's merge_time_gap_s
+    s0_m: float = 2.5  # [m] its merge_gap_s0_m
+    lead_len_m: float = 5.0  # [m] the leader's length, which the RSU does not know
+
+    def required_decel(self, lead: _Slot, follow: _Slot) -> float:
+        """[m/s²] >= 0; 0 when the gap is already there or the follower is not moving."""
+        v_f, d_f = follow.speed_mps, follow.dist_m
+        if not (v_f > 0.0 and d_f > 0.0 and math.isfinite(lead.dist_m) and math.isfinite(lead.speed_mps)):
+            return 0.0
+        t_go = d_f / v_f  # [s] the follower's time to the merge point at its speed
+        short = self.s0_m + v_f * self.time_gap_s - (d_f - lead.dist_m - self.lead_len_m)
+        return max(0.0, 2.0 * (short - (lead.speed_mps - v_f) * t_go) / t_go**2)
+
+    def margin(self, lead: _Slot, follow: _Slot) -> float:
+        return self.decel_mps2 - self.required_decel(lead, follow)
 
 
 @dataclass
@@ -119,11 +151,13 @@ class _State:
 class Coordinator:
     """Assigns merge crossing times; call ``assign`` every coordinator period with the zone's vehicles."""
 
-    def __init__(self, policy: Literal["fifo", "cps"], cfg: CoordinatorConfig | None = None) -> None:
+    def __init__(self, policy: Literal["fifo", "cps"], cfg: CoordinatorConfig | None = None,
+                 slot_check: SlotCheck | None = None) -> None:
         if policy not in ("fifo", "cps"):
             raise ValueError(f"unknown policy {policy!r} (fifo | cps)")
         self.policy = policy
         self.cfg = cfg or CoordinatorConfig()
+        self.slot_check = slot_check  # cps: skip infeasible slots (None: every slot is feasible)
         self._st = _State()
         self.max_shift_seen = 0  # largest |position - FCFS rank| ever assigned (diagnostic)
 
@@ -143,7 +177,8 @@ class Coordinator:
         self._update_earliest(vehicles)
         new = sorted((v for v in vehicles if v.id not in self._ids()), key=lambda v: (v.entered_s, v.id))
         for v in new:
-            slot = _Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan, v.entered_s)
+            slot = _Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan, v.entered_s,
+                         v.dist_to_merge_m, v.speed_mps)
             self._st.n_ranked += 1
             if self.policy == "fifo":
                 self._insert_fcfs(t_s, slot)
@@ -180,7 +215,8 @@ class Coordinator:
     def _update_earliest(self, vehicles: list[ZoneVehicle]) -> None:
         by_id = {v.id: v for v in vehicles}
         for s in self._st.slots:
-            s.earliest_s = by_id[s.vid].earliest_arrival_s
+            v = by_id[s.vid]
+            s.earliest_s, s.dist_m, s.speed_mps = v.earliest_arrival_s, v.dist_to_merge_m, v.speed_mps
 
     def _needs_repair(self) -> bool:
         return any(
@@ -231,7 +267,7 @@ class Coordinator:
         window, rest = free[: self.cfg.horizon], free[self.cfg.horizon :]
         prev = (fixed[-1].t_s, fixed[-1].road) if fixed else self._st.tail
         pos0 = self._st.n_done + n_fix
-        order = _CpsSearch(self, window, prev, pos0).best_order()
+        order = _CpsSearch(self, window, prev, pos0, fixed[-1] if fixed else None).best_order()
         for s in window:
             s.t_s = np.nan  # re-timed along the new order
         for s in rest:
@@ -242,9 +278,11 @@ class Coordinator:
 class _CpsSearch:
     """Branch and bound over position-shift-constrained orders of a window of slots."""
 
-    def __init__(self, coord: Coordinator, window: list[_Slot], prev: tuple[float, Road] | None, pos0: int):
+    def __init__(self, coord: Coordinator, window: list[_Slot], prev: tuple[float, Road] | None, pos0: int,
+                 lead0: _Slot | None = None):
         cfg = coord.cfg
         self.coord, self.window, self.prev, self.pos0 = coord, window, prev, pos0
+        self.lead0 = lead0  # the last frozen vehicle, the first leader of the window (slot_check)
         self.k = cfg.max_shift
         self.w = [cfg.weight_ramp if s.road == "ramp" else cfg.weight_main for s in window]
         self.h_min = min(cfg.headway_same_s, cfg.headway_cross_s)
@@ -279,6 +317,11 @@ class _CpsSearch:
         ok = [i for i in free if abs(p - self.window[i].rank) <= self.k]
         return ok or [free[0]]
 
+    def _feasible(self, lead: _Slot | None, s: _Slot) -> bool:
+        """The ``slot_feasible`` boundary for ``s`` directly behind ``lead`` (same road: always)."""
+        chk = self.coord.slot_check
+        return chk is None or lead is None or lead.road == s.road or chk.margin(lead, s) >= 0.0
+
     def _bound(self, used: set[int], t_last: float) -> float:
         """Lower bound of the remaining cost: everyone left crosses at least h_min after t_last."""
         return sum(self.cost(i, t_last + self.h_min) for i in range(len(self.window)) if i not in used)
@@ -289,8 +332,11 @@ class _CpsSearch:
                 self.best_cost, self.best = cost, list(seq)
             return
         p = self.pos0 + len(seq)
+        lead = self.window[seq[-1]] if seq else self.lead0
         for i in self._candidates(used, p):
             s = self.window[i]
+            if not self._feasible(lead, s):
+                continue
             t = (
                 s.earliest_s
                 if prev is None

@@ -82,6 +82,15 @@ class OpenTheta(BaseModel):
     #   predecessor on its own road opens the gap to the nearest other-road vehicle ahead in the order
 
 
+class SlotTheta(BaseModel):
+    """Parameters of the coordinator's slot-feasibility boundary (inf: off, every slot is feasible)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=True)
+
+    decel_mps2: float = Field(math.inf, gt=0.0)  # [m/s^2] cps puts no vehicle directly behind one from the
+    #   other road that would have to brake harder than this to open its gap (coordinator.SlotCheck)
+
+
 class MergeBoundaries(BaseModel):
     """The named boundaries of the merging automaton (scenario: ``controllers.X.params.boundaries``)."""
 
@@ -96,6 +105,7 @@ class MergeBoundaries(BaseModel):
     yield_pass: LagTheta = Field(default_factory=LagTheta)  # mainline: open -> pass (the ramp vehicle fell behind)
     open_ahead: OpenTheta = Field(default_factory=OpenTheta)  # mainline: free -> early (open to a ramp vehicle
     #   ahead of its mainline predecessor in the order)
+    slot_feasible: SlotTheta = Field(default_factory=SlotTheta)  # the RSU (cps): which slots the search may use
 
     # hysteresis pairs, follower -> (anchor, +1: follower's theta >= anchor's, -1: <=); with the order
     # inverted both guards hold in a band and the vehicle switches at every update.  yield: enter at
