@@ -1,0 +1,101 @@
+"""V2X merging: the tick's cheaper paths give the bits of the ones they replaced (issue 27, the sixth CPU
+pass).  The lane leaders are found only in a tick that commands a vehicle (the safety layer's cap against
+the physical leader), with the same result as the eager search; the crossing speed is the mainline's mean
+speed upstream of the zone with ``np.mean``'s bits."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from corridor.controllers.merging.components import V2XMerging, deliverable_safety
+from corridor.controllers.merging.safety_layer import lane_leaders, safe_accel
+from corridor.scenario import load
+from corridor.variants import variant_scenarios
+from tests.conftest import scenario_file
+
+
+def _controller() -> V2XMerging:
+    sc, _ = load(scenario_file("merging"), [])
+    vsc = variant_scenarios(sc)["v2x_cps"]
+    comp = V2XMerging("merge", V2XMerging.Params.model_validate(dict(vsc.controllers["merge"].params)), vsc)
+    comp.safety = deliverable_safety(comp.p.safety, vsc, comp.p.command_speed_mode, comp.period)
+    return comp
+
+
+def _state(rng: np.random.Generator, n: int) -> dict:
+    """A tick's sensed state as ``_sense`` returns it (the fields the tested paths read)."""
+    lane = rng.integers(0, 3, n)
+    lane_pos = np.round(rng.uniform(0.0, 400.0, n), 1)  # rounded: ties on a lane occur
+    return {"lane": lane, "lane_pos": lane_pos, "length": rng.uniform(4.0, 12.0, n), "speed": rng.uniform(0.0, 35.0, n),
+            "dist": rng.uniform(-100.0, 800.0, n), "ramp": rng.random(n) < 0.3}
+
+
+def test_the_lane_leaders_are_found_once_a_tick_and_only_when_a_vehicle_is_capped() -> None:
+    comp = _controller()
+    rng = np.random.default_rng(27)
+    for _ in range(50):
+        s = _state(rng, int(rng.integers(2, 60)))
+        assert "leader" not in s
+        leaders = lane_leaders(s["lane"], s["lane_pos"])
+        for k in rng.permutation(len(s["lane"]))[:5].tolist():
+            acc = comp._physical_leader_cap(s, k, 1.0)
+            j = int(leaders[k])
+            want = 1.0 if j < 0 else safe_accel(float(s["lane_pos"][j] - s["length"][j] - s["lane_pos"][k]),
+                                                float(s["speed"][k]), float(s["speed"][j]), 1.0, comp.safety)
+            assert acc == want
+        np.testing.assert_array_equal(s["leader"], leaders)
+
+
+def test_a_tick_that_commands_no_vehicle_searches_no_lane_leaders(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    """A real 60 s ``v2x_cps`` run: the search (a lexsort of every row) ran in every tick with vehicles,
+    also in those that command none (the first vehicles' way to the zone, ~20 % of a 300 s run's ticks)."""
+    from corridor.controllers.merging import components
+    from corridor.run import build
+    from corridor.traffic.sumo.commands import SetSpeed
+
+    calls, sensed, commanding = [0], [0], [0]
+    search, sense, decide = components.lane_leaders, V2XMerging._sense, V2XMerging._decide
+
+    def counted_search(*a):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        return search(*a)
+
+    def counted_sense(self, ctx):  # type: ignore[no-untyped-def]
+        s = sense(self, ctx)
+        sensed[0] += s is not None
+        return s
+
+    def counted_decide(self, *a):  # type: ignore[no-untyped-def]
+        cmds = decide(self, *a)
+        commanding[0] += any(isinstance(c, SetSpeed) for c in cmds)
+        return cmds
+
+    monkeypatch.setattr(components, "lane_leaders", counted_search)
+    monkeypatch.setattr(V2XMerging, "_sense", counted_sense)
+    monkeypatch.setattr(V2XMerging, "_decide", counted_decide)
+    sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
+    sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
+    try:
+        for c in sim.setup_order:
+            c.setup(sim.ctx)
+        for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
+            sim.step()
+    finally:
+        for c in sim.ctx.components.values():
+            c.close()
+    assert 0 < commanding[0] < sensed[0]  # the run has ticks with and without commands
+    assert calls[0] == commanding[0]  # one search a commanding tick, none otherwise
+
+
+@pytest.mark.parametrize("n", [0, 1, 7, 200])
+def test_the_crossing_speed_has_the_bits_of_np_mean(n: int) -> None:
+    comp = _controller()
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        s = _state(rng, n)
+        zone = comp.p.coordinator.control_zone_m
+        near = ~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)
+        v = float(np.mean(s["speed"][near])) if near.any() else comp.p.limits.v_max_mps
+        want = min(max(v, 8.0), comp.p.limits.v_max_mps)
+        assert comp._stream_speed(s) == want
