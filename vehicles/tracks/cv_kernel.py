@@ -66,6 +66,30 @@ def _inv2(a00: float, a01: float, a10: float, a11: float) -> tuple[float, float,
     return x0a, x0b, x1a, x1b
 
 
+@njit(cache=True, inline="always")
+def fuse_one(x: np.ndarray, p: np.ndarray, i: int, predict: bool, d: float, q11: float, q12: float, q22: float,
+             z0: float, z1: float, r00: float, r01: float, r10: float, r11: float) -> None:
+    """One message on row ``i`` of ``x`` (k, 2), ``p`` (k, 2, 2), in place: if ``predict``, predict over
+    ``d`` with Q = [[q11, q12], [q12, q22]]; then update with z = (z0, z1) and R (Joseph form)."""
+    x0, x1 = x[i, 0], x[i, 1]
+    p00, p01, p10, p11 = p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1]
+    if predict:
+        x0, x1 = _mv(1.0, d, 0.0, 1.0, x0, x1)
+        a00, a01, a10, a11 = _mm(1.0, d, 0.0, 1.0, p00, p01, p10, p11)
+        b00, b01, b10, b11 = _mm(a00, a01, a10, a11, 1.0, 0.0, d, 1.0)
+        p00, p01, p10, p11 = b00 + q11, b01 + q12, b10 + q12, b11 + q22
+    s00, s01, s10, s11 = _inv2(p00 + r00, p01 + r01, p10 + r10, p11 + r11)
+    k00, k01, k10, k11 = _mm(p00, p01, p10, p11, s00, s01, s10, s11)
+    y0, y1 = _mv(k00, k01, k10, k11, z0 - x0, z1 - x1)
+    x[i, 0], x[i, 1] = x0 + y0, x1 + y1
+    i00, i01, i10, i11 = 1.0 - k00, 0.0 - k01, 0.0 - k10, 1.0 - k11
+    a00, a01, a10, a11 = _mm(i00, i01, i10, i11, p00, p01, p10, p11)
+    a00, a01, a10, a11 = _mm(a00, a01, a10, a11, i00, i10, i01, i11)
+    b00, b01, b10, b11 = _mm(k00, k01, k10, k11, r00, r01, r10, r11)
+    b00, b01, b10, b11 = _mm(b00, b01, b10, b11, k00, k10, k01, k11)
+    p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1] = a00 + b00, a01 + b01, a10 + b10, a11 + b11
+
+
 _SIG = "void(f8[:, :], f8[:, :, :], b1[:], f8[:], f8[:], f8[:], f8[:], f8[:, :], f8[:, :])"
 
 
@@ -79,22 +103,8 @@ def cv_fuse_1d(x: np.ndarray, p: np.ndarray, ahead: np.ndarray, dt: np.ndarray, 
     r00, r01, r10, r11 = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
     j = 0
     for i in range(x.shape[0]):
-        x0, x1 = x[i, 0], x[i, 1]
-        p00, p01, p10, p11 = p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1]
         if ahead[i]:
-            d = dt[j]
-            x0, x1 = _mv(1.0, d, 0.0, 1.0, x0, x1)
-            a00, a01, a10, a11 = _mm(1.0, d, 0.0, 1.0, p00, p01, p10, p11)
-            b00, b01, b10, b11 = _mm(a00, a01, a10, a11, 1.0, 0.0, d, 1.0)
-            p00, p01, p10, p11 = b00 + q11[j], b01 + q12[j], b10 + q12[j], b11 + q22[j]
+            fuse_one(x, p, i, True, dt[j], q11[j], q12[j], q22[j], z[i, 0], z[i, 1], r00, r01, r10, r11)
             j += 1
-        s00, s01, s10, s11 = _inv2(p00 + r00, p01 + r01, p10 + r10, p11 + r11)
-        k00, k01, k10, k11 = _mm(p00, p01, p10, p11, s00, s01, s10, s11)
-        y0, y1 = _mv(k00, k01, k10, k11, z[i, 0] - x0, z[i, 1] - x1)
-        x[i, 0], x[i, 1] = x0 + y0, x1 + y1
-        i00, i01, i10, i11 = 1.0 - k00, 0.0 - k01, 0.0 - k10, 1.0 - k11
-        a00, a01, a10, a11 = _mm(i00, i01, i10, i11, p00, p01, p10, p11)
-        a00, a01, a10, a11 = _mm(a00, a01, a10, a11, i00, i10, i01, i11)
-        b00, b01, b10, b11 = _mm(k00, k01, k10, k11, r00, r01, r10, r11)
-        b00, b01, b10, b11 = _mm(b00, b01, b10, b11, k00, k10, k01, k11)
-        p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1] = a00 + b00, a01 + b01, a10 + b10, a11 + b11
+        else:
+            fuse_one(x, p, i, False, 0.0, 0.0, 0.0, 0.0, z[i, 0], z[i, 1], r00, r01, r10, r11)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from corridor.vehicles.tracks.cv_kernel import _inv2, _mm, _mv
+from corridor.vehicles.tracks.cv_kernel import fuse_one
 from corridor.vehicles.tracks.stack import cv_terms
 
 _ROWS_SIG = ("UniTuple(i8, 2)(i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8, i8[:], i8[:], i8, i8[:, :], "
@@ -90,26 +90,11 @@ def _fuse_rows(rows: np.ndarray, x: np.ndarray, p: np.ndarray, ahead: np.ndarray
     r00, r01, r10, r11 = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
     j = 0
     for m in range(rows.shape[0]):
-        i = rows[m]
-        x0, x1 = x[i, 0], x[i, 1]
-        p00, p01, p10, p11 = p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1]
         if ahead[m]:
-            d = dt[j]
-            x0, x1 = _mv(1.0, d, 0.0, 1.0, x0, x1)
-            a00, a01, a10, a11 = _mm(1.0, d, 0.0, 1.0, p00, p01, p10, p11)
-            b00, b01, b10, b11 = _mm(a00, a01, a10, a11, 1.0, 0.0, d, 1.0)
-            p00, p01, p10, p11 = b00 + q11[j], b01 + q12[j], b10 + q12[j], b11 + q22[j]
+            fuse_one(x, p, rows[m], True, dt[j], q11[j], q12[j], q22[j], z[m, 0], z[m, 1], r00, r01, r10, r11)
             j += 1
-        s00, s01, s10, s11 = _inv2(p00 + r00, p01 + r01, p10 + r10, p11 + r11)
-        k00, k01, k10, k11 = _mm(p00, p01, p10, p11, s00, s01, s10, s11)
-        y0, y1 = _mv(k00, k01, k10, k11, z[m, 0] - x0, z[m, 1] - x1)
-        x[i, 0], x[i, 1] = x0 + y0, x1 + y1
-        i00, i01, i10, i11 = 1.0 - k00, 0.0 - k01, 0.0 - k10, 1.0 - k11
-        a00, a01, a10, a11 = _mm(i00, i01, i10, i11, p00, p01, p10, p11)
-        a00, a01, a10, a11 = _mm(a00, a01, a10, a11, i00, i10, i01, i11)
-        b00, b01, b10, b11 = _mm(k00, k01, k10, k11, r00, r01, r10, r11)
-        b00, b01, b10, b11 = _mm(b00, b01, b10, b11, k00, k10, k01, k11)
-        p[i, 0, 0], p[i, 0, 1], p[i, 1, 0], p[i, 1, 1] = a00 + b00, a01 + b01, a10 + b10, a11 + b11
+        else:
+            fuse_one(x, p, rows[m], False, 0.0, 0.0, 0.0, 0.0, z[m, 0], z[m, 1], r00, r01, r10, r11)
 
 
 _DROP_SIG = "i8(f8, f8, i8, i8[:], i8[:], i8[:], i8[:, :], f8[:], i8[:])"
