@@ -228,6 +228,11 @@ class AddressedChannel:
         self._known[nodes] = True
         self._pos[nodes] = pos_m
 
+    def position_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The per-node (known, position (cap, 3) [m]) arrays that ``set_positions`` writes, for a compiled
+        caller that sets them in place the same way (valid until a new node is registered)."""
+        return self._known, self._pos
+
     # -- sending and delivery -----------------------------------------------------------------
     def send(self, t_s: float, src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray,
              val: np.ndarray, ref: np.ndarray) -> None:

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from itertools import accumulate
 from operator import itemgetter
 from typing import Any, ClassVar, Literal
 
@@ -49,6 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
+from corridor.controllers.merging.cam_kernel import STATUS_OK, cam_stage
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -72,7 +72,6 @@ from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
-from corridor.traffic.v2x import CamGenerator
 from corridor.vehicles.tracks.node_pool import NodeTrackPool
 
 RSU = "rsu"
@@ -82,9 +81,9 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
-# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], the receiver nodes of all of them
-# (the RSU, then the sender's followers, sender by sender), their count per sender, contents (k, 2)
-_Cams = tuple[list[int], np.ndarray, list[int], list[int], np.ndarray]
+# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], ptr (k + 1) into the receiver nodes of
+# all of them (the RSU, then the sender's followers, sender by sender), those receivers, contents (k, 2)
+_Cams = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,13 +187,15 @@ class V2XMerging(Controller):
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
         self.coord = Coordinator(params.policy, params.coordinator, self._slot_check(params))
-        self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
         self._sent_assignments: dict[int, Assignment] = {}  # in flight, by the reference its copy carries
         self._n_refs = 0
         self._listen_keys = np.zeros(0, dtype=np.int64)  # see _communicate
+        self._next_cam = np.zeros(0)  # [s] per channel node: its next CAM (NaN: none yet; CamGenerator.due)
+        self._row_node = np.zeros(0, dtype=np.int64)  # per road row: its channel node (-1: none), see _row_nodes
+        self._row_node_key: list[str] | None = None
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
@@ -231,7 +232,12 @@ class V2XMerging(Controller):
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
         self._rsu_node = self.channel.node(RSU)
-        self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
+        # the CAM schedule (traffic.v2x.CamGenerator's, per node in cam_kernel): a first CAM at a random phase
+        self._cam_period = 1.0 / self.chan_cfg.rate_hz  # [s]
+        self._cam_rng = ctx.rng(f"{self.name}.cam")
+        zone, p = self.p.coordinator.control_zone_m, self.p
+        # [m] senders: near_lo < d < near_hi; listeners: zone_lo < d <= zone_hi (d: to the conflict point)
+        self._cam_bounds = (-p.release_after_m - 50, zone + p.send_margin_m, -p.release_after_m, zone)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self.tracks = NodeTrackPool(self.channel.index, process_noise=self.p.track_process_noise, meas_noise=0.5,
                                     vel_noise=0.3, stale_after_s=self.p.stale_after_s)
@@ -320,7 +326,59 @@ class V2XMerging(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> _Cams:
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
-        when the channel's delay is never zero (none of them could be delivered in this tick)."""
+        when the channel's delay is never zero (none of them could be delivered in this tick).
+
+        The stage is one compiled call over node indices (``cam_kernel.cam_stage``: the zone masks, the
+        senders' positions, the CAM schedule, the listen keys, each CAM's receivers); a listener to attach
+        or detach, a sender without a node or without a schedule is done here first (``_admit``).
+
+        A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
+        sender may precede in the crossing order), so only those copies are simulated: each is drawn
+        with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
+        O(N^2) cost.  A vehicle listens to the few vehicles ahead of it in the current order (one
+        more than a re-sequencing can shift), so a new predecessor is already tracked; fifo inserts a
+        newcomer by its expected arrival, ahead of vehicles already ordered: they must have heard it
+        already (a CAM is a broadcast), so every ordered vehicle also listens to the senders on a
+        conflicting lane that are not ordered yet."""
+        out = self._cam_stage(t, s)
+        if out[0] != STATUS_OK:
+            self._admit(t, s)
+            out = self._cam_stage(t, s)
+            assert out[0] == STATUS_OK, out[0]
+        _, _near, src, cam_pos, cam_z, ptr, dst, keys = out
+        self._listen_keys = keys
+        cams: _Cams = (src, cam_pos, ptr, dst, cam_z)
+        if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
+            self._send(t, cams, [])
+            cams = (src[:0], cam_pos[:0], ptr[:1], dst[:0], cam_z[:0])
+        self._receive(t)
+        self.tracks.drop_stale(t)
+        return cams
+
+    def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
+        """``cam_kernel.cam_stage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
+        index = self.channel.index
+        known, chan_pos = self.channel.position_arrays()
+        order_node = np.array([index.get(v, -1) for v in self.coord.sequence], dtype=np.int64)
+        return cam_stage(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
+                         self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
+                         self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu,
+                         order_node, self._listen_depth, self.coord.policy == "fifo")
+
+    def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:
+        """Each road row's channel node (-1: none yet), rebuilt when the rows' ids list changes."""
+        ids = s["ids"]
+        if self._row_node_key is not ids:
+            index = self.channel.index
+            self._row_node = np.array([index.get(v, -1) for v in ids], dtype=np.int64)
+            self._row_node_key = ids
+        return self._row_node
+
+    def _admit(self, t: float, s: dict[str, Any]) -> None:
+        """What the compiled stage leaves to names and draws, in the order the Python stage did it:
+        attach the vehicles in the zone as listeners (row order) and detach those that left; give every
+        sender a node (row order), and a first CAM time at a random phase inside one period (row order:
+        ``CamGenerator.due``'s draws)."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist = s["ids"], s["dist"]
         near = s["connected"] & (dist < zone_len + self.p.send_margin_m) & (dist > -self.p.release_after_m - 50)
@@ -335,105 +393,42 @@ class V2XMerging(Controller):
             self.channel.detach(vid)
             self.tracks.remove_receiver(vid)
             self.assigned.pop(vid, None)
-        pos = s["pos"]
-        idx = np.flatnonzero(near)
-        sel = [ids[k] for k in idx.tolist()]
-        node = self.channel.node
-        sel_pos = np.zeros((len(idx) + 1, 3))  # [m] the RSU, then the senders (2-D positions: z = 0)
-        sel_pos[0, :2] = self.x_merge, self.y_rsu
-        sel_pos[1:, : pos.shape[1]] = pos[idx]
-        index = self.channel.index
-        nodes = np.array([self._rsu_node, *[index[v] if v in index else node(v) for v in sel]], dtype=np.int64)
-        self.channel.set_positions(nodes, sel_pos)
-        due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
-        # a CAM's content that its receivers use, as one row each: [position on the merge axis
-        # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
-        cam_z = np.empty((len(due), 2))  # np.column_stack's array without its ~8 us
-        cam_z[:, 0], cam_z[:, 1] = -s["dist"][due], s["speed"][due]
-        cam_pos = np.zeros((len(due), 3))
-        cam_pos[:, :2] = pos[due, :2]  # [m] the sender's position for the range check (a CAM's x, y)
-        # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
-        # sender may precede in the crossing order), so only those copies are simulated: each is drawn
-        # with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
-        # O(N^2) cost.  A vehicle listens to the few vehicles ahead of it in the current order (one
-        # more than a re-sequencing can shift), so a new predecessor is already tracked.
-        followers: dict[str, list[str]] = {}
-        self._listen = {}
-        rsu = self._rsu_node
-        keys: list[int] = []  # the vehicles' (receiver node << 32 | sender node) pairs, for the fuse
-        order = self.coord.sequence
-        # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
-        # have heard it already (a CAM is a broadcast), so every ordered vehicle also listens to the
-        # senders on a conflicting lane that are not ordered yet
-        newcomers = self._newcomers(s, idx, set(order)) if self.coord.policy == "fifo" else []
-        for pos_, vid in enumerate(order):
-            if vid not in self.tracks:
-                continue
-            ahead = order[max(0, pos_ - self._listen_depth): pos_]
-            listen = self._listen[vid] = set(ahead).union(newcomers)
-            rx = index[vid] << 32  # a receiver is attached, so the channel knows it
-            keys.extend([rx | index[src] for src in listen if src in index])
-            for src in ahead:
-                followers.setdefault(src, []).append(vid)
-            for src in newcomers:
-                if src != vid:
-                    followers.setdefault(src, []).append(vid)
-        keys.sort()
-        self._listen_keys = np.array(keys, dtype=np.int64)
-        # a multicast per CAM: the same draws as one unicast send per copy
-        senders = [ids[k] for k in due.tolist()]
-        receivers: list[int] = []
-        counts: list[int] = []
-        for v in senders:
-            receivers.append(rsu)
-            fol = followers.get(v)
-            if fol is None:  # most senders: only the RSU acts on their CAM
-                counts.append(1)
-                continue
-            receivers.extend([index.get(f, -1) for f in fol])
-            counts.append(1 + len(fol))
-        cams: _Cams = ([index[v] for v in senders], cam_pos, receivers, counts, cam_z)
-        if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
-            self._send(t, cams, [])
-            cams = ([], cam_pos[:0], [], [], cam_z[:0])
-        self._receive(t)
-        self.tracks.drop_stale(t)
-        return cams
-
-    @staticmethod
-    def _newcomers(s: dict[str, Any], idx: np.ndarray, ordered: set[str]) -> list[str]:
-        """The CAM senders ``idx`` (rows) on a conflicting lane (ramp, or the mainline lane ramp
-        vehicles join) that the RSU has not ordered yet."""
-        ids, conflict = s["ids"], (s["ramp"] | s["right"]) & ~s["merged"]
-        return [ids[k] for k in idx.tolist() if conflict[k] and ids[k] not in ordered]
+        sel = [ids[k] for k in np.flatnonzero(near).tolist()]
+        nodes = [self.channel.node(v) for v in sel]  # registered on first use, in row order
+        if len(self._next_cam) < len(self.channel.names):
+            grown = np.full(2 * len(self.channel.names), np.nan)
+            grown[: len(self._next_cam)] = self._next_cam
+            self._next_cam = grown
+        for j in nodes:
+            if math.isnan(self._next_cam[j]):
+                self._next_cam[j] = t + self._cam_rng.uniform(0.0, self._cam_period)
+        self._row_node_key = None  # nodes were registered
 
     def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
         """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
         draws, in the same order, as one send each. An assignment travels as a reference
         (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
-        src, pos, receivers, counts, cam_z = cams
+        src, pos, ptr, dst, cam_z = cams
         n_c, n_a = len(src), len(assignments)
         if not n_c and not n_a:
             return
-        r0 = self._n_refs
+        val = np.zeros((n_c + n_a, 2))
+        val[:n_c] = cam_z
+        ref = np.full(n_c + n_a, -1, dtype=np.int64)
         if n_a:
+            r0 = self._n_refs
             index, sent = self.channel.index, self._sent_assignments
             for r, a in enumerate(assignments, start=r0):
                 sent[r] = a[1]
             self._n_refs += n_a
-            src = [*src, *[self._rsu_node] * n_a]
-            pos = np.empty((n_c + n_a, 3))
-            pos[:n_c] = cams[1]
+            ref[n_c:] = range(r0, r0 + n_a)
+            src = np.concatenate([src, np.full(n_a, self._rsu_node, dtype=np.int64)])
+            pos = np.concatenate([pos, np.empty((n_a, 3))])
             rsu_pos = assignments[0][2]
             pos[n_c:] = rsu_pos if all(a[2] is rsu_pos for a in assignments) else [a[2] for a in assignments]
-            receivers = [*receivers, *[index.get(a[3], -1) for a in assignments]]
-            counts = [*counts, *[1] * n_a]
-        ptr = np.array([0, *accumulate(counts)], dtype=np.int64)
-        val = np.zeros((n_c + n_a, 2))
-        val[:n_c] = cam_z
-        ref = np.full(n_c + n_a, -1, dtype=np.int64)
-        ref[n_c:] = range(r0, r0 + n_a)
-        self.channel.send(t, np.array(src, dtype=np.int64), pos, ptr, np.array(receivers, dtype=np.int64), val, ref)
+            dst = np.concatenate([dst, np.array([index.get(a[3], -1) for a in assignments], dtype=np.int64)])
+            ptr = np.concatenate([ptr, ptr[n_c] + np.arange(1, n_a + 1, dtype=np.int64)])
+        self.channel.send(t, src, pos, ptr, dst, val, ref)
 
     def _receive(self, t: float) -> None:
         """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
@@ -462,10 +457,6 @@ class V2XMerging(Controller):
             if sent[ref].t_sent_s >= horizon:
                 break
             del sent[ref]
-
-    def _tracks_sender(self, dst: str, src: str) -> bool:
-        """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
-        return dst == RSU or src in self._listen.get(dst, ())
 
     def _coordinate(self, t: float, s: dict[str, Any], target: float
                     ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:

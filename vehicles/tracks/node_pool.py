@@ -173,6 +173,15 @@ class NodeTrackPool:
         self._slot_of[self.index[rx]] = -1
         self._free_slots.append(s)
 
+    def __len__(self) -> int:
+        """The receivers."""
+        return len(self._slots)
+
+    @property
+    def slot_of(self) -> np.ndarray:
+        """Node -> receiver slot (-1: not a receiver; nodes beyond its length neither)."""
+        return self._slot_of
+
     def __contains__(self, rx: object) -> bool:
         return rx in self._slots
 

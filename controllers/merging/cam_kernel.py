@@ -1,0 +1,180 @@
+"""The V2X merging controller's CAM stage of a tick in one compiled call (issue 27, the seventh CPU pass).
+
+``V2XMerging._communicate`` did it in Python on vehicle names: the zone masks, the senders' positions
+handed to the channel, the CAM schedule (``traffic.v2x.CamGenerator.due`` over ~25 senders), the listen
+pairs and each CAM's receivers built from the crossing order, the send arrays.  Here the same, over node
+indices (the channel's), with the same values and the same order:
+
+- *senders* (``near``): connected rows with ``near_lo < d < near_hi`` (d: distance to the conflict point);
+  *listeners* (``in_zone``): connected rows with ``zone_lo < d <= zone_hi``;
+- the channel's known positions: the roadside unit and the senders (``AddressedChannel.set_positions``);
+- the CAM schedule per sender node, ``CamGenerator.due``'s arithmetic (due when ``t + 1e-9 >= next``; the
+  next slot on the period grid, skipping missed slots);
+- per vehicle of the crossing order that is a receiver, the senders it listens to (the ``depth`` vehicles
+  ahead of it in the order, and with ``fifo`` every sender on a conflicting lane not ordered yet, the
+  *newcomers*) as sorted ``receiver << 32 | sender`` keys (``NodeTrackPool.fuse_delivered``);
+- per due CAM (row order): the roadside unit, then the receivers that listen to its sender, in the order.
+
+What needs a name or a random draw is left to the caller: the kernel changes nothing and returns a
+status > 0 when a listener must be attached or detached (``STATUS_LISTENERS``), a sender has no node yet
+(``STATUS_NODES``) or a sender has no schedule yet (``STATUS_PHASE``, a phase drawn per new sender, in row
+order); the caller does that in Python, in the order the Python stage did it, and calls again.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+
+STATUS_OK, STATUS_LISTENERS, STATUS_NODES, STATUS_PHASE = 0, 1, 2, 3
+DUE_EPS_S = 1e-9  # [s] traffic.v2x's tolerance of the period comparison
+
+def _signature() -> Any:
+    i8, f8, b1 = types.int64, types.float64, types.boolean
+    vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
+    pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
+    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi))
+    return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
+               f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi
+               vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
+               vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
+               vi, i8, b1)  # order_node, depth, fifo
+
+
+@njit(_signature(), cache=True)
+def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray, speed: np.ndarray,
+              ramp: np.ndarray, right: np.ndarray, merged: np.ndarray, row_node: np.ndarray,
+              near_lo: float, near_hi: float, zone_lo: float, zone_hi: float,
+              slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
+              known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
+              order_node: np.ndarray, depth: int, fifo: bool
+              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
+    [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
+    ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
+    unit; ``next_s``: node -> next CAM time [s] (NaN: none yet), advanced in place; ``known`` / ``chan_pos``:
+    the channel's node positions, set in place; ``order_node``: the crossing order's nodes (-1: no node).
+
+    Returns (status, the senders' rows, the due senders' nodes, their CAM positions (k, 3) [m] and contents
+    (k, 2) [position on the merge axis [m], speed [m/s]], ptr (k + 1), the receiver nodes, the sorted
+    listen keys); with a status > 0 the arrays are empty and nothing was changed."""
+    n = dist.shape[0]
+    n_slot, n_next = slot_of.shape[0], next_s.shape[0]
+    empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
+    near = np.empty(n, dtype=np.int64)
+    n_near = 0
+    n_heard = 0
+    for k in range(n):
+        if not connected[k]:
+            continue
+        d = dist[k]
+        node = row_node[k]
+        if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
+            if node < 0 or node >= n_slot or slot_of[node] < 0:
+                return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+            n_heard += 1
+        if d < near_hi and d > near_lo:
+            near[n_near] = k
+            n_near += 1
+    if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
+        return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+    near = near[:n_near]
+    for k in near:
+        if row_node[k] < 0:
+            return STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+    for k in near:
+        node = row_node[k]
+        if node >= n_next or math.isnan(next_s[node]):
+            return STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+    # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
+    known[:] = False
+    known[rsu] = True
+    chan_pos[rsu, 0], chan_pos[rsu, 1], chan_pos[rsu, 2] = x_rsu, y_rsu, 0.0
+    n_col = pos.shape[1]
+    for k in near:
+        node = row_node[k]
+        known[node] = True
+        for c in range(3):
+            chan_pos[node, c] = pos[k, c] if c < n_col else 0.0
+    # the CAM schedule (CamGenerator.due, per sender in row order)
+    due = np.empty(n_near, dtype=np.int64)
+    n_due = 0
+    for k in near:
+        node = row_node[k]
+        nxt = next_s[node]
+        if t + DUE_EPS_S >= nxt:
+            due[n_due] = k
+            n_due += 1
+            n_missed = math.floor((t + DUE_EPS_S - nxt) / period)
+            next_s[node] = nxt + (n_missed + 1.0) * period
+    # the crossing order: each node's position (-1: not ordered), which positions are receivers
+    n_nodes = known.shape[0]
+    pos_of = np.full(n_nodes, -1, dtype=np.int64)
+    n_order = order_node.shape[0]
+    is_rx = np.zeros(n_order, dtype=np.bool_)
+    for p in range(n_order):
+        node = order_node[p]
+        if node >= 0:
+            pos_of[node] = p
+            is_rx[p] = node < n_slot and slot_of[node] >= 0
+    # fifo's newcomers: senders on a conflicting lane that are not ordered yet (row order)
+    newcomers = np.empty(n_near if fifo else 0, dtype=np.int64)
+    n_new = 0
+    if fifo:
+        for k in near:
+            if (ramp[k] or right[k]) and not merged[k] and pos_of[row_node[k]] < 0:
+                newcomers[n_new] = row_node[k]
+                n_new += 1
+    # the listen keys: each ordered receiver listens to the vehicles ahead of it, and to the newcomers
+    keys = np.empty(n_order * (depth + n_new), dtype=np.int64)
+    n_keys = 0
+    for p in range(n_order):
+        if not is_rx[p]:
+            continue
+        rx = order_node[p] << 32
+        for j in range(max(0, p - depth), p):
+            if order_node[j] >= 0:
+                keys[n_keys] = rx | order_node[j]
+                n_keys += 1
+        for j in range(n_new):
+            keys[n_keys] = rx | newcomers[j]
+            n_keys += 1
+    keys = np.sort(keys[:n_keys])
+    # the due CAMs: sender, position, content, receivers (the roadside unit, then its listeners in order)
+    src = np.empty(n_due, dtype=np.int64)
+    cam_pos = np.zeros((n_due, 3))
+    cam_z = np.empty((n_due, 2))
+    ptr = np.empty(n_due + 1, dtype=np.int64)
+    dst = np.empty(n_due * (1 + n_order), dtype=np.int64)
+    ptr[0] = 0
+    m = 0
+    for e in range(n_due):
+        k = due[e]
+        node = row_node[k]
+        src[e] = node
+        cam_pos[e, 0], cam_pos[e, 1] = pos[k, 0], pos[k, 1]
+        cam_z[e, 0], cam_z[e, 1] = -dist[k], speed[k]
+        dst[m] = rsu
+        m += 1
+        ps = pos_of[node]
+        newcomer = False
+        if ps < 0:
+            for j in range(n_new):
+                if newcomers[j] == node:
+                    newcomer = True
+                    break
+        if ps >= 0:
+            for p in range(ps + 1, min(ps + depth + 1, n_order)):
+                if is_rx[p]:
+                    dst[m] = order_node[p]
+                    m += 1
+        elif newcomer:
+            for p in range(n_order):
+                if is_rx[p]:
+                    dst[m] = order_node[p]
+                    m += 1
+        ptr[e + 1] = m
+    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys
