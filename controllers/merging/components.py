@@ -352,7 +352,6 @@ class V2XMerging(Controller):
             self._send(t, cams, [])
             cams = (src[:0], cam_pos[:0], ptr[:1], dst[:0], cam_z[:0])
         self._receive(t)
-        self.tracks.drop_stale(t)
         return cams
 
     def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
@@ -431,22 +430,22 @@ class V2XMerging(Controller):
         self.channel.send(t, src, pos, ptr, dst, val, ref)
 
     def _receive(self, t: float) -> None:
-        """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
-        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
+        """Fuse the CAMs due now into the listeners' tracks and forget the stale tracks (one compiled
+        call) and keep each vehicle's newest assignment, in the channel's delivery order ((t_recv, send
+        order) per pair)."""
         d = self.channel.deliver(t)
         self._forget_sent(t)
-        if not len(d):
-            return
-        is_a = d.ref >= 0
-        if is_a.any():
-            names, sent = self.channel.names, self._sent_assignments
-            k = np.flatnonzero(is_a).tolist()
-            assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
-                                     d.ref[k].tolist(), strict=True), key=_recv_order)
-            for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
-                self.assigned[names[dst]] = (tr, sent[ref])
-        self.tracks.fuse_delivered(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
-                                   self._listen_keys)
+        if len(d):
+            is_a = d.ref >= 0
+            if is_a.any():
+                names, sent = self.channel.names, self._sent_assignments
+                k = np.flatnonzero(is_a).tolist()
+                assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
+                                         d.ref[k].tolist(), strict=True), key=_recv_order)
+                for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
+                    self.assigned[names[dst]] = (tr, sent[ref])
+        self.tracks.fuse_and_drop(t, d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
+                                  self._listen_keys)
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the
