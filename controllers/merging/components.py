@@ -430,10 +430,10 @@ class V2XMerging(Controller):
         self.channel.send(t, src, pos, ptr, dst, val, ref)
 
     def _receive(self, t: float) -> None:
-        """Fuse the CAMs due now into the listeners' tracks and forget the stale tracks (one compiled
-        call) and keep each vehicle's newest assignment, in the channel's delivery order ((t_recv, send
-        order) per pair)."""
-        d = self.channel.deliver(t)
+        """The copies due now: fuse the CAMs into the listeners' tracks and forget the stale tracks (with
+        the channel's delivery, one compiled call), and keep each vehicle's newest assignment, in the
+        channel's delivery order ((t_recv, send order) per pair)."""
+        d = self.tracks.deliver_fuse_and_drop(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
         if len(d):
             is_a = d.ref >= 0
@@ -444,8 +444,6 @@ class V2XMerging(Controller):
                                          d.ref[k].tolist(), strict=True), key=_recv_order)
                 for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
                     self.assigned[names[dst]] = (tr, sent[ref])
-        self.tracks.fuse_and_drop(t, d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
-                                  self._listen_keys)
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the

@@ -15,9 +15,12 @@ deliveries). Receivers are given slots; the tracks live in one struct of arrays 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
+from corridor.addressed_channel import AddressedChannel, Delivered, pop_due
 from corridor.vehicles.tracks.cv_kernel import fuse_one
 from corridor.vehicles.tracks.stack import cv_terms
 
@@ -182,6 +185,34 @@ def _fuse_tick(t_s: float, stale_after_s: float, src: np.ndarray, dst: np.ndarra
     return m, n_free, 0
 
 
+_DELIVER_SIG = ("UniTuple(i8, 4)(f8, b1[:], i8, i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8[:], i8[:], "
+                "i8[:], f8[:], f8[:], f8[:, :], i8[:], "  # the channel's delivery (pop_due's arguments)
+                "f8, f8, i8, i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:, :], f8[:, :, :], f8[:], i8[:], i8[:], i8[:], "
+                "i8[:], f8[:, :], f8[:], b1[:], f8[:], f8[:], f8[:], f8[:], i8[:], f8[:])")
+
+
+@njit(_DELIVER_SIG, cache=True)
+def _deliver_fuse_tick(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q_src: np.ndarray,
+                       q_dst: np.ndarray, q_t_sent: np.ndarray, q_t_recv: np.ndarray, q_val: np.ndarray,
+                       q_ref: np.ndarray, o_seq: np.ndarray, o_src: np.ndarray, o_dst: np.ndarray,
+                       o_t_sent: np.ndarray, o_t_recv: np.ndarray, o_val: np.ndarray, o_ref: np.ndarray,
+                       t_s: float, stale_after_s: float, rsu: int, slot_of: np.ndarray, listen_keys: np.ndarray,
+                       n_free: int, row_of: np.ndarray, r: np.ndarray, x: np.ndarray, p: np.ndarray,
+                       t_row: np.ndarray, row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray,
+                       upd_row: np.ndarray, upd_z: np.ndarray, upd_dt: np.ndarray, ahead: np.ndarray,
+                       q_dt: np.ndarray, q11: np.ndarray, q12: np.ndarray, q22: np.ndarray, at: np.ndarray,
+                       missing: np.ndarray) -> tuple[int, int, int, int]:
+    """The channel's delivery (:func:`~corridor.addressed_channel.pop_due`) and :func:`_fuse_tick` on the
+    delivered copies, in one call. Returns (delivered copies, updates, free rows, missing intervals)."""
+    n_due = pop_due(t_due, attached, n_fl, q_seq, q_src, q_dst, q_t_sent, q_t_recv, q_val, q_ref, o_seq, o_src,
+                    o_dst, o_t_sent, o_t_recv, o_val, o_ref)
+    m, n_free, n_miss = _fuse_tick(t_s, stale_after_s, o_src[:n_due], o_dst[:n_due], o_t_sent[:n_due],
+                                   o_t_recv[:n_due], o_val[:n_due], o_ref[:n_due], rsu, slot_of, listen_keys, n_free,
+                                   row_of, r, x, p, t_row, row_slot, row_src, free, upd_row, upd_z, upd_dt, ahead,
+                                   q_dt, q11, q12, q22, at, missing)
+    return n_due, m, n_free, n_miss
+
+
 class NodeTrackPool:
     """1-D CV tracks of receiver nodes on source nodes (see the module docstring).
 
@@ -308,7 +339,24 @@ class NodeTrackPool:
         """``fuse_delivered`` and then ``drop_stale(t_s)``, the same bits, in one compiled call: the
         process-noise terms of each interval come from a table of the intervals seen so far, filled by
         ``cv_terms``' numpy arithmetic when a new one appears (then a second call)."""
-        k = src.shape[0]
+        self._room(src.shape[0])
+        m, self._n_free, n_miss = _fuse_tick(
+            float(t_s), self.stale_after_s, src, dst, t_sent_s, t_recv_s, z, ref, rsu, *self._fuse_args(listen_keys))
+        self._finish(t_s, m, n_miss)
+
+    def deliver_fuse_and_drop(self, channel: AddressedChannel, t_s: float, rsu: int,
+                              listen_keys: np.ndarray) -> Delivered:
+        """``channel.deliver(t_s)`` and ``fuse_and_drop`` of what it delivered, in one compiled call;
+        returns the delivered copies (as ``deliver``)."""
+        args = channel.delivery_buffers(t_s)
+        self._room(args[2])  # at most the copies in flight are delivered
+        n_due, m, self._n_free, n_miss = _deliver_fuse_tick(*args, float(t_s), self.stale_after_s, rsu,
+                                                            *self._fuse_args(listen_keys))
+        self._finish(t_s, m, n_miss)
+        return channel.commit_delivery(n_due)
+
+    def _room(self, k: int) -> None:
+        """Room for ``k`` delivered copies: a column per node, free rows, update buffers."""
         if self._row_of.shape[1] < len(self.index):  # a column per node the channel knows
             self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * len(self.index))
         if self._n_free < k:
@@ -318,10 +366,14 @@ class NodeTrackPool:
             self._upd_dt, self._ahead = np.empty(2 * k), np.empty(2 * k, dtype=bool)
         if self._at.shape[0] < self._upd_row.shape[0]:
             self._at, self._missing = np.empty(self._upd_row.shape[0], dtype=np.int64), np.empty(self._upd_row.shape[0])
-        m, self._n_free, n_miss = _fuse_tick(
-            float(t_s), self.stale_after_s, src, dst, t_sent_s, t_recv_s, z, ref, rsu, self._slot_of, listen_keys,
-            self._n_free, self._row_of, self._r, self.x, self.P, self.t_s, self._row_slot, self._row_src, self._free,
-            self._upd_row, self._upd_z, self._upd_dt, self._ahead, *self._q_table, self._at, self._missing)
+
+    def _fuse_args(self, listen_keys: np.ndarray) -> tuple[Any, ...]:
+        return (self._slot_of, listen_keys, self._n_free, self._row_of, self._r, self.x, self.P, self.t_s,
+                self._row_slot, self._row_src, self._free, self._upd_row, self._upd_z, self._upd_dt, self._ahead,
+                *self._q_table, self._at, self._missing)
+
+    def _finish(self, t_s: float, m: int, n_miss: int) -> None:
+        """After a call that found intervals missing from the table: add them, fuse, drop."""
         if n_miss:
             self._add_terms(self._missing[:n_miss])
             n = _apply_table(m, self._upd_row, self.x, self.P, self._ahead, self._upd_dt, self._upd_z, self._r,
