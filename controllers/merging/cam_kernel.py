@@ -32,13 +32,47 @@ from numba import njit, types
 STATUS_OK, STATUS_LISTENERS, STATUS_NODES, STATUS_PHASE = 0, 1, 2, 3
 DUE_EPS_S = 1e-9  # [s] traffic.v2x's tolerance of the period comparison
 
+@njit("f8(f8[:], i8, i8)", cache=True)
+def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
+    """numpy's sum of ``a[lo:lo + n]`` (a float64 array's ``sum``: 0.0 + its pairwise summation, eight
+    accumulators in blocks of up to 128, halved above), the same bits."""
+    if n < 8:
+        res = 0.0
+        for i in range(n):
+            res += a[lo + i]
+        return res
+    if n <= 128:
+        r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+        r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+        i = 8
+        while i < n - (n % 8):
+            j = lo + i
+            r0 += a[j]
+            r1 += a[j + 1]
+            r2 += a[j + 2]
+            r3 += a[j + 3]
+            r4 += a[j + 4]
+            r5 += a[j + 5]
+            r6 += a[j + 6]
+            r7 += a[j + 7]
+            i += 8
+        res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+        while i < n:
+            res += a[lo + i]
+            i += 1
+        return res
+    n2 = n // 2
+    n2 -= n2 % 8
+    return pairwise_sum(a, lo, n2) + pairwise_sum(a, lo + n2, n - n2)
+
+
 def _signature() -> Any:
     i8, f8, b1 = types.int64, types.float64, types.boolean
     vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
     pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
-    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi))
+    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8))
     return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
-               f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi
+               f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
                vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
                vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
                vi, i8, b1)  # order_node, depth, fifo
@@ -47,11 +81,12 @@ def _signature() -> Any:
 @njit(_signature(), cache=True)
 def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray, speed: np.ndarray,
               ramp: np.ndarray, right: np.ndarray, merged: np.ndarray, row_node: np.ndarray,
-              near_lo: float, near_hi: float, zone_lo: float, zone_hi: float,
+              near_lo: float, near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float, stream_hi: float,
               slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
               known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
               order_node: np.ndarray, depth: int, fifo: bool
-              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                         float, int]:
     """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
     [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
     ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
@@ -60,7 +95,9 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
 
     Returns (status, the senders' rows, the due senders' nodes, their CAM positions (k, 3) [m] and contents
     (k, 2) [position on the merge axis [m], speed [m/s]], ptr (k + 1), the receiver nodes, the sorted
-    listen keys); with a status > 0 the arrays are empty and nothing was changed."""
+    listen keys), and the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo < d <
+    stream_hi`` with their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
+    ``pairwise_sum``); with a status > 0 the arrays are empty, the sum 0 and nothing was changed."""
     n = dist.shape[0]
     n_slot, n_next = slot_of.shape[0], next_s.shape[0]
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
@@ -74,21 +111,21 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         node = row_node[k]
         if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
             if node < 0 or node >= n_slot or slot_of[node] < 0:
-                return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+                return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
             n_heard += 1
         if d < near_hi and d > near_lo:
             near[n_near] = k
             n_near += 1
     if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
-        return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+        return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
     near = near[:n_near]
     for k in near:
         if row_node[k] < 0:
-            return STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+            return STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
     for k in near:
         node = row_node[k]
         if node >= n_next or math.isnan(next_s[node]):
-            return STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i
+            return STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
     # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
     known[:] = False
     known[rsu] = True
@@ -177,4 +214,11 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
                     dst[m] = order_node[p]
                     m += 1
         ptr[e + 1] = m
-    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys
+    # the crossing speed's rows (upstream mainline), in row order, and numpy's sum of their speeds
+    sp = np.empty(n)
+    n_s = 0
+    for k in range(n):
+        if not ramp[k] and dist[k] > stream_lo and dist[k] < stream_hi:
+            sp[n_s] = speed[k]
+            n_s += 1
+    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys, pairwise_sum(sp, 0, n_s), n_s

@@ -237,7 +237,8 @@ class V2XMerging(Controller):
         self._cam_rng = ctx.rng(f"{self.name}.cam")
         zone, p = self.p.coordinator.control_zone_m, self.p
         # [m] senders: near_lo < d < near_hi; listeners: zone_lo < d <= zone_hi (d: to the conflict point)
-        self._cam_bounds = (-p.release_after_m - 50, zone + p.send_margin_m, -p.release_after_m, zone)
+        #   and the crossing speed's rows (mainline): zone < d < zone + 300 (see _stream_speed)
+        self._cam_bounds = (-p.release_after_m - 50, zone + p.send_margin_m, -p.release_after_m, zone, zone, zone + 300.0)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self.tracks = NodeTrackPool(self.channel.index, process_noise=self.p.track_process_noise, meas_noise=0.5,
                                     vel_noise=0.3, stale_after_s=self.p.stale_after_s)
@@ -345,8 +346,9 @@ class V2XMerging(Controller):
             self._admit(t, s)
             out = self._cam_stage(t, s)
             assert out[0] == STATUS_OK, out[0]
-        _, _near, src, cam_pos, cam_z, ptr, dst, keys = out
+        _, _near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n = out
         self._listen_keys = keys
+        s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
         cams: _Cams = (src, cam_pos, ptr, dst, cam_z)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
@@ -715,9 +717,13 @@ class V2XMerging(Controller):
         Measured where no vehicle is controlled yet: a speed measured inside the zone would feed
         the controller's own slowing back into its target (the right lane would spiral down).
         """
-        zone = self.p.coordinator.control_zone_m
-        sp = s["speed"][~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)]
-        v = float(sp.sum() / len(sp)) if len(sp) else self.p.limits.v_max_mps  # np.mean's bits: its sum / n
+        got = s.get("stream")  # (sum, count), found by the compiled CAM stage (cam_kernel: numpy's sum's bits)
+        if got is None:
+            zone = self.p.coordinator.control_zone_m
+            sp = s["speed"][~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)]
+            got = (sp.sum(), len(sp))
+        total, n = got
+        v = float(total / n) if n else self.p.limits.v_max_mps  # np.mean's bits: its sum / n
         return min(max(v, 8.0), self.p.limits.v_max_mps)  # np.clip's value (v is never NaN)
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:

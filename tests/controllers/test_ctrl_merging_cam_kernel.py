@@ -20,7 +20,7 @@ from corridor.controllers.merging.cam_kernel import (
 from corridor.traffic.v2x import CamGenerator
 
 ZONE, MARGIN, RELEASE = 250.0, 100.0, 20.0
-BOUNDS = (-RELEASE - 50, ZONE + MARGIN, -RELEASE, ZONE)
+BOUNDS = (-RELEASE - 50, ZONE + MARGIN, -RELEASE, ZONE, ZONE, ZONE + 300.0)
 PERIOD = 0.1
 RSU_NODE = 0
 
@@ -29,7 +29,7 @@ def _case(rng: np.random.Generator, fifo: bool) -> dict:
     """A tick's rows, channel nodes, receivers, schedule and crossing order that need no Python step."""
     n = int(rng.integers(0, 40))
     names = [f"v{j}" for j in rng.permutation(80)[:n].tolist()]
-    dist = rng.uniform(-150.0, 450.0, n)
+    dist = rng.uniform(-150.0, 600.0, n)
     edge = rng.random(n) < 0.15  # on the masks' edges
     dist[edge] = rng.choice(np.array([ZONE, ZONE + MARGIN, -RELEASE, -RELEASE - 50.0]), size=int(edge.sum()))
     connected = rng.random(n) < 0.8
@@ -108,7 +108,8 @@ def _reference(c: dict, known0: np.ndarray, pos0: np.ndarray) -> dict:
             continue
         receivers.extend([index.get(f, -1) for f in fol])
         counts.append(1 + len(fol))
-    return dict(near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
+    sp = c["speed"][~c["ramp"] & (dist > BOUNDS[4]) & (dist < BOUNDS[5])]
+    return dict(stream=(sp.sum(), len(sp)), near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
                 ptr=[0, *accumulate(counts)], dst=receivers, keys=keys, next_s=cams._next_s, known=known,
                 chan_pos=chan_pos)
 
@@ -139,15 +140,16 @@ def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -
     for _ in range(400):
         c = _case(rng, fifo)
         args = _kernel_args(c, rng)
-        known, chan_pos, next_s = args[17], args[18], args[15]
+        known, chan_pos, next_s = args[19], args[20], args[17]
         ref = _reference(c, known, chan_pos)
-        status, near, src, cam_pos, cam_z, ptr, dst, keys = cam_stage(*args)
+        status, near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n = cam_stage(*args)
         assert status == STATUS_OK
         np.testing.assert_array_equal(near, ref["near"])
         assert src.tolist() == ref["src"]
         assert cam_pos.tobytes() == ref["cam_pos"].tobytes() and cam_z.tobytes() == ref["cam_z"].tobytes()
         assert ptr.tolist() == ref["ptr"] and dst.tolist() == ref["dst"] and keys.tolist() == ref["keys"]
         np.testing.assert_array_equal(known, ref["known"])
+        assert (stream_sum, stream_n) == ref["stream"]
         assert chan_pos.tobytes() == ref["chan_pos"].tobytes()
         for v, x in ref["next_s"].items():
             assert next_s[c["index"][v]] == x, v  # exact: the period grid's arithmetic
@@ -166,11 +168,11 @@ def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -
         zone = np.flatnonzero(c["connected"] & (c["dist"] <= BOUNDS[3]) & (c["dist"] > BOUNDS[2]))
         kind = int(rng.integers(0, 4))
         if kind == 0 and len(zone):  # a listener that is not a receiver yet
-            args[13] = args[13].copy()
-            args[13][c["index"][c["names"][int(rng.choice(zone))]]] = -1
+            args[15] = args[15].copy()
+            args[15][c["index"][c["names"][int(rng.choice(zone))]]] = -1
             want = STATUS_LISTENERS
         elif kind == 1:  # a receiver that left the zone
-            args[14] += 1
+            args[16] += 1
             want = STATUS_LISTENERS
         elif kind == 2 and len(near):  # a sender without a node
             k = int(rng.choice(near))
@@ -178,16 +180,32 @@ def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -
             args[8][k] = -1
             want = STATUS_LISTENERS if k in zone else STATUS_NODES
         elif kind == 3 and len(near):  # a sender without a schedule
-            args[15][c["index"][c["names"][int(rng.choice(near))]]] = np.nan
+            args[17][c["index"][c["names"][int(rng.choice(near))]]] = np.nan
             want = STATUS_PHASE
         else:
             continue
         before = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
         out = cam_stage(*args)
         assert out[0] == want
-        assert all(len(a) == 0 for a in out[1:])
+        assert all(len(a) == 0 for a in out[1:8]) and out[8:] == (0.0, 0)
         for a, b in zip(args, before, strict=True):
             if isinstance(a, np.ndarray):
                 np.testing.assert_array_equal(a, b)
         seen.add(want)
     assert seen == {STATUS_LISTENERS, STATUS_NODES, STATUS_PHASE}
+
+
+def test_the_compiled_sum_is_numpys_pairwise_sum() -> None:
+    """``pairwise_sum`` (the crossing speed's sum in the CAM stage) is a float64 array's ``sum``, bit for bit,
+    below 8, up to 128 and above (halved) values, where a plain running sum differs."""
+    from corridor.controllers.merging.cam_kernel import pairwise_sum
+
+    rng = np.random.default_rng(8)
+    plain = 0
+    for _ in range(5000):
+        n = int(rng.integers(0, 600))
+        a = rng.uniform(0.0, 35.0, n) * float(rng.choice([1.0, 1e-3, 1e5]))
+        lo = int(rng.integers(0, n + 1))
+        assert pairwise_sum(a, lo, n - lo) == a[lo:].sum()
+        plain += sum(a[lo:].tolist()) != a[lo:].sum()
+    assert plain > 1000
