@@ -70,7 +70,7 @@ def _signature() -> Any:
     i8, f8, b1 = types.int64, types.float64, types.boolean
     vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
     pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
-    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8))
+    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi))
     return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
                f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
                vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
@@ -86,7 +86,7 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
               known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
               order_node: np.ndarray, depth: int, fifo: bool
               ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                         float, int]:
+                         float, int, np.ndarray]:
     """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
     [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
     ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
@@ -97,7 +97,9 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
     (k, 2) [position on the merge axis [m], speed [m/s]], ptr (k + 1), the receiver nodes, the sorted
     listen keys), and the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo < d <
     stream_hi`` with their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
-    ``pairwise_sum``); with a status > 0 the arrays are empty, the sum 0 and nothing was changed."""
+    ``pairwise_sum``), and the rows the roadside unit coordinates (``0 < d <= zone_hi`` on a conflicting lane:
+    ``ramp`` or ``right``, not ``merged``); with a status > 0 the arrays are empty, the sum 0 and nothing
+    was changed."""
     n = dist.shape[0]
     n_slot, n_next = slot_of.shape[0], next_s.shape[0]
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
@@ -111,21 +113,25 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         node = row_node[k]
         if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
             if node < 0 or node >= n_slot or slot_of[node] < 0:
-                return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
+                return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
+                        empty_i)
             n_heard += 1
         if d < near_hi and d > near_lo:
             near[n_near] = k
             n_near += 1
     if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
-        return STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
+        return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
+                        empty_i)
     near = near[:n_near]
     for k in near:
         if row_node[k] < 0:
-            return STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
+            return (STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
+                        empty_i)
     for k in near:
         node = row_node[k]
         if node >= n_next or math.isnan(next_s[node]):
-            return STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0
+            return (STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
+                        empty_i)
     # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
     known[:] = False
     known[rsu] = True
@@ -221,4 +227,11 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         if not ramp[k] and dist[k] > stream_lo and dist[k] < stream_hi:
             sp[n_s] = speed[k]
             n_s += 1
-    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys, pairwise_sum(sp, 0, n_s), n_s
+    # the zone's rows on a conflicting lane (the coordinator's candidates), in row order
+    cand = np.empty(n, dtype=np.int64)
+    n_c = 0
+    for k in range(n):
+        if dist[k] > 0.0 and dist[k] <= zone_hi and (ramp[k] or right[k]) and not merged[k]:
+            cand[n_c] = k
+            n_c += 1
+    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys, pairwise_sum(sp, 0, n_s), n_s, cand[:n_c]

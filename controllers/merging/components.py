@@ -346,9 +346,10 @@ class V2XMerging(Controller):
             self._admit(t, s)
             out = self._cam_stage(t, s)
             assert out[0] == STATUS_OK, out[0]
-        _, _near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n = out
+        _, _near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n, cand = out
         self._listen_keys = keys
         s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
+        s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
         cams: _Cams = (src, cam_pos, ptr, dst, cam_z)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
@@ -463,8 +464,10 @@ class V2XMerging(Controller):
         returns the zone (vehicle -> row) and the assignments to send."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
-        candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"]) & ~s["merged"]
-        cand = np.flatnonzero(candidates).tolist()
+        cand_rows = s.get("cand")  # found by the compiled CAM stage (cam_kernel), else:
+        if cand_rows is None:
+            cand_rows = np.flatnonzero((dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"]) & ~s["merged"])
+        cand = cand_rows.tolist()
         # the RSU's tracks predicted to now in Python floats (TrackPool.predict_one: the bits of
         # predict_states, without its ~15 numpy calls for the few vehicles of the zone)
         predict, connected = self.tracks.predict_one, s["connected"].tolist()

@@ -31,7 +31,7 @@ def _case(rng: np.random.Generator, fifo: bool) -> dict:
     names = [f"v{j}" for j in rng.permutation(80)[:n].tolist()]
     dist = rng.uniform(-150.0, 600.0, n)
     edge = rng.random(n) < 0.15  # on the masks' edges
-    dist[edge] = rng.choice(np.array([ZONE, ZONE + MARGIN, -RELEASE, -RELEASE - 50.0]), size=int(edge.sum()))
+    dist[edge] = rng.choice(np.array([ZONE, ZONE + MARGIN, -RELEASE, -RELEASE - 50.0, 0.0, ZONE + 300.0]), size=int(edge.sum()))
     connected = rng.random(n) < 0.8
     pos = rng.uniform(-500.0, 500.0, (n, int(rng.choice([2, 3]))))
     speed = rng.uniform(0.0, 35.0, n)
@@ -109,7 +109,8 @@ def _reference(c: dict, known0: np.ndarray, pos0: np.ndarray) -> dict:
         receivers.extend([index.get(f, -1) for f in fol])
         counts.append(1 + len(fol))
     sp = c["speed"][~c["ramp"] & (dist > BOUNDS[4]) & (dist < BOUNDS[5])]
-    return dict(stream=(sp.sum(), len(sp)), near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
+    cand = np.flatnonzero((dist > 0) & (dist <= BOUNDS[3]) & (c["ramp"] | c["right"]) & ~c["merged"])
+    return dict(cand=cand, stream=(sp.sum(), len(sp)), near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
                 ptr=[0, *accumulate(counts)], dst=receivers, keys=keys, next_s=cams._next_s, known=known,
                 chan_pos=chan_pos)
 
@@ -142,7 +143,7 @@ def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -
         args = _kernel_args(c, rng)
         known, chan_pos, next_s = args[19], args[20], args[17]
         ref = _reference(c, known, chan_pos)
-        status, near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n = cam_stage(*args)
+        status, near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n, cand = cam_stage(*args)
         assert status == STATUS_OK
         np.testing.assert_array_equal(near, ref["near"])
         assert src.tolist() == ref["src"]
@@ -150,6 +151,7 @@ def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -
         assert ptr.tolist() == ref["ptr"] and dst.tolist() == ref["dst"] and keys.tolist() == ref["keys"]
         np.testing.assert_array_equal(known, ref["known"])
         assert (stream_sum, stream_n) == ref["stream"]
+        assert cand.tolist() == ref["cand"].tolist()
         assert chan_pos.tobytes() == ref["chan_pos"].tobytes()
         for v, x in ref["next_s"].items():
             assert next_s[c["index"][v]] == x, v  # exact: the period grid's arithmetic
@@ -187,7 +189,7 @@ def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -
         before = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
         out = cam_stage(*args)
         assert out[0] == want
-        assert all(len(a) == 0 for a in out[1:8]) and out[8:] == (0.0, 0)
+        assert all(len(a) == 0 for a in out[1:8]) and out[8:10] == (0.0, 0) and len(out[10]) == 0
         for a, b in zip(args, before, strict=True):
             if isinstance(a, np.ndarray):
                 np.testing.assert_array_equal(a, b)
