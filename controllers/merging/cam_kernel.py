@@ -70,12 +70,12 @@ def _signature() -> Any:
     i8, f8, b1 = types.int64, types.float64, types.boolean
     vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
     pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
-    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi))
+    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi, i8, i8, vi))
     return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
                f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
                vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
                vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
-               vi, i8, b1)  # order_node, depth, fifo
+               vi, i8, b1, i8)  # order_node, depth, fifo, r0
 
 
 @njit(_signature(), cache=True)
@@ -84,22 +84,26 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
               near_lo: float, near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float, stream_hi: float,
               slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
               known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
-              order_node: np.ndarray, depth: int, fifo: bool
+              order_node: np.ndarray, depth: int, fifo: bool, r0: int
               ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                         float, int, np.ndarray]:
+                         float, int, np.ndarray, int, int, np.ndarray]:
     """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
     [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
     ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
     unit; ``next_s``: node -> next CAM time [s] (NaN: none yet), advanced in place; ``known`` / ``chan_pos``:
     the channel's node positions, set in place; ``order_node``: the crossing order's nodes (-1: no node).
 
-    Returns (status, the senders' rows, the due senders' nodes, their CAM positions (k, 3) [m] and contents
-    (k, 2) [position on the merge axis [m], speed [m/s]], ptr (k + 1), the receiver nodes, the sorted
-    listen keys), and the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo < d <
-    stream_hi`` with their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
-    ``pairwise_sum``), and the rows the roadside unit coordinates (``0 < d <= zone_hi`` on a conflicting lane:
-    ``ramp`` or ``right``, not ``merged``); with a status > 0 the arrays are empty, the sum 0 and nothing
-    was changed."""
+    Returns (status, the senders' rows, then the tick's sends as ``AddressedChannel.send`` takes them: the
+    senders' nodes, positions (e, 3) [m], contents (e, 2) (a CAM: [position on the merge axis [m], speed
+    [m/s]]), ptr (e + 1), the receiver nodes, with room after the due CAMs for the assignments (see below);
+    the sorted listen keys, the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo <
+    d < stream_hi`` and their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
+    ``pairwise_sum``), the rows the roadside unit coordinates (``0 < d <= zone_hi`` on a conflicting lane:
+    ``ramp`` or ``right``, not ``merged``), the count of due CAMs and of their receivers, and the sends'
+    references). The room: one entry per connected coordinated row, from the roadside unit at
+    (``x_rsu``, ``y_rsu``, 0) with a zero content, the references ``r0``, ``r0 + 1``, ... and one receiver
+    each (``ptr`` counts on by one; the caller writes the receivers and sends the first ones it uses).
+    With a status > 0 the arrays are empty, the numbers 0 and nothing was changed."""
     n = dist.shape[0]
     n_slot, n_next = slot_of.shape[0], next_s.shape[0]
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
@@ -114,24 +118,24 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
             if node < 0 or node >= n_slot or slot_of[node] < 0:
                 return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                        empty_i)
+                    empty_i, 0, 0, empty_i)
             n_heard += 1
         if d < near_hi and d > near_lo:
             near[n_near] = k
             n_near += 1
     if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
         return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                        empty_i)
+                    empty_i, 0, 0, empty_i)
     near = near[:n_near]
     for k in near:
         if row_node[k] < 0:
             return (STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                        empty_i)
+                    empty_i, 0, 0, empty_i)
     for k in near:
         node = row_node[k]
         if node >= n_next or math.isnan(next_s[node]):
             return (STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                        empty_i)
+                    empty_i, 0, 0, empty_i)
     # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
     known[:] = False
     known[rsu] = True
@@ -186,12 +190,25 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
             keys[n_keys] = rx | newcomers[j]
             n_keys += 1
     keys = np.sort(keys[:n_keys])
-    # the due CAMs: sender, position, content, receivers (the roadside unit, then its listeners in order)
-    src = np.empty(n_due, dtype=np.int64)
-    cam_pos = np.zeros((n_due, 3))
-    cam_z = np.empty((n_due, 2))
-    ptr = np.empty(n_due + 1, dtype=np.int64)
-    dst = np.empty(n_due * (1 + n_order), dtype=np.int64)
+    # the zone's rows on a conflicting lane (the coordinator's candidates), in row order; the connected
+    # ones are the most assignments the roadside unit sends in this tick
+    cand = np.empty(n, dtype=np.int64)
+    n_c = n_a = 0
+    for k in range(n):
+        if dist[k] > 0.0 and dist[k] <= zone_hi and (ramp[k] or right[k]) and not merged[k]:
+            cand[n_c] = k
+            n_c += 1
+            n_a += connected[k]
+    # the sends: the due CAMs (sender, position, content, receivers: the roadside unit, then its listeners
+    # in order), then room for n_a assignments (from the roadside unit's position, no content, the
+    # references r0, r0 + 1, ..., one receiver each: filled by the caller)
+    n_e = n_due + n_a
+    src = np.empty(n_e, dtype=np.int64)
+    cam_pos = np.zeros((n_e, 3))
+    val = np.zeros((n_e, 2))
+    ref = np.full(n_e, -1, dtype=np.int64)
+    ptr = np.empty(n_e + 1, dtype=np.int64)
+    dst = np.empty(n_due * (1 + n_order) + n_a, dtype=np.int64)
     ptr[0] = 0
     m = 0
     for e in range(n_due):
@@ -199,7 +216,7 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         node = row_node[k]
         src[e] = node
         cam_pos[e, 0], cam_pos[e, 1] = pos[k, 0], pos[k, 1]
-        cam_z[e, 0], cam_z[e, 1] = -dist[k], speed[k]
+        val[e, 0], val[e, 1] = -dist[k], speed[k]
         dst[m] = rsu
         m += 1
         ps = pos_of[node]
@@ -220,6 +237,11 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
                     dst[m] = order_node[p]
                     m += 1
         ptr[e + 1] = m
+    for e in range(n_due, n_e):
+        src[e] = rsu
+        cam_pos[e, 0], cam_pos[e, 1] = x_rsu, y_rsu
+        ref[e] = r0 + e - n_due
+        ptr[e + 1] = ptr[e] + 1
     # the crossing speed's rows (upstream mainline), in row order, and numpy's sum of their speeds
     sp = np.empty(n)
     n_s = 0
@@ -227,11 +249,5 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         if not ramp[k] and dist[k] > stream_lo and dist[k] < stream_hi:
             sp[n_s] = speed[k]
             n_s += 1
-    # the zone's rows on a conflicting lane (the coordinator's candidates), in row order
-    cand = np.empty(n, dtype=np.int64)
-    n_c = 0
-    for k in range(n):
-        if dist[k] > 0.0 and dist[k] <= zone_hi and (ramp[k] or right[k]) and not merged[k]:
-            cand[n_c] = k
-            n_c += 1
-    return STATUS_OK, near, src, cam_pos, cam_z, ptr, dst[:m], keys, pairwise_sum(sp, 0, n_s), n_s, cand[:n_c]
+    return (STATUS_OK, near, src, cam_pos, val, ptr, dst, keys, pairwise_sum(sp, 0, n_s), n_s, cand[:n_c],
+            n_due, m, ref)

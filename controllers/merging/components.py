@@ -81,9 +81,10 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
-# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], ptr (k + 1) into the receiver nodes of
-# all of them (the RSU, then the sender's followers, sender by sender), those receivers, contents (k, 2)
-_Cams = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+# the tick's sends (cam_kernel.cam_stage): the count of CAMs and of their receivers, then the sends' sender
+# nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
+# references: the CAMs first, then room for the RSU's assignments
+_Cams = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -346,14 +347,14 @@ class V2XMerging(Controller):
             self._admit(t, s)
             out = self._cam_stage(t, s)
             assert out[0] == STATUS_OK, out[0]
-        _, _near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n, cand = out
+        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref = out
         self._listen_keys = keys
         s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
         s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
-        cams: _Cams = (src, cam_pos, ptr, dst, cam_z)
+        cams: _Cams = (n_c, m, src, pos, val, ptr, dst, ref)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
-            cams = (src[:0], cam_pos[:0], ptr[:1], dst[:0], cam_z[:0])
+            cams = (0, 0, src[n_c:], pos[n_c:], val[n_c:], ptr[n_c:] - ptr[n_c], dst[m:], ref[n_c:])
         self._receive(t)
         return cams
 
@@ -365,7 +366,7 @@ class V2XMerging(Controller):
         return cam_stage(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
                          self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
                          self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu,
-                         order_node, self._listen_depth, self.coord.policy == "fifo")
+                         order_node, self._listen_depth, self.coord.policy == "fifo", self._n_refs)
 
     def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:
         """Each road row's channel node (-1: none yet), rebuilt when the rows' ids list changes."""
@@ -409,28 +410,22 @@ class V2XMerging(Controller):
     def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
         """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
         draws, in the same order, as one send each. An assignment travels as a reference
-        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
-        src, pos, ptr, dst, cam_z = cams
-        n_c, n_a = len(src), len(assignments)
+        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]. The
+        assignments take the room the CAM stage left after the CAMs (one per connected coordinated row:
+        from the RSU's position, the references from ``_n_refs`` on); their receivers are written here."""
+        n_c, m, src, pos, val, ptr, dst, ref = cams
+        n_a = len(assignments)
         if not n_c and not n_a:
             return
-        val = np.zeros((n_c + n_a, 2))
-        val[:n_c] = cam_z
-        ref = np.full(n_c + n_a, -1, dtype=np.int64)
+        n = n_c + n_a
         if n_a:
-            r0 = self._n_refs
+            assert n <= len(src), (n_a, len(src) - n_c)  # an assignment goes to a connected coordinated row
             index, sent = self.channel.index, self._sent_assignments
-            for r, a in enumerate(assignments, start=r0):
+            for r, a in enumerate(assignments, start=self._n_refs):
                 sent[r] = a[1]
             self._n_refs += n_a
-            ref[n_c:] = range(r0, r0 + n_a)
-            src = np.concatenate([src, np.full(n_a, self._rsu_node, dtype=np.int64)])
-            pos = np.concatenate([pos, np.empty((n_a, 3))])
-            rsu_pos = assignments[0][2]
-            pos[n_c:] = rsu_pos if all(a[2] is rsu_pos for a in assignments) else [a[2] for a in assignments]
-            dst = np.concatenate([dst, np.array([index.get(a[3], -1) for a in assignments], dtype=np.int64)])
-            ptr = np.concatenate([ptr, ptr[n_c] + np.arange(1, n_a + 1, dtype=np.int64)])
-        self.channel.send(t, src, pos, ptr, dst, val, ref)
+            dst[m:m + n_a] = [index.get(a[3], -1) for a in assignments]
+        self.channel.send(t, src[:n], pos[:n], ptr[:n + 1], dst[:m + n_a], val[:n], ref[:n])
 
     def _receive(self, t: float) -> None:
         """The copies due now: fuse the CAMs into the listeners' tracks and forget the stale tracks (with

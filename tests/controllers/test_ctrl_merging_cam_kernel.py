@@ -53,7 +53,7 @@ def _case(rng: np.random.Generator, fifo: bool) -> dict:
     order = [pool[j] for j in rng.permutation(len(pool))[: int(rng.integers(0, min(len(pool), 14) + 1))].tolist()]
     return dict(t=t, names=names, dist=dist, connected=connected, pos=pos, speed=speed, ramp=ramp, right=right,
                 merged=merged, index=index, receivers=receivers, next_s=next_s, order=order,
-                depth=int(rng.integers(1, 4)), fifo=fifo)
+                depth=int(rng.integers(1, 4)), fifo=fifo, r0=int(rng.integers(0, 1000)))
 
 
 def _reference(c: dict, known0: np.ndarray, pos0: np.ndarray) -> dict:
@@ -131,33 +131,41 @@ def _kernel_args(c: dict, rng: np.random.Generator) -> tuple:
     order_node = np.array([index.get(v, -1) for v in c["order"]], dtype=np.int64)
     return (c["t"], c["dist"], c["connected"], c["pos"], c["speed"], c["ramp"], c["right"], c["merged"], row_node,
             *BOUNDS, slot_of, len(c["receivers"]) - 1, next_s, PERIOD, known, chan_pos, RSU_NODE, 10.0, -7.5,
-            order_node, c["depth"], c["fifo"])
+            order_node, c["depth"], c["fifo"], c["r0"])
 
 
 @pytest.mark.parametrize("fifo", [False, True])
 def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -> None:
     rng = np.random.default_rng(27 + fifo)
-    n_due = n_followed = 0
+    total_due = n_followed = 0
     for _ in range(400):
         c = _case(rng, fifo)
         args = _kernel_args(c, rng)
         known, chan_pos, next_s = args[19], args[20], args[17]
         ref = _reference(c, known, chan_pos)
-        status, near, src, cam_pos, cam_z, ptr, dst, keys, stream_sum, stream_n, cand = cam_stage(*args)
+        status, near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_due, m, refs = cam_stage(*args)
         assert status == STATUS_OK
         np.testing.assert_array_equal(near, ref["near"])
-        assert src.tolist() == ref["src"]
-        assert cam_pos.tobytes() == ref["cam_pos"].tobytes() and cam_z.tobytes() == ref["cam_z"].tobytes()
-        assert ptr.tolist() == ref["ptr"] and dst.tolist() == ref["dst"] and keys.tolist() == ref["keys"]
+        assert src[:n_due].tolist() == ref["src"]
+        assert pos[:n_due].tobytes() == ref["cam_pos"].tobytes() and val[:n_due].tobytes() == ref["cam_z"].tobytes()
+        assert ptr[: n_due + 1].tolist() == ref["ptr"] and dst[:m].tolist() == ref["dst"]
+        assert keys.tolist() == ref["keys"]
+        # room for the assignments: one per connected coordinated row, from the RSU, references from r0 on
+        n_a = int(c["connected"][ref["cand"]].sum())
+        assert len(src) == len(pos) == len(val) == len(refs) == len(ptr) - 1 == n_due + n_a and len(dst) >= m + n_a
+        assert (src[n_due:] == RSU_NODE).all() and pos[n_due:].tolist() == [[10.0, -7.5, 0.0]] * n_a
+        assert not val[n_due:].any() and (refs[:n_due] == -1).all()
+        assert refs[n_due:].tolist() == list(range(c["r0"], c["r0"] + n_a))
+        assert ptr[n_due:].tolist() == list(range(m, m + n_a + 1))
         np.testing.assert_array_equal(known, ref["known"])
         assert (stream_sum, stream_n) == ref["stream"]
         assert cand.tolist() == ref["cand"].tolist()
         assert chan_pos.tobytes() == ref["chan_pos"].tobytes()
         for v, x in ref["next_s"].items():
             assert next_s[c["index"][v]] == x, v  # exact: the period grid's arithmetic
-        n_due += len(src)
-        n_followed += int((np.diff(ptr) > 1).sum())
-    assert n_due > 1000 and n_followed > 100  # the cases exercise the schedule and the receivers
+        total_due += n_due
+        n_followed += int((np.diff(ptr[: n_due + 1]) > 1).sum())
+    assert total_due > 1000 and n_followed > 100  # the cases exercise the schedule and the receivers
 
 
 def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -> None:
@@ -190,6 +198,7 @@ def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -
         out = cam_stage(*args)
         assert out[0] == want
         assert all(len(a) == 0 for a in out[1:8]) and out[8:10] == (0.0, 0) and len(out[10]) == 0
+        assert out[11:13] == (0, 0) and len(out[13]) == 0
         for a, b in zip(args, before, strict=True):
             if isinstance(a, np.ndarray):
                 np.testing.assert_array_equal(a, b)
