@@ -66,16 +66,34 @@ def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
     return pairwise_sum(a, lo, n2) + pairwise_sum(a, lo + n2, n - n2)
 
 
+_RO_I8, _RO_F8 = types.Array(types.int64, 1, "A", readonly=True), types.Array(types.float64, 1, "A", readonly=True)
+
+
+@njit(types.int64[:](_RO_I8, _RO_F8), cache=True)  # read-only: the road frame's (a writable array converts)
+def lane_leaders(lane: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
+    """``safety_layer.lane_leaders``: per row the next row ahead on its lane (-1: none), the successor in
+    ``np.lexsort((lane_pos, lane))`` (by lane, then position, then row: two stable sorts)."""
+    n = lane.shape[0]
+    order = np.argsort(lane_pos, kind="mergesort")
+    order = order[np.argsort(lane[order], kind="mergesort")]
+    out = np.full(n, -1, dtype=np.int64)
+    for i in range(n - 1):
+        if lane[order[i]] == lane[order[i + 1]]:
+            out[order[i]] = order[i + 1]
+    return out
+
+
 def _signature() -> Any:
     i8, f8, b1 = types.int64, types.float64, types.boolean
     vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
     pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
-    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi, i8, i8, vi))
+    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi, i8, i8, vi, vi))
     return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
                f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
                vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
                vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
-               vi, i8, b1, i8)  # order_node, depth, fifo, r0
+               vi, i8, b1, i8,  # order_node, depth, fifo, r0
+               _RO_I8, _RO_F8)  # lane, lane_pos (the road frame's, read-only)
 
 
 @njit(_signature(), cache=True)
@@ -84,9 +102,9 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
               near_lo: float, near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float, stream_hi: float,
               slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
               known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
-              order_node: np.ndarray, depth: int, fifo: bool, r0: int
+              order_node: np.ndarray, depth: int, fifo: bool, r0: int, lane: np.ndarray, lane_pos: np.ndarray
               ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                         float, int, np.ndarray, int, int, np.ndarray]:
+                         float, int, np.ndarray, int, int, np.ndarray, np.ndarray]:
     """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
     [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
     ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
@@ -103,7 +121,8 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
     references). The room: one entry per connected coordinated row, from the roadside unit at
     (``x_rsu``, ``y_rsu``, 0) with a zero content, the references ``r0``, ``r0 + 1``, ... and one receiver
     each (``ptr`` counts on by one; the caller writes the receivers and sends the first ones it uses).
-    With a status > 0 the arrays are empty, the numbers 0 and nothing was changed."""
+    Last, each row's lane leader (``lane_leaders``). With a status > 0 the arrays are empty, the numbers 0
+    and nothing was changed."""
     n = dist.shape[0]
     n_slot, n_next = slot_of.shape[0], next_s.shape[0]
     empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
@@ -118,24 +137,24 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
             if node < 0 or node >= n_slot or slot_of[node] < 0:
                 return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i)
+                    empty_i, 0, 0, empty_i, empty_i)
             n_heard += 1
         if d < near_hi and d > near_lo:
             near[n_near] = k
             n_near += 1
     if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
         return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i)
+                    empty_i, 0, 0, empty_i, empty_i)
     near = near[:n_near]
     for k in near:
         if row_node[k] < 0:
             return (STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i)
+                    empty_i, 0, 0, empty_i, empty_i)
     for k in near:
         node = row_node[k]
         if node >= n_next or math.isnan(next_s[node]):
             return (STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i)
+                    empty_i, 0, 0, empty_i, empty_i)
     # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
     known[:] = False
     known[rsu] = True
@@ -250,4 +269,4 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
             sp[n_s] = speed[k]
             n_s += 1
     return (STATUS_OK, near, src, cam_pos, val, ptr, dst, keys, pairwise_sum(sp, 0, n_s), n_s, cand[:n_c],
-            n_due, m, ref)
+            n_due, m, ref, lane_leaders(lane, lane_pos))

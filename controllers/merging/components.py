@@ -299,8 +299,8 @@ class V2XMerging(Controller):
         return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
                 "merged": merged, "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
                 "heading": heading, "lane": r.lane, "length": size[:, 0], "lane_pos": r.lane_pos, "row": row}
-        # "leader" (each row's lane leader, safety_layer.lane_leaders) is added by _physical_leader_cap when
-        # a tick first needs it: about one tick in five commands no vehicle
+        # "leader" (each row's lane leader, safety_layer.lane_leaders) is added by the compiled CAM stage
+        # (_communicate), with "stream" and "cand"
 
     def _id_rows(self, ids_arr: np.ndarray, sl: slice) -> tuple[list[str], dict[str, int]]:
         """The road rows' ids and id -> row, rebuilt only when the snapshot's ids array is another
@@ -347,10 +347,11 @@ class V2XMerging(Controller):
             self._admit(t, s)
             out = self._cam_stage(t, s)
             assert out[0] == STATUS_OK, out[0]
-        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref = out
+        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref, leader = out
         self._listen_keys = keys
         s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
         s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
+        s["leader"] = leader  # each row's lane leader (see _physical_leader_cap)
         cams: _Cams = (n_c, m, src, pos, val, ptr, dst, ref)
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
@@ -366,7 +367,8 @@ class V2XMerging(Controller):
         return cam_stage(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
                          self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
                          self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu,
-                         order_node, self._listen_depth, self.coord.policy == "fifo", self._n_refs)
+                         order_node, self._listen_depth, self.coord.policy == "fifo", self._n_refs, s["lane"],
+                         s["lane_pos"])
 
     def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:
         """Each road row's channel node (-1: none yet), rebuilt when the rows' ids list changes."""
@@ -643,7 +645,7 @@ class V2XMerging(Controller):
         board).  SUMO's safe-speed check alone did not keep a commanded EIDM vehicle off a stopped
         leader: with the calibrated humans commanded ramp vehicles ran into the ramp's queue at 7 m/s."""
         leader = s.get("leader")
-        if leader is None:  # the tick's first commanded vehicle: every row's lane leader, once
+        if leader is None:  # a state without the CAM stage's: every row's lane leader, once
             leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
         j = int(leader[k])
         if j < 0:

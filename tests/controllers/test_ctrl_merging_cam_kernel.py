@@ -17,6 +17,7 @@ from corridor.controllers.merging.cam_kernel import (
     STATUS_PHASE,
     cam_stage,
 )
+from corridor.controllers.merging.safety_layer import lane_leaders
 from corridor.traffic.v2x import CamGenerator
 
 ZONE, MARGIN, RELEASE = 250.0, 100.0, 20.0
@@ -53,7 +54,8 @@ def _case(rng: np.random.Generator, fifo: bool) -> dict:
     order = [pool[j] for j in rng.permutation(len(pool))[: int(rng.integers(0, min(len(pool), 14) + 1))].tolist()]
     return dict(t=t, names=names, dist=dist, connected=connected, pos=pos, speed=speed, ramp=ramp, right=right,
                 merged=merged, index=index, receivers=receivers, next_s=next_s, order=order,
-                depth=int(rng.integers(1, 4)), fifo=fifo, r0=int(rng.integers(0, 1000)))
+                depth=int(rng.integers(1, 4)), fifo=fifo, r0=int(rng.integers(0, 1000)),
+                lane=rng.integers(0, 3, n), lane_pos=np.round(rng.uniform(0.0, 80.0, n), 1))
 
 
 def _reference(c: dict, known0: np.ndarray, pos0: np.ndarray) -> dict:
@@ -110,7 +112,7 @@ def _reference(c: dict, known0: np.ndarray, pos0: np.ndarray) -> dict:
         counts.append(1 + len(fol))
     sp = c["speed"][~c["ramp"] & (dist > BOUNDS[4]) & (dist < BOUNDS[5])]
     cand = np.flatnonzero((dist > 0) & (dist <= BOUNDS[3]) & (c["ramp"] | c["right"]) & ~c["merged"])
-    return dict(cand=cand, stream=(sp.sum(), len(sp)), near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
+    return dict(leader=lane_leaders(c["lane"], c["lane_pos"]), cand=cand, stream=(sp.sum(), len(sp)), near=idx, src=[index[v] for v in senders], cam_pos=cam_pos, cam_z=cam_z,
                 ptr=[0, *accumulate(counts)], dst=receivers, keys=keys, next_s=cams._next_s, known=known,
                 chan_pos=chan_pos)
 
@@ -131,7 +133,7 @@ def _kernel_args(c: dict, rng: np.random.Generator) -> tuple:
     order_node = np.array([index.get(v, -1) for v in c["order"]], dtype=np.int64)
     return (c["t"], c["dist"], c["connected"], c["pos"], c["speed"], c["ramp"], c["right"], c["merged"], row_node,
             *BOUNDS, slot_of, len(c["receivers"]) - 1, next_s, PERIOD, known, chan_pos, RSU_NODE, 10.0, -7.5,
-            order_node, c["depth"], c["fifo"], c["r0"])
+            order_node, c["depth"], c["fifo"], c["r0"], c["lane"], c["lane_pos"])
 
 
 @pytest.mark.parametrize("fifo", [False, True])
@@ -143,7 +145,7 @@ def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -
         args = _kernel_args(c, rng)
         known, chan_pos, next_s = args[19], args[20], args[17]
         ref = _reference(c, known, chan_pos)
-        status, near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_due, m, refs = cam_stage(*args)
+        status, near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_due, m, refs, leader = cam_stage(*args)
         assert status == STATUS_OK
         np.testing.assert_array_equal(near, ref["near"])
         assert src[:n_due].tolist() == ref["src"]
@@ -159,7 +161,7 @@ def test_the_compiled_cam_stage_gives_the_python_stage_bit_for_bit(fifo: bool) -
         assert ptr[n_due:].tolist() == list(range(m, m + n_a + 1))
         np.testing.assert_array_equal(known, ref["known"])
         assert (stream_sum, stream_n) == ref["stream"]
-        assert cand.tolist() == ref["cand"].tolist()
+        assert cand.tolist() == ref["cand"].tolist() and leader.tolist() == ref["leader"].tolist()
         assert chan_pos.tobytes() == ref["chan_pos"].tobytes()
         for v, x in ref["next_s"].items():
             assert next_s[c["index"][v]] == x, v  # exact: the period grid's arithmetic
@@ -198,7 +200,7 @@ def test_the_stage_leaves_names_and_draws_to_python_and_changes_nothing_then() -
         out = cam_stage(*args)
         assert out[0] == want
         assert all(len(a) == 0 for a in out[1:8]) and out[8:10] == (0.0, 0) and len(out[10]) == 0
-        assert out[11:13] == (0, 0) and len(out[13]) == 0
+        assert out[11:13] == (0, 0) and len(out[13]) == len(out[14]) == 0
         for a, b in zip(args, before, strict=True):
             if isinstance(a, np.ndarray):
                 np.testing.assert_array_equal(a, b)
@@ -220,3 +222,19 @@ def test_the_compiled_sum_is_numpys_pairwise_sum() -> None:
         assert pairwise_sum(a, lo, n - lo) == a[lo:].sum()
         plain += sum(a[lo:].tolist()) != a[lo:].sum()
     assert plain > 1000
+
+
+def test_the_compiled_lane_leaders_are_the_lexsorts() -> None:
+    """``cam_kernel.lane_leaders`` (two stable sorts) gives ``safety_layer.lane_leaders`` (a lexsort), ties in
+    position on a lane included (the lower row first)."""
+    from corridor.controllers.merging.cam_kernel import lane_leaders as compiled
+
+    rng = np.random.default_rng(12)
+    ties = 0
+    for _ in range(3000):
+        n = int(rng.integers(0, 120))
+        lane = rng.integers(0, 4, n)
+        pos = np.round(rng.uniform(0.0, 60.0, n), int(rng.integers(0, 2)))
+        assert compiled(lane, pos).tolist() == lane_leaders(lane, pos).tolist()
+        ties += len(set(zip(lane.tolist(), pos.tolist()))) < n
+    assert ties > 1000
