@@ -203,8 +203,9 @@ class HybridAutomaton:
                 if isinstance(tr.guard, Boundary) and tr.guard.name not in seen:
                     seen[tr.guard.name] = tr.guard
             self._path_bounds[m] = tuple(seen.values())
-        self._path_inv = {m: tuple((pm, self._tree[pm][0].invariant) for pm in self._paths[m]
-                                   if self._tree[pm][0].invariant is not None) for m in self.modes}
+        self._path_inv: dict[str, tuple[tuple[str, Guard | Boundary], ...]] = {
+            m: tuple((pm, inv) for pm in self._paths[m] for inv in (self._tree[pm][0].invariant,) if inv is not None)
+            for m in self.modes}
         # asked first at every boundary guard whose discrete ``when`` holds (None: the automaton decides)
         self.decider: Decider | None = None
         self.reset(0.0)
