@@ -69,64 +69,83 @@ def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
 _RO_I8, _RO_F8 = types.Array(types.int64, 1, "A", readonly=True), types.Array(types.float64, 1, "A", readonly=True)
 
 
-@njit(types.int64[:](_RO_I8, _RO_F8), cache=True)  # read-only: the road frame's (a writable array converts)
-def lane_leaders(lane: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
-    """``safety_layer.lane_leaders``: per row the next row ahead on its lane (-1: none), the successor in
-    ``np.lexsort((lane_pos, lane))`` (by lane, then position, then row: two stable sorts)."""
+@njit(types.void(_RO_I8, _RO_F8, types.int64[:]), cache=True)  # read-only: the road frame's (a writable converts)
+def lane_leaders_into(lane: np.ndarray, lane_pos: np.ndarray, out: np.ndarray) -> None:
+    """``safety_layer.lane_leaders`` written to ``out[:n]``: per row the next row ahead on its lane (-1: none),
+    the successor in ``np.lexsort((lane_pos, lane))`` (by lane, then position, then row: two stable sorts)."""
     n = lane.shape[0]
     order = np.argsort(lane_pos, kind="mergesort")
     order = order[np.argsort(lane[order], kind="mergesort")]
-    out = np.full(n, -1, dtype=np.int64)
+    out[:n] = -1
     for i in range(n - 1):
         if lane[order[i]] == lane[order[i + 1]]:
             out[order[i]] = order[i + 1]
+
+
+def lane_leaders(lane: np.ndarray, lane_pos: np.ndarray) -> np.ndarray:
+    """``lane_leaders_into`` as a new array."""
+    out = np.empty(len(lane), dtype=np.int64)
+    lane_leaders_into(lane, lane_pos, out)
     return out
+
+
+@njit("i8(i8[:], i8)", cache=True)
+def _order_pos(order_node: np.ndarray, node: int) -> int:
+    """The position of ``node`` in the crossing order (-1: not ordered)."""
+    for p in range(order_node.shape[0]):
+        if order_node[p] == node:
+            return p
+    return -1
 
 
 def _signature() -> Any:
     i8, f8, b1 = types.int64, types.float64, types.boolean
     vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
     pos = types.Array(f8, 2, "A", readonly=True)  # the snapshot's positions are read-only (a writable array converts)
-    out = types.Tuple((i8, vi, vi, mf, mf, vi, vi, vi, f8, i8, vi, i8, i8, vi, vi))
-    return out(f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
-               f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
-               vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
-               vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
-               vi, i8, b1, i8,  # order_node, depth, fifo, r0
-               _RO_I8, _RO_F8)  # lane, lane_pos (the road frame's, read-only)
+    return types.Tuple((i8, i8, i8, i8, i8, i8, i8, f8, i8))(
+        f8, vf, vb, pos, vf, vb, vb, vb, vi,  # t, the rows
+        f8, f8, f8, f8, f8, f8,  # near_lo, near_hi, zone_lo, zone_hi, stream_lo, stream_hi
+        vi, i8, vf, f8,  # slot_of, n_vehicle_rx, next_s, period
+        vb, mf, i8, f8, f8,  # known, chan_pos, rsu, x_rsu, y_rsu
+        vi, i8, b1, i8,  # order_node, depth, fifo, r0
+        _RO_I8, _RO_F8,  # lane, lane_pos (the road frame's, read-only)
+        vi, vi, mf, mf, vi, vi, vi, vi, vi, vi, vf, vi, vi)  # the buffers (see cam_stage_into)
 
 
 @njit(_signature(), cache=True)
-def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray, speed: np.ndarray,
-              ramp: np.ndarray, right: np.ndarray, merged: np.ndarray, row_node: np.ndarray,
-              near_lo: float, near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float, stream_hi: float,
-              slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
-              known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
-              order_node: np.ndarray, depth: int, fifo: bool, r0: int, lane: np.ndarray, lane_pos: np.ndarray
-              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                         float, int, np.ndarray, int, int, np.ndarray, np.ndarray]:
-    """The tick's CAM stage (see the module docstring).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3)
-    [m], ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
+def cam_stage_into(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray, speed: np.ndarray,
+                   ramp: np.ndarray, right: np.ndarray, merged: np.ndarray, row_node: np.ndarray,
+                   near_lo: float, near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float,
+                   stream_hi: float, slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float,
+                   known: np.ndarray, chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float,
+                   order_node: np.ndarray, depth: int, fifo: bool, r0: int, lane: np.ndarray, lane_pos: np.ndarray,
+                   near: np.ndarray, src: np.ndarray, cam_pos: np.ndarray, val: np.ndarray, ref: np.ndarray,
+                   ptr: np.ndarray, dst: np.ndarray, keys: np.ndarray, cand: np.ndarray, leader: np.ndarray,
+                   sp: np.ndarray, due: np.ndarray, newcomers: np.ndarray
+                   ) -> tuple[int, int, int, int, int, int, int, float, int]:
+    """The tick's CAM stage (see the module docstring), written to the caller's buffers (``CamStage``: no
+    array is allocated and boxed per call).  Rows: ``dist`` [m], ``connected``, ``pos`` (n, 2|3) [m],
+    ``speed`` [m/s], the lane flags ``ramp`` / ``right`` / ``merged``, ``row_node`` (-1: no node).
     ``slot_of``: node -> track slot (-1: not a receiver), ``n_vehicle_rx`` the receivers but the roadside
     unit; ``next_s``: node -> next CAM time [s] (NaN: none yet), advanced in place; ``known`` / ``chan_pos``:
     the channel's node positions, set in place; ``order_node``: the crossing order's nodes (-1: no node).
 
-    Returns (status, the senders' rows, then the tick's sends as ``AddressedChannel.send`` takes them: the
-    senders' nodes, positions (e, 3) [m], contents (e, 2) (a CAM: [position on the merge axis [m], speed
-    [m/s]]), ptr (e + 1), the receiver nodes, with room after the due CAMs for the assignments (see below);
-    the sorted listen keys, the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo <
-    d < stream_hi`` and their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
-    ``pairwise_sum``), the rows the roadside unit coordinates (``0 < d <= zone_hi`` on a conflicting lane:
-    ``ramp`` or ``right``, not ``merged``), the count of due CAMs and of their receivers, and the sends'
-    references). The room: one entry per connected coordinated row, from the roadside unit at
-    (``x_rsu``, ``y_rsu``, 0) with a zero content, the references ``r0``, ``r0 + 1``, ... and one receiver
-    each (``ptr`` counts on by one; the caller writes the receivers and sends the first ones it uses).
-    Last, each row's lane leader (``lane_leaders``). With a status > 0 the arrays are empty, the numbers 0
-    and nothing was changed."""
+    Writes the senders' rows (``near``); the tick's sends as ``AddressedChannel.send`` takes them: the
+    senders' nodes (``src``), positions (``cam_pos``, [m]), contents (``val``; a CAM: [position on the merge
+    axis [m], speed [m/s]]), references (``ref``), ``ptr`` into the receiver nodes ``dst``, with room after
+    the due CAMs for the assignments (see below); the sorted listen ``keys``; the rows the roadside unit
+    coordinates (``cand``: ``0 < d <= zone_hi`` on a conflicting lane: ``ramp`` or ``right``, not
+    ``merged``); each row's lane leader (``leader``, ``lane_leaders``). The room: one entry per connected
+    coordinated row, from the roadside unit at (``x_rsu``, ``y_rsu``, 0) with a zero content, the
+    references ``r0``, ``r0 + 1``, ... and one receiver each (``ptr`` counts on by one; the caller writes
+    the receivers and sends the first ones it uses).
+
+    Returns (status, senders, due CAMs, entries (CAMs and room), the CAMs' receivers, listen keys,
+    coordinated rows, the sum of the speeds of the mainline rows (``ramp`` false) with ``stream_lo < d <
+    stream_hi`` and their count (the crossing speed: their mean, as ``np.mean``: ``sum / n``, the sum
+    ``pairwise_sum``)). With a status > 0 the counts are 0 and nothing was changed."""
     n = dist.shape[0]
     n_slot, n_next = slot_of.shape[0], next_s.shape[0]
-    empty_i, empty_f = np.empty(0, dtype=np.int64), np.empty((0, 3))
-    near = np.empty(n, dtype=np.int64)
     n_near = 0
     n_heard = 0
     for k in range(n):
@@ -136,39 +155,35 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         node = row_node[k]
         if d <= zone_hi and d > zone_lo:  # a listener: must be a receiver already
             if node < 0 or node >= n_slot or slot_of[node] < 0:
-                return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i, empty_i)
+                return STATUS_LISTENERS, 0, 0, 0, 0, 0, 0, 0.0, 0
             n_heard += 1
         if d < near_hi and d > near_lo:
             near[n_near] = k
             n_near += 1
     if n_heard != n_vehicle_rx:  # a receiver left the zone (or the scenario)
-        return (STATUS_LISTENERS, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i, empty_i)
-    near = near[:n_near]
-    for k in near:
-        if row_node[k] < 0:
-            return (STATUS_NODES, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i, empty_i)
-    for k in near:
-        node = row_node[k]
+        return STATUS_LISTENERS, 0, 0, 0, 0, 0, 0, 0.0, 0
+    for i in range(n_near):
+        if row_node[near[i]] < 0:
+            return STATUS_NODES, 0, 0, 0, 0, 0, 0, 0.0, 0
+    for i in range(n_near):
+        node = row_node[near[i]]
         if node >= n_next or math.isnan(next_s[node]):
-            return (STATUS_PHASE, empty_i, empty_i, empty_f, empty_f[:, :2], empty_i, empty_i, empty_i, 0.0, 0,
-                    empty_i, 0, 0, empty_i, empty_i)
+            return STATUS_PHASE, 0, 0, 0, 0, 0, 0, 0.0, 0
     # the channel's positions: the roadside unit, then the senders (2-D positions: z = 0)
     known[:] = False
     known[rsu] = True
     chan_pos[rsu, 0], chan_pos[rsu, 1], chan_pos[rsu, 2] = x_rsu, y_rsu, 0.0
     n_col = pos.shape[1]
-    for k in near:
+    for i in range(n_near):
+        k = near[i]
         node = row_node[k]
         known[node] = True
         for c in range(3):
             chan_pos[node, c] = pos[k, c] if c < n_col else 0.0
     # the CAM schedule (CamGenerator.due, per sender in row order)
-    due = np.empty(n_near, dtype=np.int64)
     n_due = 0
-    for k in near:
+    for i in range(n_near):
+        k = near[i]
         node = row_node[k]
         nxt = next_s[node]
         if t + DUE_EPS_S >= nxt:
@@ -176,31 +191,22 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
             n_due += 1
             n_missed = math.floor((t + DUE_EPS_S - nxt) / period)
             next_s[node] = nxt + (n_missed + 1.0) * period
-    # the crossing order: each node's position (-1: not ordered), which positions are receivers
-    n_nodes = known.shape[0]
-    pos_of = np.full(n_nodes, -1, dtype=np.int64)
     n_order = order_node.shape[0]
-    is_rx = np.zeros(n_order, dtype=np.bool_)
-    for p in range(n_order):
-        node = order_node[p]
-        if node >= 0:
-            pos_of[node] = p
-            is_rx[p] = node < n_slot and slot_of[node] >= 0
     # fifo's newcomers: senders on a conflicting lane that are not ordered yet (row order)
-    newcomers = np.empty(n_near if fifo else 0, dtype=np.int64)
     n_new = 0
     if fifo:
-        for k in near:
-            if (ramp[k] or right[k]) and not merged[k] and pos_of[row_node[k]] < 0:
+        for i in range(n_near):
+            k = near[i]
+            if (ramp[k] or right[k]) and not merged[k] and _order_pos(order_node, row_node[k]) < 0:
                 newcomers[n_new] = row_node[k]
                 n_new += 1
     # the listen keys: each ordered receiver listens to the vehicles ahead of it, and to the newcomers
-    keys = np.empty(n_order * (depth + n_new), dtype=np.int64)
     n_keys = 0
     for p in range(n_order):
-        if not is_rx[p]:
+        node = order_node[p]
+        if node < 0 or node >= n_slot or slot_of[node] < 0:
             continue
-        rx = order_node[p] << 32
+        rx = node << 32
         for j in range(max(0, p - depth), p):
             if order_node[j] >= 0:
                 keys[n_keys] = rx | order_node[j]
@@ -208,10 +214,9 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
         for j in range(n_new):
             keys[n_keys] = rx | newcomers[j]
             n_keys += 1
-    keys = np.sort(keys[:n_keys])
+    keys[:n_keys].sort()
     # the zone's rows on a conflicting lane (the coordinator's candidates), in row order; the connected
     # ones are the most assignments the roadside unit sends in this tick
-    cand = np.empty(n, dtype=np.int64)
     n_c = n_a = 0
     for k in range(n):
         if dist[k] > 0.0 and dist[k] <= zone_hi and (ramp[k] or right[k]) and not merged[k]:
@@ -222,23 +227,18 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
     # in order), then room for n_a assignments (from the roadside unit's position, no content, the
     # references r0, r0 + 1, ..., one receiver each: filled by the caller)
     n_e = n_due + n_a
-    src = np.empty(n_e, dtype=np.int64)
-    cam_pos = np.zeros((n_e, 3))
-    val = np.zeros((n_e, 2))
-    ref = np.full(n_e, -1, dtype=np.int64)
-    ptr = np.empty(n_e + 1, dtype=np.int64)
-    dst = np.empty(n_due * (1 + n_order) + n_a, dtype=np.int64)
     ptr[0] = 0
     m = 0
     for e in range(n_due):
         k = due[e]
         node = row_node[k]
         src[e] = node
-        cam_pos[e, 0], cam_pos[e, 1] = pos[k, 0], pos[k, 1]
+        cam_pos[e, 0], cam_pos[e, 1], cam_pos[e, 2] = pos[k, 0], pos[k, 1], 0.0
         val[e, 0], val[e, 1] = -dist[k], speed[k]
+        ref[e] = -1
         dst[m] = rsu
         m += 1
-        ps = pos_of[node]
+        ps = _order_pos(order_node, node)
         newcomer = False
         if ps < 0:
             for j in range(n_new):
@@ -247,26 +247,65 @@ def cam_stage(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.ndarray
                     break
         if ps >= 0:
             for p in range(ps + 1, min(ps + depth + 1, n_order)):
-                if is_rx[p]:
-                    dst[m] = order_node[p]
+                f = order_node[p]
+                if f >= 0 and f < n_slot and slot_of[f] >= 0:
+                    dst[m] = f
                     m += 1
         elif newcomer:
             for p in range(n_order):
-                if is_rx[p]:
-                    dst[m] = order_node[p]
+                f = order_node[p]
+                if f >= 0 and f < n_slot and slot_of[f] >= 0:
+                    dst[m] = f
                     m += 1
         ptr[e + 1] = m
     for e in range(n_due, n_e):
         src[e] = rsu
-        cam_pos[e, 0], cam_pos[e, 1] = x_rsu, y_rsu
+        cam_pos[e, 0], cam_pos[e, 1], cam_pos[e, 2] = x_rsu, y_rsu, 0.0
+        val[e, 0], val[e, 1] = 0.0, 0.0
         ref[e] = r0 + e - n_due
         ptr[e + 1] = ptr[e] + 1
     # the crossing speed's rows (upstream mainline), in row order, and numpy's sum of their speeds
-    sp = np.empty(n)
     n_s = 0
     for k in range(n):
         if not ramp[k] and dist[k] > stream_lo and dist[k] < stream_hi:
             sp[n_s] = speed[k]
             n_s += 1
-    return (STATUS_OK, near, src, cam_pos, val, ptr, dst, keys, pairwise_sum(sp, 0, n_s), n_s, cand[:n_c],
-            n_due, m, ref, lane_leaders(lane, lane_pos))
+    lane_leaders_into(lane, lane_pos, leader)
+    return STATUS_OK, n_near, n_due, n_e, m, n_keys, n_c, pairwise_sum(sp, 0, n_s), n_s
+
+
+class CamStage:
+    """``cam_stage_into`` with its buffers (grown as needed): a call returns (status, the senders' rows, the
+    sends' nodes, positions, contents, ptr, receivers (the buffer: the room's receivers after the CAMs'),
+    the listen keys, the crossing speed's sum and count, the coordinated rows, the due CAMs, their
+    receivers, the references, the lane leaders), views valid until the next call."""
+
+    def __init__(self) -> None:
+        self._n = self._n_dst = self._n_keys = -1
+        self._grow(64, 256, 256)
+
+    def _grow(self, n: int, n_dst: int, n_keys: int) -> None:
+        if n > self._n:
+            self._n = n
+            self.near, self.src, self.ref, self.ptr = (np.empty(n, dtype=np.int64), np.empty(2 * n, dtype=np.int64),
+                                                       np.empty(2 * n, dtype=np.int64), np.empty(2 * n + 1, dtype=np.int64))
+            self.pos, self.val = np.empty((2 * n, 3)), np.empty((2 * n, 2))
+            self.cand, self.leader, self.sp = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(n)
+            self.due, self.newcomers = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        if n_dst > self._n_dst:
+            self._n_dst, self.dst = n_dst, np.empty(n_dst, dtype=np.int64)
+        if n_keys > self._n_keys:
+            self._n_keys, self.keys = n_keys, np.empty(n_keys, dtype=np.int64)
+
+    def __call__(self, t: float, dist: np.ndarray, *args: Any) -> tuple[Any, ...]:
+        n, n_order, depth = dist.shape[0], args[22].shape[0], args[23]
+        need_dst, need_keys = n * (1 + n_order) + n, n_order * (depth + n)
+        if n > self._n or need_dst > self._n_dst or need_keys > self._n_keys:
+            self._grow(max(n, 2 * self._n), max(need_dst, 2 * self._n_dst), max(need_keys, 2 * self._n_keys))
+        status, n_near, n_due, n_e, m, n_keys, n_c, stream_sum, n_s = cam_stage_into(
+            t, dist, *args, self.near, self.src, self.pos, self.val, self.ref, self.ptr, self.dst, self.keys,
+            self.cand, self.leader, self.sp, self.due, self.newcomers)
+        ok = status == STATUS_OK
+        return (status, self.near[:n_near], self.src[:n_e], self.pos[:n_e], self.val[:n_e], self.ptr[: n_e + ok],
+                self.dst, self.keys[:n_keys], stream_sum, n_s, self.cand[:n_c], n_due, m, self.ref[:n_e],
+                self.leader[: n * ok])

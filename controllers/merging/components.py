@@ -48,7 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
-from corridor.controllers.merging.cam_kernel import STATUS_OK, cam_stage
+from corridor.controllers.merging.cam_kernel import STATUS_OK, CamStage
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -81,7 +81,7 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
-# the tick's sends (cam_kernel.cam_stage): the count of CAMs and of their receivers, then the sends' sender
+# the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
 # references: the CAMs first, then room for the RSU's assignments
 _Cams = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
@@ -197,6 +197,7 @@ class V2XMerging(Controller):
         self._next_cam = np.zeros(0)  # [s] per channel node: its next CAM (NaN: none yet; CamGenerator.due)
         self._row_node = np.zeros(0, dtype=np.int64)  # per road row: its channel node (-1: none), see _row_nodes
         self._row_node_key: list[str] | None = None
+        self._cam = CamStage()  # the compiled CAM stage and its buffers
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
@@ -330,7 +331,7 @@ class V2XMerging(Controller):
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
         when the channel's delay is never zero (none of them could be delivered in this tick).
 
-        The stage is one compiled call over node indices (``cam_kernel.cam_stage``: the zone masks, the
+        The stage is one compiled call over node indices (``cam_kernel.cam_stage_into``: the zone masks, the
         senders' positions, the CAM schedule, the listen keys, each CAM's receivers); a listener to attach
         or detach, a sender without a node or without a schedule is done here first (``_admit``).
 
@@ -360,11 +361,11 @@ class V2XMerging(Controller):
         return cams
 
     def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
-        """``cam_kernel.cam_stage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
+        """``cam_kernel.CamStage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
         index = self.channel.index
         known, chan_pos = self.channel.position_arrays()
         order_node = np.array([index.get(v, -1) for v in self.coord.sequence], dtype=np.int64)
-        return cam_stage(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
+        return self._cam(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
                          self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
                          self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu,
                          order_node, self._listen_depth, self.coord.policy == "fifo", self._n_refs, s["lane"],
