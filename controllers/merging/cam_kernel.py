@@ -274,6 +274,72 @@ def cam_stage_into(t: float, dist: np.ndarray, connected: np.ndarray, pos: np.nd
     return STATUS_OK, n_near, n_due, n_e, m, n_keys, n_c, pairwise_sum(sp, 0, n_s), n_s
 
 
+_RO_B1 = types.Array(types.boolean, 1, "A", readonly=True)
+_DERIVE_SIG = types.void(types.float64[:], types.Array(types.int8, 1, "A", readonly=True), _RO_I8, _RO_B1, _RO_I8, _RO_B1,
+                         _RO_B1, _RO_B1, types.int64, types.float64, types.float64, types.float64[:], types.boolean[:],
+                         types.boolean[:], types.boolean[:], types.boolean[:])
+
+
+@njit(_DERIVE_SIG, cache=True)
+def derive_rows(front_x: np.ndarray, role: np.ndarray, uid: np.ndarray, conn_of: np.ndarray, lane: np.ndarray,
+                on_ramp_lane: np.ndarray, joins_lane: np.ndarray, merged_lane: np.ndarray, ramp_code: int,
+                x_merge: float, cos_ramp: float, dist: np.ndarray, connected: np.ndarray, ramp: np.ndarray,
+                right: np.ndarray, merged: np.ndarray) -> None:
+    """``V2XMerging._sense``'s per-row facts from the rows' front-bumper x [m] (``front_x``), their uids and
+    lane codes, written to ``dist`` (to the conflict point at ``x_merge``, along the ramp on a ramp lane:
+    divided by ``cos_ramp``), ``connected``, ``ramp`` (role ``ramp_code``), ``right`` (a lane ramp vehicles
+    join) and ``merged`` (a ramp vehicle on a mainline lane past the nose), as its numpy lines did."""
+    for k in range(front_x.shape[0]):
+        u, ln = uid[k], lane[k]
+        is_ramp = role[u] == ramp_code
+        ramp[k] = is_ramp
+        merged[k] = is_ramp and merged_lane[ln]
+        right[k] = joins_lane[ln]
+        connected[k] = conn_of[u]
+        d = x_merge - front_x[k]
+        if is_ramp and on_ramp_lane[ln]:
+            d = d / cos_ramp
+        dist[k] = d
+
+
+def _tick_signature() -> Any:
+    i8, f8, b1 = types.int64, types.float64, types.boolean
+    vi, vf, vb, mf = types.int64[:], types.float64[:], types.boolean[:], types.float64[:, :]
+    pos = types.Array(f8, 2, "A", readonly=True)
+    return types.Tuple((i8, i8, i8, i8, i8, i8, i8, f8, i8))(
+        f8, vf, types.Array(types.int8, 1, "A", readonly=True), _RO_I8, _RO_B1, _RO_B1, _RO_B1, _RO_B1, i8, f8,  # rows
+        vf, vb, vb, vb, vb,  # the derived rows' buffers
+        pos, vf, vi,  # pos, speed, row_node
+        f8, f8, f8, f8, f8, f8,
+        vi, i8, vf, f8,
+        vb, mf, i8, f8, f8,
+        vi, i8, b1, i8,
+        _RO_I8, _RO_F8,
+        vi, vi, mf, mf, vi, vi, vi, vi, vi, vi, vf, vi, vi)
+
+
+@njit(_tick_signature(), cache=True)
+def cam_tick_into(t: float, front_x: np.ndarray, role: np.ndarray, uid: np.ndarray, conn_of: np.ndarray,
+                  on_ramp_lane: np.ndarray, joins_lane: np.ndarray, merged_lane: np.ndarray, ramp_code: int,
+                  cos_ramp: float, dist: np.ndarray, connected: np.ndarray, ramp: np.ndarray, right: np.ndarray,
+                  merged: np.ndarray, pos: np.ndarray, speed: np.ndarray, row_node: np.ndarray, near_lo: float,
+                  near_hi: float, zone_lo: float, zone_hi: float, stream_lo: float, stream_hi: float,
+                  slot_of: np.ndarray, n_vehicle_rx: int, next_s: np.ndarray, period: float, known: np.ndarray,
+                  chan_pos: np.ndarray, rsu: int, x_rsu: float, y_rsu: float, order_node: np.ndarray, depth: int,
+                  fifo: bool, r0: int, lane: np.ndarray, lane_pos: np.ndarray, near: np.ndarray, src: np.ndarray,
+                  cam_pos: np.ndarray, val: np.ndarray, ref: np.ndarray, ptr: np.ndarray, dst: np.ndarray,
+                  keys: np.ndarray, cand: np.ndarray, leader: np.ndarray, sp: np.ndarray, due: np.ndarray,
+                  newcomers: np.ndarray) -> tuple[int, int, int, int, int, int, int, float, int]:
+    """:func:`derive_rows` (the conflict point at ``x_rsu``) and :func:`cam_stage_into` on its rows, in one call."""
+    n = front_x.shape[0]
+    derive_rows(front_x, role, uid, conn_of, lane, on_ramp_lane, joins_lane, merged_lane, ramp_code, x_rsu,
+                cos_ramp, dist, connected, ramp, right, merged)
+    return cam_stage_into(t, dist[:n], connected[:n], pos, speed, ramp[:n], right[:n], merged[:n], row_node, near_lo,
+                          near_hi, zone_lo, zone_hi, stream_lo, stream_hi, slot_of, n_vehicle_rx, next_s, period,
+                          known, chan_pos, rsu, x_rsu, y_rsu, order_node, depth, fifo, r0, lane, lane_pos, near, src,
+                          cam_pos, val, ref, ptr, dst, keys, cand, leader, sp, due, newcomers)
+
+
 class CamStage:
     """``cam_stage_into`` with its buffers (grown as needed): a call returns (status, the senders' rows, the
     sends' nodes, positions, contents, ptr, receivers (the buffer: the room's receivers after the CAMs'),
@@ -282,6 +348,7 @@ class CamStage:
 
     def __init__(self) -> None:
         self._n = self._n_dst = self._n_keys = -1
+        self.dist = np.empty(0)
         self._grow(64, 256, 256)
 
     def _grow(self, n: int, n_dst: int, n_keys: int) -> None:
@@ -296,15 +363,39 @@ class CamStage:
             self._n_dst, self.dst = n_dst, np.empty(n_dst, dtype=np.int64)
         if n_keys > self._n_keys:
             self._n_keys, self.keys = n_keys, np.empty(n_keys, dtype=np.int64)
+        if n > len(self.dist):
+            self.dist = np.empty(n)
+            self.connected, self.ramp, self.right, self.merged = (np.empty(n, dtype=bool) for _ in range(4))
 
     def __call__(self, t: float, dist: np.ndarray, *args: Any) -> tuple[Any, ...]:
-        n, n_order, depth = dist.shape[0], args[22].shape[0], args[23]
+        """``cam_stage_into`` on the rows' ``dist``, ``connected``, ``pos``, ... (its arguments up to ``lane_pos``)."""
+        self._room(dist.shape[0], args[22].shape[0], args[23])
+        out = cam_stage_into(t, dist, *args, *self._buffers())
+        return self._views(dist.shape[0], out)
+
+    def tick(self, t: float, front_x: np.ndarray, raw: tuple[Any, ...], *args: Any) -> tuple[Any, ...]:
+        """``cam_tick_into``: the rows derived from ``front_x`` and ``raw`` (``derive_rows``' role, uid,
+        connected-by-uid, the three lane tables, the ramp's role code and its cosine), then the stage on
+        them (``pos``, ``speed``, ``row_node``, the bounds, ... as ``__call__`` takes them after ``merged``).
+        Returns ``__call__``'s tuple, then the derived dist, connected, ramp, right and merged (views)."""
+        n = front_x.shape[0]
+        self._room(n, args[18].shape[0], args[19])
+        out = cam_tick_into(t, front_x, *raw, self.dist, self.connected, self.ramp, self.right, self.merged, *args,
+                            *self._buffers())
+        return (*self._views(n, out), self.dist[:n], self.connected[:n], self.ramp[:n], self.right[:n],
+                self.merged[:n])
+
+    def _room(self, n: int, n_order: int, depth: int) -> None:
         need_dst, need_keys = n * (1 + n_order) + n, n_order * (depth + n)
         if n > self._n or need_dst > self._n_dst or need_keys > self._n_keys:
             self._grow(max(n, 2 * self._n), max(need_dst, 2 * self._n_dst), max(need_keys, 2 * self._n_keys))
-        status, n_near, n_due, n_e, m, n_keys, n_c, stream_sum, n_s = cam_stage_into(
-            t, dist, *args, self.near, self.src, self.pos, self.val, self.ref, self.ptr, self.dst, self.keys,
-            self.cand, self.leader, self.sp, self.due, self.newcomers)
+
+    def _buffers(self) -> tuple[np.ndarray, ...]:
+        return (self.near, self.src, self.pos, self.val, self.ref, self.ptr, self.dst, self.keys, self.cand,
+                self.leader, self.sp, self.due, self.newcomers)
+
+    def _views(self, n: int, out: tuple[Any, ...]) -> tuple[Any, ...]:
+        status, n_near, n_due, n_e, m, n_keys, n_c, stream_sum, n_s = out
         ok = status == STATUS_OK
         return (status, self.near[:n_near], self.src[:n_e], self.pos[:n_e], self.val[:n_e], self.ptr[: n_e + ok],
                 self.dst, self.keys[:n_keys], stream_sum, n_s, self.cand[:n_c], n_due, m, self.ref[:n_e],

@@ -291,17 +291,14 @@ class V2XMerging(Controller):
         ids, row = self._id_rows(snap.ids, sl)
         pos, size, heading = snap.position[sl], snap.size[sl], snap.heading[sl]
         front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
-        ramp = tb.role[r.uid] == _RAMP  # on the ramp route
-        # a ramp vehicle on a mainline lane past the nose has merged: out of the conflict, like a
-        # mainline vehicle that moved to the left lane (its route alone kept it under ramp control)
-        merged = ramp & self._merged_lane[r.lane]
-        dist = self.x_merge - front_x
-        dist[ramp & self._on_ramp_lane[r.lane]] /= self.cos_ramp  # along the inclined ramp
-        return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
-                "merged": merged, "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
-                "heading": heading, "lane": r.lane, "length": size[:, 0], "lane_pos": r.lane_pos, "row": row}
-        # "leader" (each row's lane leader, safety_layer.lane_leaders) is added by the compiled CAM stage
-        # (_communicate), with "stream" and "cand"
+        # the rest comes with the compiled CAM stage (_communicate; cam_kernel.derive_rows): "dist" (to the
+        # conflict point, along the inclined ramp on a ramp lane), "ramp" (on the ramp route), "merged" (a
+        # ramp vehicle on a mainline lane past the nose has merged: out of the conflict, like a mainline
+        # vehicle that moved to the left lane; its route alone kept it under ramp control), "right" (on the
+        # mainline lane ramp vehicles join), "connected"; and "leader" (each row's lane leader,
+        # safety_layer.lane_leaders), "stream" and "cand"
+        return {"ids": ids, "front_x": front_x, "uid": r.uid, "tables": tb, "speed": snap.speed[sl], "accel": r.accel,
+                "pos": pos, "heading": heading, "lane": r.lane, "length": size[:, 0], "lane_pos": r.lane_pos, "row": row}
 
     def _id_rows(self, ids_arr: np.ndarray, sl: slice) -> tuple[list[str], dict[str, int]]:
         """The road rows' ids and id -> row, rebuilt only when the snapshot's ids array is another
@@ -365,11 +362,15 @@ class V2XMerging(Controller):
         index = self.channel.index
         known, chan_pos = self.channel.position_arrays()
         order_node = np.array([index.get(v, -1) for v in self.coord.sequence], dtype=np.int64)
-        return self._cam(t, s["dist"], s["connected"], s["pos"], s["speed"], s["ramp"], s["right"], s["merged"],
-                         self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
-                         self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu,
-                         order_node, self._listen_depth, self.coord.policy == "fifo", self._n_refs, s["lane"],
-                         s["lane_pos"])
+        tb = s["tables"]
+        raw = (tb.role, s["uid"], tb.connected, self._on_ramp_lane, self._joins_lane, self._merged_lane, _RAMP,
+               self.cos_ramp)
+        out = self._cam.tick(t, s["front_x"], raw, s["pos"], s["speed"], self._row_nodes(s), *self._cam_bounds,
+                             self.tracks.slot_of, len(self.tracks) - 1, self._next_cam, self._cam_period, known,
+                             chan_pos, self._rsu_node, self.x_merge, self.y_rsu, order_node, self._listen_depth,
+                             self.coord.policy == "fifo", self._n_refs, s["lane"], s["lane_pos"])
+        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:]  # (views of the stage's buffers)
+        return out[:15]
 
     def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:
         """Each road row's channel node (-1: none yet), rebuilt when the rows' ids list changes."""

@@ -240,3 +240,49 @@ def test_the_compiled_lane_leaders_are_the_lexsorts() -> None:
         assert compiled(lane, pos).tolist() == lane_leaders(lane, pos).tolist()
         ties += len(set(zip(lane.tolist(), pos.tolist()))) < n
     assert ties > 1000
+
+
+def test_the_compiled_row_facts_are_the_former_sense_lines() -> None:
+    """``derive_rows`` (in the same call as the stage, ``CamStage.tick``) gives what ``V2XMerging._sense``'s
+    numpy lines gave: the distance to the conflict point (along the ramp on a ramp lane), ramp, merged,
+    right and connected; and the stage on them is the stage on the numpy rows."""
+    from corridor.controllers.merging.cam_kernel import derive_rows
+
+    rng = np.random.default_rng(21)
+    stage, ref_stage = CamStage(), CamStage()
+    for _ in range(300):
+        c = _case(rng, bool(rng.random() < 0.5))
+        n = len(c["names"])
+        n_uid, n_lanes = n + int(rng.integers(1, 20)), int(rng.integers(1, 8))
+        role = rng.integers(0, 3, n_uid).astype(np.int8)
+        uid = rng.permutation(n_uid)[:n].astype(np.int64)
+        conn_of = rng.random(n_uid) < 0.8
+        lane = rng.integers(0, n_lanes, n)
+        on_ramp, joins, past = (rng.random(n_lanes) < 0.4 for _ in range(3))
+        front_x = rng.uniform(900.0, 1700.0, n)
+        x_merge, cos_ramp = 1521.022, np.cos(np.radians(float(rng.uniform(2.0, 20.0))))
+        # the former _sense lines
+        ramp = role[uid] == 1
+        merged = ramp & past[lane]
+        dist = x_merge - front_x
+        dist[ramp & on_ramp[lane]] /= cos_ramp
+        got = [np.empty(n), *(np.empty(n, dtype=bool) for _ in range(4))]
+        derive_rows(front_x, role, uid, conn_of, lane, on_ramp, joins, past, 1, x_merge, cos_ramp, *got)
+        assert got[0].tobytes() == dist.tobytes()
+        for a, b in zip(got[1:], (conn_of[uid], ramp, joins[lane], merged), strict=True):
+            np.testing.assert_array_equal(a, b)
+        # the stage on them, in the same call
+        c.update(dist=dist, connected=conn_of[uid], ramp=ramp, right=joins[lane], merged=merged, lane=lane)
+        args = list(_kernel_args(c, rng))
+        args[22] = x_merge  # the conflict point: the RSU's x
+        twin = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        want = ref_stage(*args)
+        raw = (role, uid, conn_of, on_ramp, joins, past, 1, cos_ramp)
+        out = stage.tick(twin[0], front_x, raw, *twin[3:4], twin[4], *twin[8:])
+        assert out[0] == want[0]
+        for j, (a, b) in enumerate(zip(out[:15], want, strict=True)):
+            if j == 6:  # the receivers' buffer: its first m (the CAMs')
+                a, b = a[: out[12]], b[: want[12]]
+            assert (a.tobytes() == b.tobytes()) if isinstance(a, np.ndarray) else a == b, j
+        for j in (17, 19, 20):  # next_s, known, chan_pos advanced alike
+            np.testing.assert_array_equal(twin[j], args[j])
