@@ -28,6 +28,7 @@ unread; a consumer keeps whatever the reference stands for.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 from numba import njit
@@ -160,6 +161,9 @@ def _pop_due(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q
     return n_due
 
 
+pop_due = _pop_due  # for a compiled consumer (AddressedChannel.delivery_buffers)
+
+
 class Delivered:
     """The copies of one delivery, in delivery order (struct of arrays, one row per copy)."""
 
@@ -228,6 +232,11 @@ class AddressedChannel:
         self._known[nodes] = True
         self._pos[nodes] = pos_m
 
+    def position_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """The per-node (known, position (cap, 3) [m]) arrays that ``set_positions`` writes, for a compiled
+        caller that sets them in place the same way (valid until a new node is registered)."""
+        return self._known, self._pos
+
     # -- sending and delivery -----------------------------------------------------------------
     def send(self, t_s: float, src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray,
              val: np.ndarray, ref: np.ndarray) -> None:
@@ -268,6 +277,23 @@ class AddressedChannel:
         out = self._out
         n_due = _pop_due(t_s + _T_EPS_S, self._attached, n, *self._q, *out) if n else 0
         self._n = int(out[0][-1]) if n else 0
+        self._n_delivered += n_due
+        return Delivered(*(a[:n_due] for a in out))
+
+    def delivery_buffers(self, t_s: float) -> tuple[Any, ...]:
+        """``deliver`` for a compiled consumer that pops the due copies itself, in the same call as its own
+        work: the arguments of :func:`pop_due` (the due time, the attached flags, the copies in flight, the
+        queue's seven arrays and the output's seven); then :meth:`commit_delivery` with its count."""
+        n = self._n
+        if n + 1 > self._out[0].shape[0]:
+            self._out = _queue(2 * (n + 1))
+        return (t_s + _T_EPS_S, self._attached, n, *self._q, *self._out)
+
+    def commit_delivery(self, n_due: int) -> Delivered:
+        """After :func:`pop_due` on :meth:`delivery_buffers`: the queue's count, the statistics, and the
+        delivered copies (views, valid until the next delivery), as ``deliver`` returns them."""
+        out = self._out
+        self._n = int(out[0][-1])
         self._n_delivered += n_due
         return Delivered(*(a[:n_due] for a in out))
 

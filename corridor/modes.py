@@ -193,6 +193,19 @@ class HybridAutomaton:
         for tr in transitions:
             self._out[tr.src].append(tr)
         self.boundaries = {tr.guard.name: tr.guard for tr in transitions if isinstance(tr.guard, Boundary)}
+        # per mode, along its path (outermost first; the tree is fixed): the transitions leaving it in the
+        # order they are tried, the boundaries among their guards (the first of each name) and the invariants
+        self._path_out = {m: tuple(tr for pm in self._paths[m] for tr in self._out[pm]) for m in self.modes}
+        self._path_bounds: dict[str, tuple[Boundary, ...]] = {}
+        for m, trs in self._path_out.items():
+            seen: dict[str, Boundary] = {}
+            for tr in trs:
+                if isinstance(tr.guard, Boundary) and tr.guard.name not in seen:
+                    seen[tr.guard.name] = tr.guard
+            self._path_bounds[m] = tuple(seen.values())
+        self._path_inv: dict[str, tuple[tuple[str, Guard | Boundary], ...]] = {
+            m: tuple((pm, inv) for pm in self._paths[m] for inv in (self._tree[pm][0].invariant,) if inv is not None)
+            for m in self.modes}
         # asked first at every boundary guard whose discrete ``when`` holds (None: the automaton decides)
         self.decider: Decider | None = None
         self.reset(0.0)
@@ -225,7 +238,8 @@ class HybridAutomaton:
         """Back to the initial mode at time ``t`` [s], with an empty history."""
         self.mode, self.entered_t = self._leaf(self.initial), t
         self.history: list[tuple[float, str, str, str]] = []  # (t, src, dst, label)
-        self._g: dict[str, tuple[float, float]] = {}  # boundary name -> (t [s], g) at its last evaluation
+        self._g_prev: dict[str, float] = {}  # boundary name -> g at the previous update (at _t_prev [s])
+        self._t_prev = t
         self.g_now: dict[str, float] = {}  # the boundaries evaluated at the last update
         self.invariant_violations = 0
         self._t_last = t
@@ -250,7 +264,10 @@ class HybridAutomaton:
         if holds is None:
             holds = self._draw(tr.guard, t, g, x) if self.switching is not None else tr.guard.holds(g)
         fires = holds and (tr.when is None or bool(tr.when(x)))
-        t_prev, g_prev = self._g.get(tr.guard.name, (t, g))
+        if not fires:  # the crossing is located only for a jump
+            return False, None
+        g_prev = self._g_prev.get(tr.guard.name)
+        t_prev, g_prev = (t, g) if g_prev is None else (self._t_prev, g_prev)
         crossed = tr.guard.holds(g) and not tr.guard.holds(g_prev)  # a stochastic switch may fire before g = 0
         t_cross = crossing_time(t_prev, g_prev, t, g) if crossed else t
         return fires, t_cross
@@ -338,12 +355,8 @@ class HybridAutomaton:
 
     def _evaluate(self, t: float, x: Any) -> None:
         """Evaluate g of every boundary leaving the active path, remembered for the next crossing location."""
-        self._g = {k: (self._t_last, v) for k, v in self.g_now.items()}  # only the previous update's
-        self.g_now = {}
-        for m in self.path():
-            for tr in self._out[m]:
-                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
-                    self.g_now[tr.guard.name] = tr.guard.value(x)
+        self._g_prev, self._t_prev = self.g_now, self._t_last  # only the previous update's
+        self.g_now = {b.name: b.value(x) for b in self._path_bounds[self.mode]}
         self._t_last = t
 
     def update(self, t: float, x: Any, events: EventLog | None = None, settle: int = 1) -> tuple[str, Any]:
@@ -370,18 +383,16 @@ class HybridAutomaton:
 
     def _evaluate_new(self, x: Any) -> None:
         """After a jump: g of the boundaries leaving the new path not yet evaluated at this update."""
-        for m in self.path():
-            for tr in self._out[m]:
-                if isinstance(tr.guard, Boundary) and tr.guard.name not in self.g_now:
-                    self.g_now[tr.guard.name] = tr.guard.value(x)
+        for b in self._path_bounds[self.mode]:
+            if b.name not in self.g_now:
+                self.g_now[b.name] = b.value(x)
 
     def _update(self, t: float, x: Any, events: EventLog | None) -> tuple[bool, Any]:
-        for m in self.path():  # outermost first: a mode's own jump pre-empts its sub-modes'
-            for tr in self._out[m]:
-                fires, t_cross = self._guard(tr, t, x)
-                if fires:
-                    self._jump(t, tr, t_cross, events)
-                    return True, (tr.reset(x) if tr.reset else x)
+        for tr in self._path_out[self.mode]:  # outermost first: a mode's own jump pre-empts its sub-modes'
+            fires, t_cross = self._guard(tr, t, x)
+            if fires:
+                self._jump(t, tr, t_cross, events)
+                return True, (tr.reset(x) if tr.reset else x)
         self._check_invariant(t, x, events)
         return False, x
 
@@ -411,10 +422,7 @@ class HybridAutomaton:
                 on_entry(t)
 
     def _check_invariant(self, t: float, x: Any, events: EventLog | None) -> None:
-        for m in self.path():
-            inv = self._tree[m][0].invariant
-            if inv is None:
-                continue
+        for m, inv in self._path_inv[self.mode]:
             ok = inv.holds(inv.value(x)) if isinstance(inv, Boundary) else bool(inv(x))
             if not ok:
                 self.invariant_violations += 1

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from itertools import accumulate
 from operator import itemgetter
 from typing import Any, ClassVar, Literal
 
@@ -49,6 +48,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
+from corridor.controllers.merging.cam_kernel import STATUS_OK, CamStage
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -72,7 +72,6 @@ from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
 from corridor.traffic.sumo.road_spec import require_landmarks, road_spec
 from corridor.traffic.sumo.trips import road_frame
-from corridor.traffic.v2x import CamGenerator
 from corridor.vehicles.tracks.node_pool import NodeTrackPool
 
 RSU = "rsu"
@@ -82,9 +81,10 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
-# the tick's CAMs to send: sender nodes, their positions (k, 3) [m], the receiver nodes of all of them
-# (the RSU, then the sender's followers, sender by sender), their count per sender, contents (k, 2)
-_Cams = tuple[list[int], np.ndarray, list[int], list[int], np.ndarray]
+# the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
+# nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
+# references: the CAMs first, then room for the RSU's assignments
+_Cams = tuple[int, int, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,13 +188,16 @@ class V2XMerging(Controller):
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
         self.coord = Coordinator(params.policy, params.coordinator, self._slot_check(params))
-        self._listen: dict[str, set[str]] = {}  # vehicle -> the senders it tracks
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
         self._sent_assignments: dict[int, Assignment] = {}  # in flight, by the reference its copy carries
         self._n_refs = 0
         self._listen_keys = np.zeros(0, dtype=np.int64)  # see _communicate
+        self._next_cam = np.zeros(0)  # [s] per channel node: its next CAM (NaN: none yet; CamGenerator.due)
+        self._row_node = np.zeros(0, dtype=np.int64)  # per road row: its channel node (-1: none), see _row_nodes
+        self._row_node_key: list[str] | None = None
+        self._cam = CamStage()  # the compiled CAM stage and its buffers
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
         self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
@@ -231,7 +234,13 @@ class V2XMerging(Controller):
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
         self.channel.attach(RSU)
         self._rsu_node = self.channel.node(RSU)
-        self.cams = CamGenerator(self.chan_cfg.rate_hz, ctx.rng(f"{self.name}.cam"))
+        # the CAM schedule (traffic.v2x.CamGenerator's, per node in cam_kernel): a first CAM at a random phase
+        self._cam_period = 1.0 / self.chan_cfg.rate_hz  # [s]
+        self._cam_rng = ctx.rng(f"{self.name}.cam")
+        zone, p = self.p.coordinator.control_zone_m, self.p
+        # [m] senders: near_lo < d < near_hi; listeners: zone_lo < d <= zone_hi (d: to the conflict point)
+        #   and the crossing speed's rows (mainline): zone < d < zone + 300 (see _stream_speed)
+        self._cam_bounds = (-p.release_after_m - 50, zone + p.send_margin_m, -p.release_after_m, zone, zone, zone + 300.0)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self.tracks = NodeTrackPool(self.channel.index, process_noise=self.p.track_process_noise, meas_noise=0.5,
                                     vel_noise=0.3, stale_after_s=self.p.stale_after_s)
@@ -282,17 +291,14 @@ class V2XMerging(Controller):
         ids, row = self._id_rows(snap.ids, sl)
         pos, size, heading = snap.position[sl], snap.size[sl], snap.heading[sl]
         front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
-        ramp = tb.role[r.uid] == _RAMP  # on the ramp route
-        # a ramp vehicle on a mainline lane past the nose has merged: out of the conflict, like a
-        # mainline vehicle that moved to the left lane (its route alone kept it under ramp control)
-        merged = ramp & self._merged_lane[r.lane]
-        dist = self.x_merge - front_x
-        dist[ramp & self._on_ramp_lane[r.lane]] /= self.cos_ramp  # along the inclined ramp
-        return {"ids": ids, "dist": dist, "speed": snap.speed[sl], "accel": r.accel, "ramp": ramp,
-                "merged": merged, "right": self._joins_lane[r.lane], "connected": tb.connected[r.uid], "pos": pos,
-                "heading": heading, "lane": r.lane, "length": size[:, 0], "lane_pos": r.lane_pos, "row": row}
-        # "leader" (each row's lane leader, safety_layer.lane_leaders) is added by _physical_leader_cap when
-        # a tick first needs it: about one tick in five commands no vehicle
+        # the rest comes with the compiled CAM stage (_communicate; cam_kernel.derive_rows): "dist" (to the
+        # conflict point, along the inclined ramp on a ramp lane), "ramp" (on the ramp route), "merged" (a
+        # ramp vehicle on a mainline lane past the nose has merged: out of the conflict, like a mainline
+        # vehicle that moved to the left lane; its route alone kept it under ramp control), "right" (on the
+        # mainline lane ramp vehicles join), "connected"; and "leader" (each row's lane leader,
+        # safety_layer.lane_leaders), "stream" and "cand"
+        return {"ids": ids, "front_x": front_x, "uid": r.uid, "tables": tb, "speed": snap.speed[sl], "accel": r.accel,
+                "pos": pos, "heading": heading, "lane": r.lane, "length": size[:, 0], "lane_pos": r.lane_pos, "row": row}
 
     def _id_rows(self, ids_arr: np.ndarray, sl: slice) -> tuple[list[str], dict[str, int]]:
         """The road rows' ids and id -> row, rebuilt only when the snapshot's ids array is another
@@ -320,7 +326,66 @@ class V2XMerging(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> _Cams:
         """CAMs out, the copies due now in: returns the tick's CAMs, to be sent with the assignments
-        when the channel's delay is never zero (none of them could be delivered in this tick)."""
+        when the channel's delay is never zero (none of them could be delivered in this tick).
+
+        The stage is one compiled call over node indices (``cam_kernel.cam_stage_into``: the zone masks, the
+        senders' positions, the CAM schedule, the listen keys, each CAM's receivers); a listener to attach
+        or detach, a sender without a node or without a schedule is done here first (``_admit``).
+
+        A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
+        sender may precede in the crossing order), so only those copies are simulated: each is drawn
+        with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
+        O(N^2) cost.  A vehicle listens to the few vehicles ahead of it in the current order (one
+        more than a re-sequencing can shift), so a new predecessor is already tracked; fifo inserts a
+        newcomer by its expected arrival, ahead of vehicles already ordered: they must have heard it
+        already (a CAM is a broadcast), so every ordered vehicle also listens to the senders on a
+        conflicting lane that are not ordered yet."""
+        out = self._cam_stage(t, s)
+        if out[0] != STATUS_OK:
+            self._admit(t, s)
+            out = self._cam_stage(t, s)
+            assert out[0] == STATUS_OK, out[0]
+        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref, leader = out
+        self._listen_keys = keys
+        s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
+        s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
+        s["leader"] = leader  # each row's lane leader (see _physical_leader_cap)
+        cams: _Cams = (n_c, m, src, pos, val, ptr, dst, ref)
+        if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
+            self._send(t, cams, [])
+            cams = (0, 0, src[n_c:], pos[n_c:], val[n_c:], ptr[n_c:] - ptr[n_c], dst[m:], ref[n_c:])
+        self._receive(t)
+        return cams
+
+    def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
+        """``cam_kernel.CamStage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
+        index = self.channel.index
+        known, chan_pos = self.channel.position_arrays()
+        order_node = np.array([index.get(v, -1) for v in self.coord.sequence], dtype=np.int64)
+        tb = s["tables"]
+        raw = (tb.role, s["uid"], tb.connected, self._on_ramp_lane, self._joins_lane, self._merged_lane, _RAMP,
+               self.cos_ramp)
+        out = self._cam.tick(t, s["front_x"], raw, s["pos"], s["speed"], self._row_nodes(s), *self._cam_bounds,
+                             self.tracks.slot_of, len(self.tracks) - 1, self._next_cam, self._cam_period, known,
+                             chan_pos, self._rsu_node, self.x_merge, self.y_rsu, order_node, self._listen_depth,
+                             self.coord.policy == "fifo", self._n_refs, s["lane"], s["lane_pos"])
+        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:]  # (views of the stage's buffers)
+        return out[:15]
+
+    def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:
+        """Each road row's channel node (-1: none yet), rebuilt when the rows' ids list changes."""
+        ids = s["ids"]
+        if self._row_node_key is not ids:
+            index = self.channel.index
+            self._row_node = np.array([index.get(v, -1) for v in ids], dtype=np.int64)
+            self._row_node_key = ids
+        return self._row_node
+
+    def _admit(self, t: float, s: dict[str, Any]) -> None:
+        """What the compiled stage leaves to names and draws, in the order the Python stage did it:
+        attach the vehicles in the zone as listeners (row order) and detach those that left; give every
+        sender a node (row order), and a first CAM time at a random phase inside one period (row order:
+        ``CamGenerator.due``'s draws)."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist = s["ids"], s["dist"]
         near = s["connected"] & (dist < zone_len + self.p.send_margin_m) & (dist > -self.p.release_after_m - 50)
@@ -335,123 +400,52 @@ class V2XMerging(Controller):
             self.channel.detach(vid)
             self.tracks.remove_receiver(vid)
             self.assigned.pop(vid, None)
-        pos = s["pos"]
-        idx = np.flatnonzero(near)
-        sel = [ids[k] for k in idx.tolist()]
-        node = self.channel.node
-        sel_pos = np.zeros((len(idx) + 1, 3))  # [m] the RSU, then the senders (2-D positions: z = 0)
-        sel_pos[0, :2] = self.x_merge, self.y_rsu
-        sel_pos[1:, : pos.shape[1]] = pos[idx]
-        index = self.channel.index
-        nodes = np.array([self._rsu_node, *[index[v] if v in index else node(v) for v in sel]], dtype=np.int64)
-        self.channel.set_positions(nodes, sel_pos)
-        due = idx[self.cams.due(t, sel)]  # the vehicles whose CAM is due now (CamGenerator's schedule)
-        # a CAM's content that its receivers use, as one row each: [position on the merge axis
-        # (-distance to the conflict point) [m], speed [m/s]]; sender and send time travel with it
-        cam_z = np.empty((len(due), 2))  # np.column_stack's array without its ~8 us
-        cam_z[:, 0], cam_z[:, 1] = -s["dist"][due], s["speed"][due]
-        cam_pos = np.zeros((len(due), 3))
-        cam_pos[:, :2] = pos[due, :2]  # [m] the sender's position for the range check (a CAM's x, y)
-        # A CAM is a broadcast; only two kinds of receiver act on it (the RSU, and the vehicles that
-        # sender may precede in the crossing order), so only those copies are simulated: each is drawn
-        # with the same per-link range, loss and delay as the broadcast copy would be, at O(N) not
-        # O(N^2) cost.  A vehicle listens to the few vehicles ahead of it in the current order (one
-        # more than a re-sequencing can shift), so a new predecessor is already tracked.
-        followers: dict[str, list[str]] = {}
-        self._listen = {}
-        rsu = self._rsu_node
-        keys: list[int] = []  # the vehicles' (receiver node << 32 | sender node) pairs, for the fuse
-        order = self.coord.sequence
-        # fifo inserts a newcomer by its expected arrival, ahead of vehicles already ordered: they must
-        # have heard it already (a CAM is a broadcast), so every ordered vehicle also listens to the
-        # senders on a conflicting lane that are not ordered yet
-        newcomers = self._newcomers(s, idx, set(order)) if self.coord.policy == "fifo" else []
-        for pos_, vid in enumerate(order):
-            if vid not in self.tracks:
-                continue
-            ahead = order[max(0, pos_ - self._listen_depth): pos_]
-            listen = self._listen[vid] = set(ahead).union(newcomers)
-            rx = index[vid] << 32  # a receiver is attached, so the channel knows it
-            keys.extend([rx | index[src] for src in listen if src in index])
-            for src in ahead:
-                followers.setdefault(src, []).append(vid)
-            for src in newcomers:
-                if src != vid:
-                    followers.setdefault(src, []).append(vid)
-        keys.sort()
-        self._listen_keys = np.array(keys, dtype=np.int64)
-        # a multicast per CAM: the same draws as one unicast send per copy
-        senders = [ids[k] for k in due.tolist()]
-        receivers: list[int] = []
-        counts: list[int] = []
-        for v in senders:
-            receivers.append(rsu)
-            fol = followers.get(v)
-            if fol is None:  # most senders: only the RSU acts on their CAM
-                counts.append(1)
-                continue
-            receivers.extend([index.get(f, -1) for f in fol])
-            counts.append(1 + len(fol))
-        cams: _Cams = ([index[v] for v in senders], cam_pos, receivers, counts, cam_z)
-        if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
-            self._send(t, cams, [])
-            cams = ([], cam_pos[:0], [], [], cam_z[:0])
-        self._receive(t)
-        self.tracks.drop_stale(t)
-        return cams
-
-    @staticmethod
-    def _newcomers(s: dict[str, Any], idx: np.ndarray, ordered: set[str]) -> list[str]:
-        """The CAM senders ``idx`` (rows) on a conflicting lane (ramp, or the mainline lane ramp
-        vehicles join) that the RSU has not ordered yet."""
-        ids, conflict = s["ids"], (s["ramp"] | s["right"]) & ~s["merged"]
-        return [ids[k] for k in idx.tolist() if conflict[k] and ids[k] not in ordered]
+        sel = [ids[k] for k in np.flatnonzero(near).tolist()]
+        nodes = [self.channel.node(v) for v in sel]  # registered on first use, in row order
+        if len(self._next_cam) < len(self.channel.names):
+            grown = np.full(2 * len(self.channel.names), np.nan)
+            grown[: len(self._next_cam)] = self._next_cam
+            self._next_cam = grown
+        for j in nodes:
+            if math.isnan(self._next_cam[j]):
+                self._next_cam[j] = t + self._cam_rng.uniform(0.0, self._cam_period)
+        self._row_node_key = None  # nodes were registered
 
     def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
         """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same
         draws, in the same order, as one send each. An assignment travels as a reference
-        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]."""
-        src, pos, receivers, counts, cam_z = cams
-        n_c, n_a = len(src), len(assignments)
+        (``_sent_assignments``); a CAM as its content [position on the merge axis [m], speed [m/s]]. The
+        assignments take the room the CAM stage left after the CAMs (one per connected coordinated row:
+        from the RSU's position, the references from ``_n_refs`` on); their receivers are written here."""
+        n_c, m, src, pos, val, ptr, dst, ref = cams
+        n_a = len(assignments)
         if not n_c and not n_a:
             return
-        r0 = self._n_refs
+        n = n_c + n_a
         if n_a:
+            assert n <= len(src), (n_a, len(src) - n_c)  # an assignment goes to a connected coordinated row
             index, sent = self.channel.index, self._sent_assignments
-            for r, a in enumerate(assignments, start=r0):
+            for r, a in enumerate(assignments, start=self._n_refs):
                 sent[r] = a[1]
             self._n_refs += n_a
-            src = [*src, *[self._rsu_node] * n_a]
-            pos = np.empty((n_c + n_a, 3))
-            pos[:n_c] = cams[1]
-            rsu_pos = assignments[0][2]
-            pos[n_c:] = rsu_pos if all(a[2] is rsu_pos for a in assignments) else [a[2] for a in assignments]
-            receivers = [*receivers, *[index.get(a[3], -1) for a in assignments]]
-            counts = [*counts, *[1] * n_a]
-        ptr = np.array([0, *accumulate(counts)], dtype=np.int64)
-        val = np.zeros((n_c + n_a, 2))
-        val[:n_c] = cam_z
-        ref = np.full(n_c + n_a, -1, dtype=np.int64)
-        ref[n_c:] = range(r0, r0 + n_a)
-        self.channel.send(t, np.array(src, dtype=np.int64), pos, ptr, np.array(receivers, dtype=np.int64), val, ref)
+            dst[m:m + n_a] = [index.get(a[3], -1) for a in assignments]
+        self.channel.send(t, src[:n], pos[:n], ptr[:n + 1], dst[:m + n_a], val[:n], ref[:n])
 
     def _receive(self, t: float) -> None:
-        """Fuse the CAMs due now into the listeners' tracks (all in one compiled pass) and keep each
-        vehicle's newest assignment, in the channel's delivery order ((t_recv, send order) per pair)."""
-        d = self.channel.deliver(t)
+        """The copies due now: fuse the CAMs into the listeners' tracks and forget the stale tracks (with
+        the channel's delivery, one compiled call), and keep each vehicle's newest assignment, in the
+        channel's delivery order ((t_recv, send order) per pair)."""
+        d = self.tracks.deliver_fuse_and_drop(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
-        if not len(d):
-            return
-        is_a = d.ref >= 0
-        if is_a.any():
-            names, sent = self.channel.names, self._sent_assignments
-            k = np.flatnonzero(is_a).tolist()
-            assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
-                                     d.ref[k].tolist(), strict=True), key=_recv_order)
-            for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
-                self.assigned[names[dst]] = (tr, sent[ref])
-        self.tracks.fuse_delivered(d.src, d.dst, d.t_sent_s, d.t_recv_s, d.val, d.ref, self._rsu_node,
-                                   self._listen_keys)
+        if len(d):
+            is_a = d.ref >= 0
+            if is_a.any():
+                names, sent = self.channel.names, self._sent_assignments
+                k = np.flatnonzero(is_a).tolist()
+                assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
+                                         d.ref[k].tolist(), strict=True), key=_recv_order)
+                for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
+                    self.assigned[names[dst]] = (tr, sent[ref])
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the
@@ -463,18 +457,16 @@ class V2XMerging(Controller):
                 break
             del sent[ref]
 
-    def _tracks_sender(self, dst: str, src: str) -> bool:
-        """The RSU tracks everyone; a vehicle tracks the vehicles just ahead of it in the crossing order."""
-        return dst == RSU or src in self._listen.get(dst, ())
-
     def _coordinate(self, t: float, s: dict[str, Any], target: float
                     ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
         """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times;
         returns the zone (vehicle -> row) and the assignments to send."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
-        candidates = (dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"]) & ~s["merged"]
-        cand = np.flatnonzero(candidates).tolist()
+        cand_rows = s.get("cand")  # found by the compiled CAM stage (cam_kernel), else:
+        if cand_rows is None:
+            cand_rows = np.flatnonzero((dist > 0) & (dist <= zone_len) & (s["ramp"] | s["right"]) & ~s["merged"])
+        cand = cand_rows.tolist()
         # the RSU's tracks predicted to now in Python floats (TrackPool.predict_one: the bits of
         # predict_states, without its ~15 numpy calls for the few vehicles of the zone)
         predict, connected = self.tracks.predict_one, s["connected"].tolist()
@@ -655,7 +647,7 @@ class V2XMerging(Controller):
         board).  SUMO's safe-speed check alone did not keep a commanded EIDM vehicle off a stopped
         leader: with the calibrated humans commanded ramp vehicles ran into the ramp's queue at 7 m/s."""
         leader = s.get("leader")
-        if leader is None:  # the tick's first commanded vehicle: every row's lane leader, once
+        if leader is None:  # a state without the CAM stage's: every row's lane leader, once
             leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
         j = int(leader[k])
         if j < 0:
@@ -727,9 +719,13 @@ class V2XMerging(Controller):
         Measured where no vehicle is controlled yet: a speed measured inside the zone would feed
         the controller's own slowing back into its target (the right lane would spiral down).
         """
-        zone = self.p.coordinator.control_zone_m
-        sp = s["speed"][~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)]
-        v = float(sp.sum() / len(sp)) if len(sp) else self.p.limits.v_max_mps  # np.mean's bits: its sum / n
+        got = s.get("stream")  # (sum, count), found by the compiled CAM stage (cam_kernel: numpy's sum's bits)
+        if got is None:
+            zone = self.p.coordinator.control_zone_m
+            sp = s["speed"][~s["ramp"] & (s["dist"] > zone) & (s["dist"] < zone + 300.0)]
+            got = (sp.sum(), len(sp))
+        total, n = got
+        v = float(total / n) if n else self.p.limits.v_max_mps  # np.mean's bits: its sum / n
         return min(max(v, 8.0), self.p.limits.v_max_mps)  # np.clip's value (v is never NaN)
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:

@@ -175,7 +175,8 @@ class Coordinator:
         """
         self._drop_departed(vehicles, crossed_s)
         self._update_earliest(vehicles)
-        new = sorted((v for v in vehicles if v.id not in self._ids()), key=lambda v: (v.entered_s, v.id))
+        known = self._ids()  # the sequence's vehicles (built once: the sequence does not change here)
+        new = sorted((v for v in vehicles if v.id not in known), key=lambda v: (v.entered_s, v.id))
         for v in new:
             slot = _Slot(v.id, v.road, self._st.n_ranked, v.earliest_arrival_s, np.nan, v.entered_s,
                          v.dist_to_merge_m, v.speed_mps)

@@ -246,8 +246,21 @@ def merge_accel(
         return float(min(max((target - v0) / max(min_horizon_s, 1e-3), lim.a_min_mps2), lim.a_max_mps2))  # np.clip
     if vf is not None:
         vf = min(vf, max(2.0 * (L - x0) / (tf - t0) - v0, 0.0))
-    a, b, _, _ = cubic_coefficients(x0, v0, tf - t0, L - x0, vf)
+    b = start_accel(v0, tf - t0, L - x0, vf)
     return float(min(max(b, lim.a_min_mps2), lim.a_max_mps2))  # np.clip's value, without its ~5 us
+
+
+def start_accel(v0: float, horizon_s: float, dist_m: float, vf: float | None) -> float:
+    """u(0) = b of ``cubic_coefficients(x0, v0, horizon_s, dist_m, vf)`` (the same bits) in Python floats
+    but for T³: numpy's ``T ** 3`` (on an array) is not ``math.pow``'s nor ``T * T * T``'s bits; T² is
+    numpy's ``square``, which is T * T."""
+    t = horizon_s
+    t3 = float(np.asarray(t, dtype=float) ** 3)
+    dx = dist_m - v0 * t  # distance beyond coasting
+    if vf is None:
+        return -(-3.0 * dx / t3) * t
+    a = (6.0 * (vf - v0) * t - 12.0 * dx) / t3
+    return (vf - v0 - a * (t * t) / 2.0) / t
 
 
 def min_time_to_go(dist_m: float, v0: float, lim: MotionLimits) -> float:

@@ -1,7 +1,7 @@
-"""V2X merging: the tick's cheaper paths give the bits of the ones they replaced (issue 27, the sixth CPU
-pass).  The lane leaders are found only in a tick that commands a vehicle (the safety layer's cap against
-the physical leader), with the same result as the eager search; the crossing speed is the mainline's mean
-speed upstream of the zone with ``np.mean``'s bits."""
+"""V2X merging: the tick's cheaper paths give the bits of the ones they replaced (issue 27, the sixth and
+seventh CPU passes).  The lane leaders (the safety layer's cap against the physical leader) come with the
+compiled CAM stage, and a state without them searches them once, in the first commanding tick; the
+crossing speed is the mainline's mean speed upstream of the zone with ``np.mean``'s bits."""
 
 from __future__ import annotations
 
@@ -47,33 +47,31 @@ def test_the_lane_leaders_are_found_once_a_tick_and_only_when_a_vehicle_is_cappe
         np.testing.assert_array_equal(s["leader"], leaders)
 
 
-def test_a_tick_that_commands_no_vehicle_searches_no_lane_leaders(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
-    """A real 60 s ``v2x_cps`` run: the search (a lexsort of every row) ran in every tick with vehicles,
-    also in those that command none (the first vehicles' way to the zone, ~20 % of a 300 s run's ticks)."""
+def test_every_tick_has_the_lane_leaders_of_the_compiled_stage(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    """A real 60 s ``v2x_cps`` run: since the seventh CPU pass the lane leaders of every row come with the
+    compiled CAM stage (``cam_kernel.lane_leaders``, every tick) instead of a lexsort in the first
+    commanding tick (the sixth pass); they are ``safety_layer.lane_leaders``' in every tick, and the
+    controller's own search never runs."""
     from corridor.controllers.merging import components
     from corridor.run import build
     from corridor.traffic.sumo.commands import SetSpeed
 
-    calls, sensed, commanding = [0], [0], [0]
-    search, sense, decide = components.lane_leaders, V2XMerging._sense, V2XMerging._decide
+    calls, checked, commanding = [0], [0], [0]
+    search, decide = components.lane_leaders, V2XMerging._decide
 
     def counted_search(*a):  # type: ignore[no-untyped-def]
         calls[0] += 1
         return search(*a)
 
-    def counted_sense(self, ctx):  # type: ignore[no-untyped-def]
-        s = sense(self, ctx)
-        sensed[0] += s is not None
-        return s
-
-    def counted_decide(self, *a):  # type: ignore[no-untyped-def]
-        cmds = decide(self, *a)
+    def checked_decide(self, t, s, *a):  # type: ignore[no-untyped-def]
+        np.testing.assert_array_equal(s["leader"], lane_leaders(s["lane"], s["lane_pos"]))
+        checked[0] += 1
+        cmds = decide(self, t, s, *a)
         commanding[0] += any(isinstance(c, SetSpeed) for c in cmds)
         return cmds
 
     monkeypatch.setattr(components, "lane_leaders", counted_search)
-    monkeypatch.setattr(V2XMerging, "_sense", counted_sense)
-    monkeypatch.setattr(V2XMerging, "_decide", counted_decide)
+    monkeypatch.setattr(V2XMerging, "_decide", checked_decide)
     sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
     sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
     try:
@@ -84,8 +82,8 @@ def test_a_tick_that_commands_no_vehicle_searches_no_lane_leaders(monkeypatch: p
     finally:
         for c in sim.ctx.components.values():
             c.close()
-    assert 0 < commanding[0] < sensed[0]  # the run has ticks with and without commands
-    assert calls[0] == commanding[0]  # one search a commanding tick, none otherwise
+    assert checked[0] > 400 and commanding[0] > 100  # the run commands vehicles
+    assert calls[0] == 0
 
 
 @pytest.mark.parametrize("n", [0, 1, 7, 200])

@@ -114,3 +114,17 @@ def test_min_time_to_go_closed_forms() -> None:
     assert min_time_to_go(-1.0, 20.0, lim) == 0.0
     with pytest.raises(ValueError):
         plan(0.0, 10.0, 5.0, 5.0, 100.0)
+
+
+def test_the_start_acceleration_in_python_floats_is_the_cubics_bit_for_bit() -> None:
+    """``start_accel`` (merge_accel's command without the numpy 4-vector; issue 27's seventh CPU pass) is
+    b of ``cubic_coefficients`` with the same bits, free or with a terminal speed, over short and long horizons."""
+    from corridor.controllers.merging.trajectory import start_accel
+
+    rng = np.random.default_rng(7)
+    for _ in range(20000):
+        v0, dist = float(rng.uniform(0.0, 35.0)), float(rng.uniform(0.0, 400.0))
+        t = float(rng.choice([rng.uniform(0.3, 3.0), rng.uniform(3.0, 60.0), round(rng.uniform(0.3, 30.0), 1)]))
+        vf = None if rng.random() < 0.3 else float(rng.uniform(0.0, 35.0))
+        want = float(cubic_coefficients(0.0, v0, t, dist, vf)[1])
+        assert start_accel(v0, t, dist, vf) == want

@@ -15,9 +15,12 @@ deliveries). Receivers are given slots; the tracks live in one struct of arrays 
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numba import njit
 
+from corridor.addressed_channel import AddressedChannel, Delivered, pop_due
 from corridor.vehicles.tracks.cv_kernel import fuse_one
 from corridor.vehicles.tracks.stack import cv_terms
 
@@ -121,6 +124,95 @@ def _drop_rows(t_s: float, stale_after_s: float, n_free: int, free: np.ndarray, 
     return n_free
 
 
+_APPLY_SIG = ("i8(i8, i8[:], f8[:, :], f8[:, :, :], b1[:], f8[:], f8[:, :], f8[:, :], f8[:], f8[:], f8[:], f8[:], "
+              "i8[:], f8[:])")
+
+
+@njit(_APPLY_SIG, cache=True)
+def _apply_table(m: int, rows: np.ndarray, x: np.ndarray, p: np.ndarray, ahead: np.ndarray, dt: np.ndarray,
+                 z: np.ndarray, r: np.ndarray, q_dt: np.ndarray, q11: np.ndarray, q12: np.ndarray, q22: np.ndarray,
+                 at: np.ndarray, missing: np.ndarray) -> int:
+    """:func:`_fuse_rows` on the first ``m`` updates, with each interval's process-noise terms read from
+    the table ``q_dt`` (sorted intervals, rounded to the nanosecond as ``cv_terms`` rounds them) ->
+    ``q11``, ``q12``, ``q22`` (numpy's bits, see ``NodeTrackPool._add_terms``).  An interval not in the
+    table: nothing is fused, the missing intervals are written to ``missing``; returns their count."""
+    n_miss = 0
+    for u in range(m):
+        if ahead[u]:
+            d = np.rint(dt[u] * 1e9) * 1e-9  # cv_terms' np.round(dt * 1e9) * 1e-9
+            j = np.searchsorted(q_dt, d)
+            if j < q_dt.shape[0] and q_dt[j] == d:
+                at[u] = j
+            else:
+                missing[n_miss] = d
+                n_miss += 1
+    if n_miss:
+        return n_miss
+    r00, r01, r10, r11 = r[0, 0], r[0, 1], r[1, 0], r[1, 1]
+    for u in range(m):
+        if ahead[u]:
+            j = at[u]
+            fuse_one(x, p, rows[u], True, q_dt[j], q11[j], q12[j], q22[j], z[u, 0], z[u, 1], r00, r01, r10, r11)
+        else:
+            fuse_one(x, p, rows[u], False, 0.0, 0.0, 0.0, 0.0, z[u, 0], z[u, 1], r00, r01, r10, r11)
+    return 0
+
+
+_TICK_SIG = ("UniTuple(i8, 3)(f8, f8, i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8, i8[:], i8[:], i8, i8[:, :], "
+             "f8[:, :], f8[:, :], f8[:, :, :], f8[:], i8[:], i8[:], i8[:], i8[:], f8[:, :], f8[:], b1[:], "
+             "f8[:], f8[:], f8[:], f8[:], i8[:], f8[:])")
+
+
+@njit(_TICK_SIG, cache=True)
+def _fuse_tick(t_s: float, stale_after_s: float, src: np.ndarray, dst: np.ndarray, t_sent: np.ndarray,
+               t_recv: np.ndarray, z: np.ndarray, ref: np.ndarray, rsu: int, slot_of: np.ndarray,
+               listen_keys: np.ndarray, n_free: int, row_of: np.ndarray, r: np.ndarray, x: np.ndarray,
+               p: np.ndarray, t_row: np.ndarray, row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray,
+               upd_row: np.ndarray, upd_z: np.ndarray, upd_dt: np.ndarray, ahead: np.ndarray, q_dt: np.ndarray,
+               q11: np.ndarray, q12: np.ndarray, q22: np.ndarray, at: np.ndarray, missing: np.ndarray
+               ) -> tuple[int, int, int]:
+    """A tick's fuse and drop in one call: :func:`_select_rows`, :func:`_apply_table`, then (when nothing
+    was missing from the table) :func:`_drop_rows` at ``t_s``.  Returns (updates, free rows, intervals
+    missing from the table: the updates are listed and not fused, the stale rows not dropped)."""
+    m = 0
+    if src.shape[0]:
+        m, n_free = _select_rows(src, dst, t_sent, t_recv, z, ref, rsu, slot_of, listen_keys, n_free, row_of, r,
+                                 x, p, t_row, row_slot, row_src, free, upd_row, upd_z, upd_dt, ahead)
+    n_miss = _apply_table(m, upd_row, x, p, ahead, upd_dt, upd_z, r, q_dt, q11, q12, q22, at, missing)
+    if n_miss:
+        return m, n_free, n_miss
+    n_free = _drop_rows(t_s, stale_after_s, n_free, free, row_slot, row_src, row_of, t_row, np.zeros(0, dtype=np.int64))
+    return m, n_free, 0
+
+
+_DELIVER_SIG = ("UniTuple(i8, 4)(f8, b1[:], i8, i8[:], i8[:], i8[:], f8[:], f8[:], f8[:, :], i8[:], i8[:], i8[:], "
+                "i8[:], f8[:], f8[:], f8[:, :], i8[:], "  # the channel's delivery (pop_due's arguments)
+                "f8, f8, i8, i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:, :], f8[:, :, :], f8[:], i8[:], i8[:], i8[:], "
+                "i8[:], f8[:, :], f8[:], b1[:], f8[:], f8[:], f8[:], f8[:], i8[:], f8[:])")
+
+
+@njit(_DELIVER_SIG, cache=True)
+def _deliver_fuse_tick(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q_src: np.ndarray,
+                       q_dst: np.ndarray, q_t_sent: np.ndarray, q_t_recv: np.ndarray, q_val: np.ndarray,
+                       q_ref: np.ndarray, o_seq: np.ndarray, o_src: np.ndarray, o_dst: np.ndarray,
+                       o_t_sent: np.ndarray, o_t_recv: np.ndarray, o_val: np.ndarray, o_ref: np.ndarray,
+                       t_s: float, stale_after_s: float, rsu: int, slot_of: np.ndarray, listen_keys: np.ndarray,
+                       n_free: int, row_of: np.ndarray, r: np.ndarray, x: np.ndarray, p: np.ndarray,
+                       t_row: np.ndarray, row_slot: np.ndarray, row_src: np.ndarray, free: np.ndarray,
+                       upd_row: np.ndarray, upd_z: np.ndarray, upd_dt: np.ndarray, ahead: np.ndarray,
+                       q_dt: np.ndarray, q11: np.ndarray, q12: np.ndarray, q22: np.ndarray, at: np.ndarray,
+                       missing: np.ndarray) -> tuple[int, int, int, int]:
+    """The channel's delivery (:func:`~corridor.addressed_channel.pop_due`) and :func:`_fuse_tick` on the
+    delivered copies, in one call. Returns (delivered copies, updates, free rows, missing intervals)."""
+    n_due = pop_due(t_due, attached, n_fl, q_seq, q_src, q_dst, q_t_sent, q_t_recv, q_val, q_ref, o_seq, o_src,
+                    o_dst, o_t_sent, o_t_recv, o_val, o_ref)
+    m, n_free, n_miss = _fuse_tick(t_s, stale_after_s, o_src[:n_due], o_dst[:n_due], o_t_sent[:n_due],
+                                   o_t_recv[:n_due], o_val[:n_due], o_ref[:n_due], rsu, slot_of, listen_keys, n_free,
+                                   row_of, r, x, p, t_row, row_slot, row_src, free, upd_row, upd_z, upd_dt, ahead,
+                                   q_dt, q11, q12, q22, at, missing)
+    return n_due, m, n_free, n_miss
+
+
 class NodeTrackPool:
     """1-D CV tracks of receiver nodes on source nodes (see the module docstring).
 
@@ -149,6 +241,9 @@ class NodeTrackPool:
         # per fuse: the updates (row, measurement, interval [s], interval > 0), in order
         self._upd_row, self._upd_z = np.empty(64, dtype=np.int64), np.empty((64, 2))
         self._upd_dt, self._ahead = np.empty(64), np.empty(64, dtype=bool)
+        self._at, self._missing = np.empty(64, dtype=np.int64), np.empty(64)  # see fuse_and_drop
+        # the process-noise terms per interval seen (sorted, rounded to the nanosecond): (dt, q11, q12, q22)
+        self._q_table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] = (np.zeros(0),) * 4
 
     # -- receivers ------------------------------------------------------------------------------
     def add_receiver(self, rx: str) -> None:
@@ -172,6 +267,15 @@ class NodeTrackPool:
                                   self._row_of, self.t_s, np.array([s], dtype=np.int64))
         self._slot_of[self.index[rx]] = -1
         self._free_slots.append(s)
+
+    def __len__(self) -> int:
+        """The receivers."""
+        return len(self._slots)
+
+    @property
+    def slot_of(self) -> np.ndarray:
+        """Node -> receiver slot (-1: not a receiver; nodes beyond its length neither)."""
+        return self._slot_of
 
     def __contains__(self, rx: object) -> bool:
         return rx in self._slots
@@ -229,6 +333,60 @@ class NodeTrackPool:
         ahead = self._ahead[:m]
         d, q11, q12, q22 = cv_terms(self._upd_dt[:m][ahead], self.q)  # numpy, as TrackPool's cv_fuse computes them
         _fuse_rows(self._upd_row[:m], self.x, self.P, ahead, d, q11, q12, q22, self._upd_z[:m], self._r)
+
+    def fuse_and_drop(self, t_s: float, src: np.ndarray, dst: np.ndarray, t_sent_s: np.ndarray,
+                      t_recv_s: np.ndarray, z: np.ndarray, ref: np.ndarray, rsu: int, listen_keys: np.ndarray) -> None:
+        """``fuse_delivered`` and then ``drop_stale(t_s)``, the same bits, in one compiled call: the
+        process-noise terms of each interval come from a table of the intervals seen so far, filled by
+        ``cv_terms``' numpy arithmetic when a new one appears (then a second call)."""
+        self._room(src.shape[0])
+        m, self._n_free, n_miss = _fuse_tick(
+            float(t_s), self.stale_after_s, src, dst, t_sent_s, t_recv_s, z, ref, rsu, *self._fuse_args(listen_keys))
+        self._finish(t_s, m, n_miss)
+
+    def deliver_fuse_and_drop(self, channel: AddressedChannel, t_s: float, rsu: int,
+                              listen_keys: np.ndarray) -> Delivered:
+        """``channel.deliver(t_s)`` and ``fuse_and_drop`` of what it delivered, in one compiled call;
+        returns the delivered copies (as ``deliver``)."""
+        args = channel.delivery_buffers(t_s)
+        self._room(args[2])  # at most the copies in flight are delivered
+        n_due, m, self._n_free, n_miss = _deliver_fuse_tick(*args, float(t_s), self.stale_after_s, rsu,
+                                                            *self._fuse_args(listen_keys))
+        self._finish(t_s, m, n_miss)
+        return channel.commit_delivery(n_due)
+
+    def _room(self, k: int) -> None:
+        """Room for ``k`` delivered copies: a column per node, free rows, update buffers."""
+        if self._row_of.shape[1] < len(self.index):  # a column per node the channel knows
+            self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * len(self.index))
+        if self._n_free < k:
+            self._grow_rows(max(2 * self._cap, self._cap + k))
+        if self._upd_row.shape[0] < k:
+            self._upd_row, self._upd_z = np.empty(2 * k, dtype=np.int64), np.empty((2 * k, 2))
+            self._upd_dt, self._ahead = np.empty(2 * k), np.empty(2 * k, dtype=bool)
+        if self._at.shape[0] < self._upd_row.shape[0]:
+            self._at, self._missing = np.empty(self._upd_row.shape[0], dtype=np.int64), np.empty(self._upd_row.shape[0])
+
+    def _fuse_args(self, listen_keys: np.ndarray) -> tuple[Any, ...]:
+        return (self._slot_of, listen_keys, self._n_free, self._row_of, self._r, self.x, self.P, self.t_s,
+                self._row_slot, self._row_src, self._free, self._upd_row, self._upd_z, self._upd_dt, self._ahead,
+                *self._q_table, self._at, self._missing)
+
+    def _finish(self, t_s: float, m: int, n_miss: int) -> None:
+        """After a call that found intervals missing from the table: add them, fuse, drop."""
+        if n_miss:
+            self._add_terms(self._missing[:n_miss])
+            n = _apply_table(m, self._upd_row, self.x, self.P, self._ahead, self._upd_dt, self._upd_z, self._r,
+                             *self._q_table, self._at, self._missing)
+            assert n == 0
+            self.drop_stale(t_s)
+
+    def _add_terms(self, d: np.ndarray) -> None:
+        """Add the intervals ``d`` [s] (rounded to the nanosecond) to the table of process-noise terms, with
+        ``cv_terms``' arithmetic on them (numpy's ``d ** 3`` is not ``math.pow``'s, nor ``d * d * d``)."""
+        q_dt = np.unique(np.concatenate([self._q_table[0], d]))
+        q = self.q
+        self._q_table = (q_dt, q * q_dt**3 / 3.0, q * q_dt**2 / 2.0, q * q_dt)
 
     def drop_stale(self, t_s: float) -> None:
         """Forget every track whose newest measurement is older than ``stale_after_s``."""
