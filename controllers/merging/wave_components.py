@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.channel import Channel, ChannelConfig
+from corridor.channel import Channel, ChannelConfig, IndexedBatch
 from corridor.controllers.merging.components import deliverable_safety
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
@@ -47,6 +47,24 @@ from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
+
+
+def newest_per_receiver(batches: list[IndexedBatch], names: list[str], latest: dict[str, Any]) -> None:
+    """Set ``latest[receiver]`` to the payload each receiver got last in ``Channel.deliver``'s order
+    (delivery time, sender, receiver, send order) from one sender's due ``batches`` (send order; one
+    copy per receiver and batch): the copy with the latest delivery time, the later sent on a tie."""
+    if len(batches) == 1:  # the usual case: one broadcast due
+        payload = batches[0].payload
+        for i in batches[0].dst_idx.tolist():
+            latest[names[i]] = payload
+        return
+    best: dict[int, tuple[float, int]] = {}
+    for b, batch in enumerate(batches):
+        for i, tr in zip(batch.dst_idx.tolist(), batch.t_recv_s.tolist(), strict=True):
+            if i not in best or (tr, b) >= best[i]:
+                best[i] = (tr, b)
+    for i, (_, b) in best.items():
+        latest[names[i]] = batches[b].payload
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,7 +146,10 @@ class WaveDamping(Controller):
         self.merge_x, self.end_x = float(lm.merge_x), float(lm.mainline_end_x)
         self.cos_ramp = math.cos(math.radians(lm.ramp_angle_deg))
         self.cells = np.arange(self.merge_x - self.p.zone_before_m, self.end_x, self.p.cell_m) + 0.5 * self.p.cell_m
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
+        # no age-of-information bookkeeping: the controller reports the delivery ratio only (the draws,
+        # deliveries and other statistics do not change)
+        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
+        self._members: set[str] = set()  # the channel's receivers
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
@@ -156,21 +177,25 @@ class WaveDamping(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
-        members = {s["ids"][k] for k in np.flatnonzero(self._receivers(s))}
-        # sorted: the attach order decides which receiver gets which loss draw, and a set's order
-        # follows the string hash (PYTHONHASHSEED), which differs from process to process
-        for vid in sorted(members - set(self.channel.receivers)):
-            self.channel.attach(vid)
-        for vid in sorted(set(self.channel.receivers) - members):
-            self.channel.detach(vid)
-            self.latest.pop(vid, None)
+        ids = s["ids"]
+        rows = np.flatnonzero(self._receivers(s))
+        members = [ids[k] for k in rows.tolist()]
+        member_set = set(members)
+        if member_set != self._members:  # the channel's receivers change only with the membership
+            # sorted: the attach order decides which receiver gets which loss draw, and a set's order
+            # follows the string hash (PYTHONHASHSEED), which differs from process to process
+            for vid in sorted(member_set - self._members):
+                self.channel.attach(vid)
+            for vid in sorted(self._members - member_set):
+                self.channel.detach(vid)
+                self.latest.pop(vid, None)
+            self._members = member_set
         if t + 1e-9 >= self._next_rsu_s:
             self._next_rsu_s += self.p.rsu_period_s
-            self.channel.set_positions_arrays(s["ids"], s["pos"])
+            # the receivers' positions are all a broadcast's range check reads (the sender's is given)
+            self.channel.set_positions_arrays(members, s["pos"][rows])
             self.channel.send(t, RSU, self._measure(t, s), np.array([self.merge_x, 0.0, 0.0]))
-        for d in self.channel.deliver(t):
-            if d.dst in members:
-                self.latest[d.dst] = d.payload
+        newest_per_receiver(self.channel.deliver_indexed(t), self.channel.node_names, self.latest)
 
     def _receivers(self, s: dict[str, Any]) -> np.ndarray:
         """Mask of the vehicles that listen to the RSU: the connected highway vehicles in the zone."""
