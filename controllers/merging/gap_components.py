@@ -152,7 +152,8 @@ class GapMerging(WaveDamping):
         """The connected highway vehicles in the zone, the partners, and the connected ramp vehicles
         before the junction's end."""
         ramp = s["connected"] & s["ramp"] & (s["front"] < self.cross_x)
-        partner = np.isin(np.asarray(s["ids"], dtype=object), list(self.pairs.values()))
+        partners = set(self.pairs.values())
+        partner = np.fromiter((vid in partners for vid in s["ids"]), dtype=bool, count=len(s["ids"]))
         return super()._receivers(s) | ramp | partner
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
@@ -263,8 +264,14 @@ class GapMerging(WaveDamping):
 
     def _lead_of(self, s: dict[str, Any], j: int) -> int | None:
         """The highway vehicle just ahead of vehicle ``j`` on the highway line (None: none)."""
-        line = np.flatnonzero(~s["on_ramp"] & ~s["ramp"] & (s["front"] > s["front"][j] + 0.1))
-        return int(line[np.argmin(s["front"][line])]) if len(line) else None
+        hw = s.get("_highway_by_front")
+        if hw is None:  # once per tick: the highway line's vehicles by front, ties by index (argmin's pick)
+            line = np.flatnonzero(~s["on_ramp"] & ~s["ramp"])
+            order = line[np.argsort(s["front"][line], kind="stable")]
+            hw = s["_highway_by_front"] = (order.tolist(), s["front"][order])
+        order_l, fronts = hw
+        i = int(np.searchsorted(fronts, s["front"][j] + 0.1, side="right"))  # the first front > front[j] + 0.1
+        return order_l[i] if i < len(order_l) else None
 
     # ------------------------------------------------------------------ decide
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
@@ -305,7 +312,7 @@ class GapMerging(WaveDamping):
             a = K_SPEED * (min(p.wait_speed_mps, math.sqrt(2.0 * p.b_comfort_mps2 * room)) - v)
         else:
             a = arrival_accel(dist, v, slot.t_ramp_s - t, msg.cross_speed_mps, p.plan_accel_mps2, p.b_comfort_mps2)
-        a = float(np.clip(a, -p.b_comfort_mps2, p.a_max_mps2))
+        a = float(min(max(a, -p.b_comfort_mps2), p.a_max_mps2))  # np.clip's value, without its call
         lead_ok = True
         if slot is not None and slot.lead is not None:
             x_l, v_l, len_l = slot.lead

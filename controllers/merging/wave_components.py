@@ -150,6 +150,7 @@ class WaveDamping(Controller):
         # deliveries and other statistics do not change)
         self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
         self._members: set[str] = set()  # the channel's receivers
+        self._cells_of: tuple[RoadAhead | None, np.ndarray] = (None, self.cells)  # message -> its cells, free ones at u_max
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
@@ -254,14 +255,16 @@ class WaveDamping(Controller):
 
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds: list[Any] = []
-        ids, front, speed, length = s["ids"], s["front"], s["speed"], s["length"]
+        ids, front = s["ids"], s["front"]
         line = np.flatnonzero(~s["on_ramp"])
         order = line[np.argsort(front[line], kind="stable")]  # the vehicles on the highway line, rear first
-        for j, k in enumerate(order):
+        ord_l, n = order.tolist(), len(order)
+        front_l, speed_l, length_l = front.tolist(), s["speed"].tolist(), s["length"].tolist()
+        x_release = self.merge_x + self.p.release_after_m
+        for j in np.flatnonzero((s["connected"] & ~s["ramp"])[order]).tolist():  # the connected ones
+            k = ord_l[j]
             vid = ids[k]
-            if not s["connected"][k] or s["ramp"][k]:
-                continue
-            if front[k] >= self.merge_x + self.p.release_after_m:
+            if front_l[k] >= x_release:
                 self._release(vid, cmds)
                 continue
             msg = self.latest.get(vid)
@@ -271,10 +274,10 @@ class WaveDamping(Controller):
                     self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, own driver model")
                 self._release(vid, cmds)
                 continue
-            lead = order[j + 1] if j + 1 < len(order) else None
-            gap = float(front[lead] - length[lead] - front[k]) if lead is not None else math.inf
-            v_lead = float(speed[lead]) if lead is not None else self.p.u_max_mps
-            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead, vid),
+            lead = ord_l[j + 1] if j + 1 < n else None
+            gap = front_l[lead] - length_l[lead] - front_l[k] if lead is not None else math.inf
+            v_lead = speed_l[lead] if lead is not None else self.p.u_max_mps
+            cmds.append(SetSpeed(vid, self._speed(t, msg, front_l[k], speed_l[k], gap, v_lead, vid),
                                  self.p.command_speed_mode))
             self.controlled.add(vid)
             self.commands_sent += 1
@@ -283,18 +286,20 @@ class WaveDamping(Controller):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
         p = self.p
-        cells = msg.cell_speed_mps
-        if p.free_above_mps is not None:
-            cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
-        u = downstream_speed(x, msg.cell_x_m, cells, p.horizon_m, p.u_max_mps)
+        if self._cells_of[0] is not msg:  # the cells as the law reads them: once per message
+            cells = msg.cell_speed_mps
+            if p.free_above_mps is not None:
+                cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
+            self._cells_of = (msg, cells)
+        u = downstream_speed(x, msg.cell_x_m, self._cells_of[1], p.horizon_m, p.u_max_mps)
         dist = self.merge_x - x
         if p.gap_headway_s > 0 and dist < p.gap_zone_m:
             u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))
-        u = float(np.clip(u, p.u_min_mps, p.u_max_mps))
+        u = min(max(u, p.u_min_mps), p.u_max_mps)  # np.clip's value, without its call
         v_cmd = follower_stopper(gap, v, v_lead, u, p.stopper) if math.isfinite(gap) else u
         if msg.yielder is not None and msg.yielder == vid:  # courtesy stop at the stop point
             v_cmd = min(v_cmd, math.sqrt(2.0 * p.b_comfort_mps2 * max(dist - p.yield_stop_m, 0.0)))
-        a = float(np.clip((v_cmd - v) / self.period, -p.b_comfort_mps2, p.a_max_mps2))
+        a = min(max((v_cmd - v) / self.period, -p.b_comfort_mps2), p.a_max_mps2)
         if math.isfinite(gap):
             a = safe_accel(gap, v, v_lead, a, self.safety)
         return max(0.0, v + a * self.period)
