@@ -156,6 +156,9 @@ class GapMerging(WaveDamping):
         partner = np.fromiter((vid in partners for vid in s["ids"]), dtype=bool, count=len(s["ids"]))
         return super()._receivers(s) | ramp | partner
 
+    def _unheard(self, s: dict[str, Any]) -> bool:
+        return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
+
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
         base = super()._measure(t, s)
         near = np.isfinite(base.cell_speed_mps) & (base.cell_x_m < self.merge_x) & (base.cell_x_m > self.merge_x - 100.0)

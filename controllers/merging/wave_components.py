@@ -32,8 +32,9 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.channel import Channel, ChannelConfig, IndexedBatch
+from corridor.channel import ChannelConfig
 from corridor.controllers.merging.components import deliverable_safety
+from corridor.controllers.merging.rsu_broadcast import newest_per_receiver, rsu_broadcast
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
     StopperParams,
@@ -47,24 +48,6 @@ from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
-
-
-def newest_per_receiver(batches: list[IndexedBatch], names: list[str], latest: dict[str, Any]) -> None:
-    """Set ``latest[receiver]`` to the payload each receiver got last in ``Channel.deliver``'s order
-    (delivery time, sender, receiver, send order) from one sender's due ``batches`` (send order; one
-    copy per receiver and batch): the copy with the latest delivery time, the later sent on a tie."""
-    if len(batches) == 1:  # the usual case: one broadcast due
-        payload = batches[0].payload
-        for i in batches[0].dst_idx.tolist():
-            latest[names[i]] = payload
-        return
-    best: dict[int, tuple[float, int]] = {}
-    for b, batch in enumerate(batches):
-        for i, tr in zip(batch.dst_idx.tolist(), batch.t_recv_s.tolist(), strict=True):
-            if i not in best or (tr, b) >= best[i]:
-                best[i] = (tr, b)
-    for i, (_, b) in best.items():
-        latest[names[i]] = batches[b].payload
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,10 +129,11 @@ class WaveDamping(Controller):
         self.merge_x, self.end_x = float(lm.merge_x), float(lm.mainline_end_x)
         self.cos_ramp = math.cos(math.radians(lm.ramp_angle_deg))
         self.cells = np.arange(self.merge_x - self.p.zone_before_m, self.end_x, self.p.cell_m) + 0.5 * self.p.cell_m
-        # no age-of-information bookkeeping: the controller reports the delivery ratio only (the draws,
-        # deliveries and other statistics do not change)
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration, aoi=False)
+        # the general channel's broadcasts, copy for copy, without its per-call bookkeeping (no age of
+        # information: the controller reports the delivery ratio only)
+        self.channel = rsu_broadcast(self.chan_cfg, ctx.rng(f"{self.name}.channel"), ctx.duration, RSU)
         self._members: set[str] = set()  # the channel's receivers
+        self._rsu_pos = np.array([self.merge_x, 0.0, 0.0])  # [m]
         self._cells_of: tuple[RoadAhead | None, np.ndarray] = (None, self.cells)  # message -> its cells, free ones at u_max
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
@@ -193,15 +177,25 @@ class WaveDamping(Controller):
             self._members = member_set
         if t + 1e-9 >= self._next_rsu_s:
             self._next_rsu_s += self.p.rsu_period_s
-            # the receivers' positions are all a broadcast's range check reads (the sender's is given)
-            self.channel.set_positions_arrays(members, s["pos"][rows])
-            self.channel.send(t, RSU, self._measure(t, s), np.array([self.merge_x, 0.0, 0.0]))
-        newest_per_receiver(self.channel.deliver_indexed(t), self.channel.node_names, self.latest)
+            # a broadcast to no receiver draws nothing and takes no send order: the measurement is
+            # skipped when nothing else depends on it (_unheard)
+            if members or not self._unheard(s):
+                self.channel.send(t, self._measure(t, s), self._rsu_pos, members, s["pos"][rows])
+        newest_per_receiver(self.channel.deliver(t), self.channel.names, self.latest)
 
     def _receivers(self, s: dict[str, Any]) -> np.ndarray:
         """Mask of the vehicles that listen to the RSU: the connected highway vehicles in the zone."""
         return (s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m)
                 & (s["front"] < self.merge_x + self.p.release_after_m))
+
+    def _unheard(self, s: dict[str, Any]) -> bool:
+        """What a measurement nobody receives leaves behind, done without the measurement: its sensor
+        draws (the same calls on the sensor stream).  False: the measurement has effects of its own
+        (the courtesy stop's choice and events), it is made in full."""
+        if self.p.yield_stop_m > 0:
+            return False
+        self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))
+        return True
 
     def _measure(self, t: float, s: dict[str, Any]) -> RoadAhead:
         """The RSU's noisy view: mean speed per cell on the highway, ramp vehicles' arrival times."""
@@ -212,8 +206,7 @@ class WaveDamping(Controller):
         ok = (k >= 0) & (k < len(self.cells))
         total = np.bincount(k[ok], weights=v[line][ok], minlength=len(self.cells))
         count = np.bincount(k[ok], minlength=len(self.cells))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cell_speed = np.where(count > 0, total / count, np.nan)
+        cell_speed = total / np.where(count > 0, count, np.nan)  # empty cells: nan (no 0 / 0)
         ramp = s["on_ramp"]
         dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
         eta = t + np.maximum(dist, 0.0) / np.maximum(v[ramp], 1.0)
