@@ -38,7 +38,6 @@ from corridor.controllers.merging.rsu_broadcast import newest_per_receiver, rsu_
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
     StopperParams,
-    downstream_speed,
     follower_stopper,
     gap_speed_cap,
 )
@@ -48,6 +47,20 @@ from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
+
+
+def downstream_speed_floats(x_m: float, known: list[tuple[float, float]], horizon_m: float, default_mps: float) -> float:
+    """``wave_damping.downstream_speed`` on the known (finite) cells as Python floats (centre [m], speed
+    [m/s]), with its value: numpy's mean of fewer than 8 values sums them in order from the first."""
+    vals = [v for cx, v in known if x_m < cx <= x_m + horizon_m]
+    if not vals:
+        return default_mps
+    if len(vals) >= 8:  # numpy's pairwise sum
+        return float(np.array(vals).mean())
+    total = vals[0]
+    for v in vals[1:]:
+        total += v
+    return total / len(vals)
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,7 +147,8 @@ class WaveDamping(Controller):
         self.channel = rsu_broadcast(self.chan_cfg, ctx.rng(f"{self.name}.channel"), ctx.duration, RSU)
         self._members: set[str] = set()  # the channel's receivers
         self._rsu_pos = np.array([self.merge_x, 0.0, 0.0])  # [m]
-        self._cells_of: tuple[RoadAhead | None, np.ndarray] = (None, self.cells)  # message -> its cells, free ones at u_max
+        self._cells_of: tuple[RoadAhead | None, list[tuple[float, float]]] = (None, [])  # message -> its known
+        #   cells (centre, speed; free ones at u_max)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
@@ -204,13 +218,16 @@ class WaveDamping(Controller):
         line = ~s["on_ramp"]
         k = np.floor((s["front"][line] - (self.cells[0] - 0.5 * self.p.cell_m)) / self.p.cell_m).astype(int)
         ok = (k >= 0) & (k < len(self.cells))
-        total = np.bincount(k[ok], weights=v[line][ok], minlength=len(self.cells))
-        count = np.bincount(k[ok], minlength=len(self.cells))
+        k_ok = k[ok]
+        total = np.bincount(k_ok, weights=v[line][ok], minlength=len(self.cells))
+        count = np.bincount(k_ok, minlength=len(self.cells))
         cell_speed = total / np.where(count > 0, count, np.nan)  # empty cells: nan (no 0 / 0)
         ramp = s["on_ramp"]
         dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
-        eta = t + np.maximum(dist, 0.0) / np.maximum(v[ramp], 1.0)
-        waiting = bool(np.any((dist < self.p.waiting_m) & (v[ramp] < self.p.waiting_mps)))
+        v_ramp = v[ramp]
+        eta = t + np.maximum(dist, 0.0) / np.maximum(v_ramp, 1.0)
+        # ramp vehicles waiting at the yield line: read by the courtesy stop only
+        waiting = self.p.yield_stop_m > 0 and bool(np.any((dist < self.p.waiting_m) & (v_ramp < self.p.waiting_mps)))
         return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
 
     def _pick_yielder(self, t: float, s: dict[str, Any], waiting: bool) -> str | None:
@@ -279,12 +296,13 @@ class WaveDamping(Controller):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
         p = self.p
-        if self._cells_of[0] is not msg:  # the cells as the law reads them: once per message
+        if self._cells_of[0] is not msg:  # the known cells as the law reads them: once per message
             cells = msg.cell_speed_mps
             if p.free_above_mps is not None:
                 cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
-            self._cells_of = (msg, cells)
-        u = downstream_speed(x, msg.cell_x_m, self._cells_of[1], p.horizon_m, p.u_max_mps)
+            self._cells_of = (msg, [(cx, cv) for cx, cv in zip(msg.cell_x_m.tolist(), cells.tolist(), strict=True)
+                                    if math.isfinite(cv)])
+        u = downstream_speed_floats(x, self._cells_of[1], p.horizon_m, p.u_max_mps)
         dist = self.merge_x - x
         if p.gap_headway_s > 0 and dist < p.gap_zone_m:
             u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))
