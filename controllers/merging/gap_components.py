@@ -177,8 +177,11 @@ class GapMerging(WaveDamping):
         x = self._projected(s) + self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, len(s["front"]))
         v = np.maximum(s["speed"] + self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"])), 0.0)
         eta = t + np.maximum(self.merge_x - x, 0.0) / np.maximum(v, 1.0)  # [s] at today's speed
-        earliest = np.array([t + time_to_go(max(self.merge_x - xi, 0.0), vi, v_cross, p.plan_accel_mps2)
-                             for xi, vi in zip(x.tolist(), v.tolist(), strict=True)])  # Python floats: the same bits
+        # [s] the earliest arrival of the connected ramp vehicles (the only ones read; the others nan),
+        # on Python floats: the same bits
+        earliest = np.full(len(x), np.nan)
+        for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
+            earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
         self._pair(t, s, eta, earliest, dist)
         row = {vid: k for k, vid in enumerate(s["ids"])}
