@@ -35,6 +35,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from corridor.channel import ChannelConfig
 from corridor.controllers.merging.components import deliverable_safety
 from corridor.controllers.merging.rsu_broadcast import newest_per_receiver, rsu_broadcast
+from corridor.controllers.merging.rsu_kernel import road_ahead
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
     StopperParams,
@@ -147,6 +148,7 @@ class WaveDamping(Controller):
         self.channel = rsu_broadcast(self.chan_cfg, ctx.rng(f"{self.name}.channel"), ctx.duration, RSU)
         self._members: set[str] = set()  # the channel's receivers
         self._rsu_pos = np.array([self.merge_x, 0.0, 0.0])  # [m]
+        self._cell_base = float(self.cells[0] - 0.5 * self.p.cell_m)  # [m] the first cell's start
         self._cells_of: tuple[RoadAhead | None, list[tuple[float, float]]] = (None, [])  # message -> its known
         #   cells (centre, speed; free ones at u_max)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
@@ -215,20 +217,31 @@ class WaveDamping(Controller):
         """The RSU's noisy view: mean speed per cell on the highway, ramp vehicles' arrival times."""
         noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))
         v = np.maximum(s["speed"] + noise, 0.0)
-        line = ~s["on_ramp"]
-        k = np.floor((s["front"][line] - (self.cells[0] - 0.5 * self.p.cell_m)) / self.p.cell_m).astype(int)
+        if self.p.yield_stop_m > 0:  # the courtesy stop reads the ramp vehicles waiting at the yield line
+            cell_speed, eta, dist, v_ramp = self._road_ahead_numpy(t, s["front"], v, s["on_ramp"])
+            waiting = bool(np.any((dist < self.p.waiting_m) & (v_ramp < self.p.waiting_mps)))
+            return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
+        cell_speed = np.empty(len(self.cells))
+        eta = np.empty(int(np.count_nonzero(s["on_ramp"])))
+        road_ahead(s["front"], v, s["on_ramp"], self._cell_base, self.p.cell_m, self.merge_x, self.cos_ramp, t,
+                   cell_speed, eta)  # compiled: _road_ahead_numpy's bits
+        return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, False))
+
+    def _road_ahead_numpy(self, t: float, front: np.ndarray, v: np.ndarray, on_ramp: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Mean speed per cell of the highway line, the ramp vehicles' arrival times at the merge, their
+        distances along the ramp and their speeds (``rsu_kernel.road_ahead`` computes the first two)."""
+        line = ~on_ramp
+        k = np.floor((front[line] - self._cell_base) / self.p.cell_m).astype(int)
         ok = (k >= 0) & (k < len(self.cells))
         k_ok = k[ok]
         total = np.bincount(k_ok, weights=v[line][ok], minlength=len(self.cells))
         count = np.bincount(k_ok, minlength=len(self.cells))
         cell_speed = total / np.where(count > 0, count, np.nan)  # empty cells: nan (no 0 / 0)
-        ramp = s["on_ramp"]
-        dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
-        v_ramp = v[ramp]
+        dist = (self.merge_x - front[on_ramp]) / self.cos_ramp  # [m] along the ramp
+        v_ramp = v[on_ramp]
         eta = t + np.maximum(dist, 0.0) / np.maximum(v_ramp, 1.0)
-        # ramp vehicles waiting at the yield line: read by the courtesy stop only
-        waiting = self.p.yield_stop_m > 0 and bool(np.any((dist < self.p.waiting_m) & (v_ramp < self.p.waiting_mps)))
-        return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
+        return cell_speed, eta, dist, v_ramp
 
     def _pick_yielder(self, t: float, s: dict[str, Any], waiting: bool) -> str | None:
         """The connected highway vehicle asked to stop for the waiting ramp vehicles (courtesy stop):
