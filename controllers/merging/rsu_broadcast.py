@@ -10,7 +10,8 @@ or with a NaN one is not range checked (the squared distance summed x, y, z in t
 row sum of three); per send ``rng.random(n)`` loss uniforms then ``rng.random(n)`` delay uniforms; the
 same loss, delay, end-of-run and overflow drops; a send with copies takes a send order, one without
 receivers draws nothing; a copy for a receiver detached by the time it is due is discarded; the same
-statistics (:class:`~corridor.channel.ChannelStats`, no age of information).
+statistics (:class:`~corridor.channel.ChannelStats`, no age of information).  A send's copies (range,
+loss, delay, end-of-run drop) are found in one compiled call (``rsu_kernel.broadcast_copies``).
 ``tests/controllers/test_rsu_broadcast.py`` checks it against ``Channel`` on random sequences.
 
 Used by the wave-damping controllers (``v2x_wave_damping``, ``v2x_merge_gaps``): their RSU broadcasts
@@ -26,6 +27,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from corridor.channel import _T_EPS_S, BernoulliLoss, Channel, ChannelConfig, ChannelStats
+from corridor.controllers.merging.rsu_kernel import broadcast_copies
 
 
 class Due(NamedTuple):
@@ -57,6 +59,7 @@ class RsuBroadcast:
         self._seq = 0
         self._n_in_flight = 0
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
+        self._counts = np.zeros(4, dtype=np.int64)  # the kernel's counts of one send
 
     # -- membership -----------------------------------------------------------------------------
     def attach(self, name: str) -> None:
@@ -91,22 +94,16 @@ class RsuBroadcast:
         index = self.index
         nodes = np.array([index[r] for r in receivers], dtype=np.int64)
         perm = np.argsort(nodes)  # node order (distinct indices)
-        dst = nodes[perm]
-        d2 = np.sum((pos_m[perm] - src_pos) ** 2, axis=1)
-        near = ~(d2 > self._r2)  # in range, or NaN (not range checked)
         u = self._rng.random(2 * n)  # the general channel's random(n) for loss, then random(n) for delay
-        lost = near & (u[:n] < self._p_loss)
-        keep = near & ~lost
-        n_near = int(np.count_nonzero(near))
+        keep, t_recv, counts = np.empty(n, dtype=bool), np.empty(n), self._counts
+        broadcast_copies(pos_m, perm, src_pos, self._r2, u, self._p_loss, t_s + self.cfg.latency_s, self.cfg.jitter_s,
+                         self._t_end_s + _T_EPS_S, keep, t_recv, counts)  # compiled (the general channel's bits)
+        n_near, n_lost, n_late, k = counts.tolist()
         self._n_sent += n
         self._n_oor += n - n_near
-        self._n_lost += int(np.count_nonzero(lost))
-        t_recv = t_s + self.cfg.latency_s + self.cfg.jitter_s * u[n:]
-        late = keep & (t_recv > self._t_end_s + _T_EPS_S)
-        if late.any():
-            self._n_late += int(np.count_nonzero(late))
-            keep &= ~late
-        k = int(np.count_nonzero(keep))
+        self._n_lost += n_lost
+        self._n_late += n_late
+        dst = nodes[perm]
         room = max(self.cfg.max_in_flight - self._n_in_flight, 0)
         if k > room:  # the newest beyond max_in_flight are dropped
             over = np.flatnonzero(keep)[room:]

@@ -40,3 +40,38 @@ def road_ahead(front: np.ndarray, v: np.ndarray, on_ramp: np.ndarray, base_m: fl
                 count[k] += 1
     for c in range(n_cells):
         cell_speed[c] = total[c] / count[c] if count[c] > 0 else np.nan
+
+
+_COPIES_SIG = "void(f8[:, :], i8[:], f8[:], f8, f8[:], f8, f8, f8, f8, b1[:], f8[:], i8[:])"
+
+
+@njit(_COPIES_SIG, cache=True)
+def broadcast_copies(pos: np.ndarray, perm: np.ndarray, src: np.ndarray, r2: float, u: np.ndarray, p_loss: float,
+                     t_lat: float, jitter: float, t_late: float, keep: np.ndarray, t_recv: np.ndarray,
+                     counts: np.ndarray) -> None:
+    """The copies of one broadcast (``RsuBroadcast.send``'s numpy code, bit for bit): receiver ``i`` at
+    ``pos[perm[i]]`` [m]; in range when the squared distance to ``src`` (x, y, z summed in that order)
+    is not above ``r2`` or NaN; lost when in range and ``u[i] < p_loss``; delivered at ``t_lat`` +
+    ``jitter`` * ``u[n + i]`` [s], dropped when later than ``t_late``.  Writes ``keep``, ``t_recv`` and
+    ``counts`` = (in range, lost, late, kept)."""
+    n = perm.shape[0]
+    n_near = n_lost = n_late = n_keep = 0
+    for i in range(n):
+        j = perm[i]
+        dx, dy, dz = pos[j, 0] - src[0], pos[j, 1] - src[1], pos[j, 2] - src[2]
+        d2 = dx * dx + dy * dy + dz * dz
+        near = not d2 > r2
+        tr = t_lat + jitter * u[n + i]
+        t_recv[i] = tr
+        k = False
+        if near:
+            n_near += 1
+            if u[i] < p_loss:
+                n_lost += 1
+            elif tr > t_late:
+                n_late += 1
+            else:
+                k = True
+                n_keep += 1
+        keep[i] = k
+    counts[0], counts[1], counts[2], counts[3] = n_near, n_lost, n_late, n_keep
