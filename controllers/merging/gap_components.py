@@ -152,8 +152,12 @@ class GapMerging(WaveDamping):
         """The connected highway vehicles in the zone, the partners, and the connected ramp vehicles
         before the junction's end."""
         ramp = s["connected"] & s["ramp"] & (s["front"] < self.cross_x)
-        partner = np.isin(np.asarray(s["ids"], dtype=object), list(self.pairs.values()))
+        partners = set(self.pairs.values())
+        partner = np.fromiter((vid in partners for vid in s["ids"]), dtype=bool, count=len(s["ids"]))
         return super()._receivers(s) | ramp | partner
+
+    def _unheard(self, s: dict[str, Any]) -> bool:
+        return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
         base = super()._measure(t, s)
@@ -173,8 +177,11 @@ class GapMerging(WaveDamping):
         x = self._projected(s) + self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, len(s["front"]))
         v = np.maximum(s["speed"] + self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"])), 0.0)
         eta = t + np.maximum(self.merge_x - x, 0.0) / np.maximum(v, 1.0)  # [s] at today's speed
-        earliest = np.array([t + time_to_go(max(self.merge_x - xi, 0.0), float(vi), v_cross, p.plan_accel_mps2)
-                             for xi, vi in zip(x, v, strict=True)])
+        # [s] the earliest arrival of the connected ramp vehicles (the only ones read; the others nan),
+        # on Python floats: the same bits
+        earliest = np.full(len(x), np.nan)
+        for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
+            earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
         self._pair(t, s, eta, earliest, dist)
         row = {vid: k for k, vid in enumerate(s["ids"])}
@@ -219,20 +226,26 @@ class GapMerging(WaveDamping):
         self.pairs = {r: c for r, c in self.pairs.items() if r in row and c in row
                       and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
         taken = set(self.pairs.values())
-        ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]) if ids[k] not in self.pairs]
+        ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]).tolist() if ids[k] not in self.pairs]
         # followers: connected highway vehicles (partners, they open the gap) and, with a natural gap
         # ahead of them, human ones
         hw = np.flatnonzero(~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x - 10.0)
                             & (front > self.merge_x - self.gp.pair_zone_m))
         p = self.gp
         t_prev = max([self._t_slot.get(r, -math.inf) for r in self.pairs], default=-math.inf)
-        for k in sorted(ramp, key=lambda j: dist[j]):  # in their order on the ramp
+        if not ramp:
+            return
+        # Python floats from here (the same values, without numpy's per-element cost)
+        eta_l, earliest_l, dist_l, front_l = eta.tolist(), earliest.tolist(), dist.tolist(), front.tolist()
+        speed_l, conn_l, hw_l = s["speed"].tolist(), s["connected"].tolist(), hw.tolist()
+        for k in sorted(ramp, key=lambda j: dist_l[j]):  # in their order on the ramp
             best = None
-            for j in sorted((j for j in hw if ids[j] not in taken), key=lambda i: eta[i]):
+            h2 = self._follow_gap(speed_l[k], dist_l[k])
+            for j in sorted((j for j in hw_l if ids[j] not in taken), key=lambda i: eta_l[i]):
                 lead = self._lead_of(s, j)
-                t_ramp = max(earliest[k], t_prev + p.open_time_gap_s,
-                             eta[lead] + p.ramp_time_gap_s if lead is not None else -math.inf)
-                if self._fits(s, j, t, t_ramp, eta, front, self._follow_gap(float(s["speed"][k]), float(dist[k]))):
+                t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
+                             eta_l[lead] + p.ramp_time_gap_s if lead is not None else -math.inf)
+                if self._fits_at(conn_l[j], front_l[j], eta_l[j], t, t_ramp, h2):
                     best = (j, t_ramp)
                     break
             if best is None:
@@ -255,16 +268,26 @@ class GapMerging(WaveDamping):
         """Highway vehicle ``j`` can follow a ramp vehicle that reaches the junction at ``t_ramp`` [s]:
         a connected one (a partner) without slowing below ``partner_min_speed_mps``, a human one at
         today's speed with ``human_margin_s`` to spare."""
+        return self._fits_at(bool(s["connected"][j]), float(x[j]), float(eta[j]), t, t_ramp, h2)
+
+    def _fits_at(self, connected: bool, x_j: float, eta_j: float, t: float, t_ramp: float, h2: float) -> bool:
+        """``_fits`` for a highway vehicle at ``x_j`` [m] predicted at the junction at ``eta_j`` [s]."""
         p = self.gp
-        if s["connected"][j]:
+        if connected:
             v_min = p.partner_min_speed_mps if h2 <= p.open_time_gap_s else p.restart_partner_speed_mps
-            return t + (self.merge_x - x[j]) / v_min >= t_ramp + h2
-        return bool(h2 <= p.open_time_gap_s and eta[j] >= t_ramp + h2 + p.human_margin_s)  # no restart behind a human
+            return t + (self.merge_x - x_j) / v_min >= t_ramp + h2
+        return h2 <= p.open_time_gap_s and eta_j >= t_ramp + h2 + p.human_margin_s  # no restart behind a human
 
     def _lead_of(self, s: dict[str, Any], j: int) -> int | None:
         """The highway vehicle just ahead of vehicle ``j`` on the highway line (None: none)."""
-        line = np.flatnonzero(~s["on_ramp"] & ~s["ramp"] & (s["front"] > s["front"][j] + 0.1))
-        return int(line[np.argmin(s["front"][line])]) if len(line) else None
+        leads = s.get("_lead")
+        if leads is None:  # once per tick, for every vehicle: the highway line's vehicles by front (ties
+            # by index: argmin's pick), and in that order the first whose front is > front[j] + 0.1
+            line = np.flatnonzero(~s["on_ramp"] & ~s["ramp"])
+            order = line[np.argsort(s["front"][line], kind="stable")]
+            i = np.searchsorted(s["front"][order], s["front"] + 0.1, side="right")
+            leads = s["_lead"] = [None if k >= len(order) else int(order[k]) for k in i.tolist()]
+        return leads[j]  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ decide
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
@@ -305,7 +328,7 @@ class GapMerging(WaveDamping):
             a = K_SPEED * (min(p.wait_speed_mps, math.sqrt(2.0 * p.b_comfort_mps2 * room)) - v)
         else:
             a = arrival_accel(dist, v, slot.t_ramp_s - t, msg.cross_speed_mps, p.plan_accel_mps2, p.b_comfort_mps2)
-        a = float(np.clip(a, -p.b_comfort_mps2, p.a_max_mps2))
+        a = float(min(max(a, -p.b_comfort_mps2), p.a_max_mps2))  # np.clip's value, without its call
         lead_ok = True
         if slot is not None and slot.lead is not None:
             x_l, v_l, len_l = slot.lead

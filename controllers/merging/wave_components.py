@@ -32,12 +32,13 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.channel import Channel, ChannelConfig
+from corridor.channel import ChannelConfig
 from corridor.controllers.merging.components import deliverable_safety
+from corridor.controllers.merging.rsu_broadcast import newest_per_receiver, rsu_broadcast
+from corridor.controllers.merging.rsu_kernel import road_ahead
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
     StopperParams,
-    downstream_speed,
     follower_stopper,
     gap_speed_cap,
 )
@@ -47,6 +48,20 @@ from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
+
+
+def downstream_speed_floats(x_m: float, known: list[tuple[float, float]], horizon_m: float, default_mps: float) -> float:
+    """``wave_damping.downstream_speed`` on the known (finite) cells as Python floats (centre [m], speed
+    [m/s]), with its value: numpy's mean of fewer than 8 values sums them in order from the first."""
+    vals = [v for cx, v in known if x_m < cx <= x_m + horizon_m]
+    if not vals:
+        return default_mps
+    if len(vals) >= 8:  # numpy's pairwise sum
+        return float(np.array(vals).mean())
+    total = vals[0]
+    for v in vals[1:]:
+        total += v
+    return total / len(vals)
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,7 +143,14 @@ class WaveDamping(Controller):
         self.merge_x, self.end_x = float(lm.merge_x), float(lm.mainline_end_x)
         self.cos_ramp = math.cos(math.radians(lm.ramp_angle_deg))
         self.cells = np.arange(self.merge_x - self.p.zone_before_m, self.end_x, self.p.cell_m) + 0.5 * self.p.cell_m
-        self.channel = Channel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
+        # the general channel's broadcasts, copy for copy, without its per-call bookkeeping (no age of
+        # information: the controller reports the delivery ratio only)
+        self.channel = rsu_broadcast(self.chan_cfg, ctx.rng(f"{self.name}.channel"), ctx.duration, RSU)
+        self._members: set[str] = set()  # the channel's receivers
+        self._rsu_pos = np.array([self.merge_x, 0.0, 0.0])  # [m]
+        self._cell_base = float(self.cells[0] - 0.5 * self.p.cell_m)  # [m] the first cell's start
+        self._cells_of: tuple[RoadAhead | None, list[tuple[float, float]]] = (None, [])  # message -> its known
+        #   cells (centre, speed; free ones at u_max)
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
@@ -156,43 +178,70 @@ class WaveDamping(Controller):
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
         """RSU broadcast to the connected highway vehicles in the zone; newest message per vehicle kept."""
-        members = {s["ids"][k] for k in np.flatnonzero(self._receivers(s))}
-        # sorted: the attach order decides which receiver gets which loss draw, and a set's order
-        # follows the string hash (PYTHONHASHSEED), which differs from process to process
-        for vid in sorted(members - set(self.channel.receivers)):
-            self.channel.attach(vid)
-        for vid in sorted(set(self.channel.receivers) - members):
-            self.channel.detach(vid)
-            self.latest.pop(vid, None)
+        ids = s["ids"]
+        rows = np.flatnonzero(self._receivers(s))
+        members = [ids[k] for k in rows.tolist()]
+        member_set = set(members)
+        if member_set != self._members:  # the channel's receivers change only with the membership
+            # sorted: the attach order decides which receiver gets which loss draw, and a set's order
+            # follows the string hash (PYTHONHASHSEED), which differs from process to process
+            for vid in sorted(member_set - self._members):
+                self.channel.attach(vid)
+            for vid in sorted(self._members - member_set):
+                self.channel.detach(vid)
+                self.latest.pop(vid, None)
+            self._members = member_set
         if t + 1e-9 >= self._next_rsu_s:
             self._next_rsu_s += self.p.rsu_period_s
-            self.channel.set_positions_arrays(s["ids"], s["pos"])
-            self.channel.send(t, RSU, self._measure(t, s), np.array([self.merge_x, 0.0, 0.0]))
-        for d in self.channel.deliver(t):
-            if d.dst in members:
-                self.latest[d.dst] = d.payload
+            # a broadcast to no receiver draws nothing and takes no send order: the measurement is
+            # skipped when nothing else depends on it (_unheard)
+            if members or not self._unheard(s):
+                self.channel.send(t, self._measure(t, s), self._rsu_pos, members, s["pos"][rows])
+        newest_per_receiver(self.channel.deliver(t), self.channel.names, self.latest)
 
     def _receivers(self, s: dict[str, Any]) -> np.ndarray:
         """Mask of the vehicles that listen to the RSU: the connected highway vehicles in the zone."""
         return (s["connected"] & ~s["ramp"] & (s["front"] > self.merge_x - self.p.zone_before_m)
                 & (s["front"] < self.merge_x + self.p.release_after_m))
 
+    def _unheard(self, s: dict[str, Any]) -> bool:
+        """What a measurement nobody receives leaves behind, done without the measurement: its sensor
+        draws (the same calls on the sensor stream).  False: the measurement has effects of its own
+        (the courtesy stop's choice and events), it is made in full."""
+        if self.p.yield_stop_m > 0:
+            return False
+        self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))
+        return True
+
     def _measure(self, t: float, s: dict[str, Any]) -> RoadAhead:
         """The RSU's noisy view: mean speed per cell on the highway, ramp vehicles' arrival times."""
         noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))
         v = np.maximum(s["speed"] + noise, 0.0)
-        line = ~s["on_ramp"]
-        k = np.floor((s["front"][line] - (self.cells[0] - 0.5 * self.p.cell_m)) / self.p.cell_m).astype(int)
+        if self.p.yield_stop_m > 0:  # the courtesy stop reads the ramp vehicles waiting at the yield line
+            cell_speed, eta, dist, v_ramp = self._road_ahead_numpy(t, s["front"], v, s["on_ramp"])
+            waiting = bool(np.any((dist < self.p.waiting_m) & (v_ramp < self.p.waiting_mps)))
+            return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
+        cell_speed = np.empty(len(self.cells))
+        eta = np.empty(int(np.count_nonzero(s["on_ramp"])))
+        road_ahead(s["front"], v, s["on_ramp"], self._cell_base, self.p.cell_m, self.merge_x, self.cos_ramp, t,
+                   cell_speed, eta)  # compiled: _road_ahead_numpy's bits
+        return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, False))
+
+    def _road_ahead_numpy(self, t: float, front: np.ndarray, v: np.ndarray, on_ramp: np.ndarray
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Mean speed per cell of the highway line, the ramp vehicles' arrival times at the merge, their
+        distances along the ramp and their speeds (``rsu_kernel.road_ahead`` computes the first two)."""
+        line = ~on_ramp
+        k = np.floor((front[line] - self._cell_base) / self.p.cell_m).astype(int)
         ok = (k >= 0) & (k < len(self.cells))
-        total = np.bincount(k[ok], weights=v[line][ok], minlength=len(self.cells))
-        count = np.bincount(k[ok], minlength=len(self.cells))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cell_speed = np.where(count > 0, total / count, np.nan)
-        ramp = s["on_ramp"]
-        dist = (self.merge_x - s["front"][ramp]) / self.cos_ramp  # [m] along the ramp
-        eta = t + np.maximum(dist, 0.0) / np.maximum(v[ramp], 1.0)
-        waiting = bool(np.any((dist < self.p.waiting_m) & (v[ramp] < self.p.waiting_mps)))
-        return RoadAhead(t, self.cells, cell_speed, eta, self._pick_yielder(t, s, waiting))
+        k_ok = k[ok]
+        total = np.bincount(k_ok, weights=v[line][ok], minlength=len(self.cells))
+        count = np.bincount(k_ok, minlength=len(self.cells))
+        cell_speed = total / np.where(count > 0, count, np.nan)  # empty cells: nan (no 0 / 0)
+        dist = (self.merge_x - front[on_ramp]) / self.cos_ramp  # [m] along the ramp
+        v_ramp = v[on_ramp]
+        eta = t + np.maximum(dist, 0.0) / np.maximum(v_ramp, 1.0)
+        return cell_speed, eta, dist, v_ramp
 
     def _pick_yielder(self, t: float, s: dict[str, Any], waiting: bool) -> str | None:
         """The connected highway vehicle asked to stop for the waiting ramp vehicles (courtesy stop):
@@ -229,14 +278,16 @@ class WaveDamping(Controller):
 
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds: list[Any] = []
-        ids, front, speed, length = s["ids"], s["front"], s["speed"], s["length"]
+        ids, front = s["ids"], s["front"]
         line = np.flatnonzero(~s["on_ramp"])
         order = line[np.argsort(front[line], kind="stable")]  # the vehicles on the highway line, rear first
-        for j, k in enumerate(order):
+        ord_l, n = order.tolist(), len(order)
+        front_l, speed_l, length_l = front.tolist(), s["speed"].tolist(), s["length"].tolist()
+        x_release = self.merge_x + self.p.release_after_m
+        for j in np.flatnonzero((s["connected"] & ~s["ramp"])[order]).tolist():  # the connected ones
+            k = ord_l[j]
             vid = ids[k]
-            if not s["connected"][k] or s["ramp"][k]:
-                continue
-            if front[k] >= self.merge_x + self.p.release_after_m:
+            if front_l[k] >= x_release:
                 self._release(vid, cmds)
                 continue
             msg = self.latest.get(vid)
@@ -246,10 +297,10 @@ class WaveDamping(Controller):
                     self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, own driver model")
                 self._release(vid, cmds)
                 continue
-            lead = order[j + 1] if j + 1 < len(order) else None
-            gap = float(front[lead] - length[lead] - front[k]) if lead is not None else math.inf
-            v_lead = float(speed[lead]) if lead is not None else self.p.u_max_mps
-            cmds.append(SetSpeed(vid, self._speed(t, msg, float(front[k]), float(speed[k]), gap, v_lead, vid),
+            lead = ord_l[j + 1] if j + 1 < n else None
+            gap = front_l[lead] - length_l[lead] - front_l[k] if lead is not None else math.inf
+            v_lead = speed_l[lead] if lead is not None else self.p.u_max_mps
+            cmds.append(SetSpeed(vid, self._speed(t, msg, front_l[k], speed_l[k], gap, v_lead, vid),
                                  self.p.command_speed_mode))
             self.controlled.add(vid)
             self.commands_sent += 1
@@ -258,18 +309,21 @@ class WaveDamping(Controller):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """FollowerStopper to the road ahead's speed, the gap cap, bounded change, the safety layer."""
         p = self.p
-        cells = msg.cell_speed_mps
-        if p.free_above_mps is not None:
-            cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
-        u = downstream_speed(x, msg.cell_x_m, cells, p.horizon_m, p.u_max_mps)
+        if self._cells_of[0] is not msg:  # the known cells as the law reads them: once per message
+            cells = msg.cell_speed_mps
+            if p.free_above_mps is not None:
+                cells = np.where(cells >= p.free_above_mps, p.u_max_mps, cells)
+            self._cells_of = (msg, [(cx, cv) for cx, cv in zip(msg.cell_x_m.tolist(), cells.tolist(), strict=True)
+                                    if math.isfinite(cv)])
+        u = downstream_speed_floats(x, self._cells_of[1], p.horizon_m, p.u_max_mps)
         dist = self.merge_x - x
         if p.gap_headway_s > 0 and dist < p.gap_zone_m:
             u = min(u, gap_speed_cap(dist, v, t, msg.ramp_eta_s, p.gap_headway_s, p.u_min_mps))
-        u = float(np.clip(u, p.u_min_mps, p.u_max_mps))
+        u = min(max(u, p.u_min_mps), p.u_max_mps)  # np.clip's value, without its call
         v_cmd = follower_stopper(gap, v, v_lead, u, p.stopper) if math.isfinite(gap) else u
         if msg.yielder is not None and msg.yielder == vid:  # courtesy stop at the stop point
             v_cmd = min(v_cmd, math.sqrt(2.0 * p.b_comfort_mps2 * max(dist - p.yield_stop_m, 0.0)))
-        a = float(np.clip((v_cmd - v) / self.period, -p.b_comfort_mps2, p.a_max_mps2))
+        a = min(max((v_cmd - v) / self.period, -p.b_comfort_mps2), p.a_max_mps2)
         if math.isfinite(gap):
             a = safe_accel(gap, v, v_lead, a, self.safety)
         return max(0.0, v + a * self.period)
