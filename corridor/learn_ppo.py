@@ -101,7 +101,8 @@ def make_env(pb: Problem, sets: list[str], switch: tuple[str, ...]) -> Any:
 
         return DecisionEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
                            boundaries=switch, objective=pb.objective.text,
-                           constraints=tuple(c.text for c in pb.constraints), penalty=PENALTY)
+                           constraints=tuple(c.text for c in pb.constraints), penalty=PENALTY,
+                           penalty_kind=pb.penalty)
     from corridor.envs import CorridorEnv
 
     return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
