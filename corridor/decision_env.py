@@ -22,7 +22,8 @@ asks nothing.
   vehicles (``[presence, x, y, vx, vy]``: its own speed, the others relative to it; zero rows when
   fewer exist) from the world snapshot the controller read.
 - Reward: 0 until the run ends; then ``objective(row) - penalty x violated constraints`` (as
-  ``run_scenario --learn``).  The episode *terminates* at the run's end (its fixed duration is part of
+  ``run_scenario --learn``; ``penalty_kind="hinge"``, ``--penalty hinge``: each broken constraint
+  counts 1 + how far the row is past it).  The episode *terminates* at the run's end (its fixed duration is part of
   the task, so PPO does not bootstrap past the only reward); ``info`` then holds the row's metrics, the
   seed, the ``draw.*`` values and ``decisions``; before, the vehicle, boundary, time and
   ``default_action`` (what theta0 decides: taking it at every step reproduces ``run_scenario``'s row).
@@ -51,13 +52,14 @@ from gymnasium import spaces
 from corridor.batch import draws_for
 from corridor.errors import CorridorError
 from corridor.modes import Boundary, HybridAutomaton, SwitchingParams, in_band
-from corridor.objective import Expression, value, violations
+from corridor.objective import Expression, hinge_violations, value, violations
 from corridor.run import ScratchRun, event_counts
 from corridor.scenario import load
 from corridor.snapshot import nearest_indices
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
-MERGE_BOUNDARIES = ("merge_enter", "gap_accept", "gap_reject", "yield_enter", "yield_exit", "yield_hold", "yield_pass")
+MERGE_BOUNDARIES = ("merge_enter", "gap_accept", "gap_reject", "yield_enter", "yield_exit", "yield_hold", "yield_pass",
+                    "open_ahead")  # open_ahead: off (dist_m 0, no band) unless the scenario sets it
 STATE_FEATURES = 8  # the guard's inputs (state.features()), zero-padded
 KINEMATICS = 5  # presence, x, y, vx, vy
 LENGTH_M, SPEED_MPS = 100.0, 30.0  # normalisation scales
@@ -81,7 +83,8 @@ class DecisionEnv(gym.Env):
     def __init__(self, scenario: str | Path = "merging.yaml", controller: str = "merge", variant: str | None = "v2x_cps",
                  sets: list[str] | None = None, boundaries: tuple[str, ...] = MERGE_BOUNDARIES,
                  objective: str = "-delay_mean_s", constraints: tuple[str, ...] = ("collisions == 0",),
-                 penalty: float = 1.0, temperature: float = T0, band: float = 4.0, n_nearest: int = 4) -> None:
+                 penalty: float = 1.0, temperature: float = T0, band: float = 4.0, n_nearest: int = 4,
+                 penalty_kind: str = "count") -> None:
         self.path = Path(scenario) if Path(scenario).exists() else SCENARIOS / scenario
         self.sc, self.raw = load(self.path, sets)
         if variant is not None and variant not in self.sc.sweep:
@@ -89,6 +92,9 @@ class DecisionEnv(gym.Env):
         self.variant_overrides = dict(self.sc.sweep[variant]) if variant else {}
         if not boundaries:
             raise CorridorError("DecisionEnv: name at least one boundary to decide")
+        if penalty_kind not in ("count", "hinge"):
+            raise CorridorError(f"DecisionEnv: penalty_kind {penalty_kind!r}: one of count, hinge")
+        self.penalty_kind = penalty_kind
         self.controller, self.boundaries, self.penalty, self.n_nearest = controller, tuple(boundaries), penalty, n_nearest
         self.switching = SwitchingParams(temperature=temperature, band=band)
         self.objective = Expression(objective, "objective")
@@ -143,7 +149,8 @@ class DecisionEnv(gym.Env):
 
     def reward(self, metrics: dict[str, Any]) -> float:
         v = value(self.objective, metrics)
-        return (v if math.isfinite(v) else -self.penalty) - self.penalty * violations(self.constraints, metrics)
+        broken = (hinge_violations if self.penalty_kind == "hinge" else violations)(self.constraints, metrics)
+        return (v if math.isfinite(v) else -self.penalty) - self.penalty * broken
 
     # ---- the run (inside the greenlet) -----------------------------------------------------------------
     def _simulate(self) -> dict[str, Any]:

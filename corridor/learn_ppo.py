@@ -35,6 +35,8 @@ What it produces, and how that maps onto ``blrl``/``cma``:
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -101,7 +103,8 @@ def make_env(pb: Problem, sets: list[str], switch: tuple[str, ...]) -> Any:
 
         return DecisionEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
                            boundaries=switch, objective=pb.objective.text,
-                           constraints=tuple(c.text for c in pb.constraints), penalty=PENALTY)
+                           constraints=tuple(c.text for c in pb.constraints), penalty=PENALTY,
+                           penalty_kind=pb.penalty)
     from corridor.envs import CorridorEnv
 
     return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
@@ -202,11 +205,31 @@ def train(pb: Problem, budget: int, seed: int, out: Path, sets: list[str], switc
                 flush(self.stage_rows)
             self.stage_rows = []
 
-    model.learn(total_timesteps=n_steps * (budget // EPISODES_PER_STAGE) * (1000 if variable else 1), callback=Stages())
+    with _lean_torch():
+        model.learn(total_timesteps=n_steps * (budget // EPISODES_PER_STAGE) * (1000 if variable else 1), callback=Stages())
     model.save(out / POLICY)
     venv.save(str(out / NORMALISER))
     venv.close()
     return curve, rows
+
+
+@contextmanager
+def _lean_torch() -> Iterator[None]:
+    """PyTorch without what PPO's small networks do not need, restored afterwards: one intra-op thread (a
+    batch of one, and minibatches of a few thousand rows of 64 units: a second thread only takes the other
+    core) and no argument validation of the action distribution at each decision (it checks, computes
+    nothing).  The same training rows for a seed; the weights differ from a two-thread run in the last bits
+    (another summation order), and no longer depend on the machine's core count."""
+    import torch
+
+    threads, validate = torch.get_num_threads(), torch.distributions.Distribution._validate_args
+    torch.set_num_threads(1)
+    torch.distributions.Distribution.set_default_validate_args(False)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+        torch.distributions.Distribution.set_default_validate_args(validate)
 
 
 def evaluate_policy(folder: str | Path, pb: Problem, sets: list[str], switch: tuple[str, ...], seed: int,

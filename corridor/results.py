@@ -30,7 +30,7 @@ class ResultStore:
         for tmp in self.parts.glob(".*.tmp"):  # a part whose write was cut off (killed, disk full)
             tmp.unlink()
         if (self.dir / "runs.parquet").exists():
-            self._explode(pd.read_parquet(self.dir / "runs.parquet"))
+            self._explode(pd.read_parquet(self.dir / "runs.parquet", partitioning=None))
 
     def _explode(self, df: pd.DataFrame) -> None:
         """Turn a compacted table back into parts, so a resumed batch appends to it."""
@@ -80,7 +80,7 @@ class ResultStore:
         """Run ids with an ``ok`` row (errored runs are tried again on resume)."""
         done = set()
         for p in self.parts.glob("*.parquet"):
-            if pd.read_parquet(p, columns=["status"])["status"].iloc[0] == "ok":
+            if pd.read_parquet(p, columns=["status"], partitioning=None)["status"].iloc[0] == "ok":
                 done.add(p.stem)
         return done
 
@@ -97,12 +97,12 @@ class ResultStore:
         acc = self._combine() if self._acc_ok else None
         if acc is not None:
             others = [f for f in files if f.stem not in self._acc_ids]
-            disk = [pq.read_table(f) for f in others]
+            disk = [pq.read_table(f, partitioning=None) for f in others]
             if all(t.schema.equals(acc.schema, check_metadata=True) for t in disk):
                 names = [f.name for f in others] + [f"{r}.parquet" for r in acc.column("run_id").to_pylist()]
                 order = sorted(range(len(names)), key=names.__getitem__)
                 return pa.concat_tables([*disk, acc]).take(order).to_pandas()
-        return pd.concat([pq.read_table(f).to_pandas() for f in files], ignore_index=True)
+        return pd.concat([pq.read_table(f, partitioning=None).to_pandas() for f in files], ignore_index=True)
 
     def compact(self, order: Callable[[str], int] | list[str]) -> pd.DataFrame:
         """Write ``runs.parquet`` with the rows in batch order (``order``: run ids, or a rank function)."""

@@ -161,7 +161,7 @@ def _policy_rows(pb: Any, folder: Path, n: int, seed: int, out: Path, tag: str, 
 
     store = out / "holdout" / tag / "rows.parquet"
     store.parent.mkdir(parents=True, exist_ok=True)
-    done = {r["run_id"]: r for r in pd.read_parquet(store).to_dict("records")} if store.is_file() else {}
+    done = {r["run_id"]: r for r in pd.read_parquet(store, partitioning=None).to_dict("records")} if store.is_file() else {}
     hold = specs(pb, out, seed, "hold", 0, np.tile(pb.theta0, (n, 1)), None, prefix="hold")
     todo = [s for s in hold if s.run_id not in done]
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one core per process: torch's own threads would contend
@@ -184,7 +184,7 @@ def training_seeds(folder: Path) -> set[int]:
     f = folder / "runs.parquet"
     if not f.is_file():
         raise CorridorError(f"learn_benchmark: {folder}: no runs.parquet (the training did not finish?)")
-    df = pd.read_parquet(f, columns=["seed", "learn.stage"])
+    df = pd.read_parquet(f, columns=["seed", "learn.stage"], partitioning=None)
     train = df[df["learn.stage"].astype(str).str.fullmatch(r"\d+") & df["seed"].notna()]
     return {int(x) for x in train["seed"]}
 

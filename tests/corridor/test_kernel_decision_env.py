@@ -108,3 +108,48 @@ def test_bad_setup_is_one_line(kwargs: dict[str, Any], says: str) -> None:
     with pytest.raises(CorridorError, match=says):
         env = DecisionEnv(sets=SHORT, **kwargs)
         env.reset(seed=0)
+
+
+OPEN = "sweep.v2x_cps.controllers.merge.params.boundaries.open_ahead.dist_m=250"  # (b) v5's start
+
+
+def test_ppo_decides_open_ahead_and_theta0s_actions_reproduce_the_row(tmp_path: Path) -> None:
+    """(b) with new boundaries: --method ppo takes the five keys blrl learns (open_ahead from 250 m), the
+    environment it builds stops at open_ahead decisions too, and the hand-tuned actions give run_scenario's
+    row exactly."""
+    from corridor.learn import problem
+    from corridor.learn_ppo import check, make_env
+
+    sets = ["duration=100", "warmup=0", OPEN]  # seed 3: the first open_ahead decisions come after 40 s
+    out = tmp_path / "batch"
+    assert main(["merging", "--variant", "v2x_cps", "--seed", "3", "--quiet", "--no-report", "--workers", "1",
+                 *[a for s in sets for a in ("--set", s)], "--out", str(out)]) == 0
+    row = pd.read_parquet(out / "runs.parquet").iloc[0]
+    keys = "merge_enter.dist_m,yield_enter.dist_m,yield_exit.dist_m,gap_accept.lag_lengths,open_ahead.dist_m"
+    pb = problem("merging", keys, "-delay_mean_s", ["collisions == 0", "hard_brakes <= 3"], 8, "ppo", "v2x_cps",
+                 sets, "hinge")
+    switch = check(pb, False, "local")
+    assert set(switch) == {"merge_enter", "gap_accept", "yield_enter", "yield_exit", "open_ahead"}
+    env = make_env(pb, sets, switch)
+    _, infos, r = _rollout(env, 3, lambda k, info: info["default_action"])
+    asked = [i["boundary"] for i in infos[:-1]]
+    assert asked.count("open_ahead") >= 1 and asked.count("merge_enter") > 20
+    end = infos[-1]
+    for col in ("delay_mean_s", "hard_brakes", "collisions", "throughput_vph", "events_mode", "min_ttc_s"):
+        assert end[col] == row[col], col
+    assert r == pb.reward({**end, "status": "ok"})
+    env.close()
+
+
+def test_the_hinge_penalty_reaches_the_reward() -> None:
+    """--penalty hinge: a broken constraint costs 1 + how far the row is past it (corridor.learn_core), in
+    PPO's reward as in blrl's and cma's; the count penalty 1."""
+    from corridor.learn import problem
+    from corridor.learn_ppo import make_env
+
+    row = {"delay_mean_s": 9.0, "collisions": 0, "hard_brakes": 8, "status": "ok"}  # 5 past H = 3
+    for kind, want in (("hinge", -9.0 - 6.0), ("count", -9.0 - 1.0)):
+        pb = problem("merging", "merge_enter.dist_m", "-delay_mean_s", ["collisions == 0", "hard_brakes <= 3"], 8,
+                     "ppo", "v2x_cps", SHORT, kind)
+        env = make_env(pb, SHORT, ("merge_enter",))
+        assert env.reward(row) == pb.reward(row) == want

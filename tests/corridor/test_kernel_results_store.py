@@ -81,3 +81,20 @@ def test_resumed_store_reads_parts_from_disk_and_memory_in_file_order(tmp_path) 
     store.write({"run_id": "r3", "status": "error", "x": math.nan, "n": -1})  # re-run: the part is replaced
     pd.testing.assert_frame_equal(store.read(), ref())
     assert store.read().set_index("run_id").loc["r3", "status"] == "error"
+
+
+def test_a_folder_named_key_value_reopens_with_its_own_columns(tmp_path) -> None:
+    """`learn_benchmark.py holdout --hand-tuned open_ahead.dist_m=0` keeps its rows in
+    ``holdout/hand_tuned-open_ahead.dist_m=0``: pyarrow reads a ``key=value`` folder as a Hive partition
+    and adds a column ``key`` to every table read from below it, so reopening the store (the tool's
+    resume) failed on the compacted table.  The store reads a file's own columns only."""
+    out = tmp_path / "holdout" / "hand_tuned-open_ahead.dist_m=0"
+    first = ResultStore(out)
+    for i in range(3):
+        first.write({"run_id": f"r{i}", "status": "ok", "x": float(i)})
+    first.compact([f"r{i}" for i in range(3)])
+    again = ResultStore(out)  # resume: the compacted table is exploded back into parts
+    assert again.finished() == {"r0", "r1", "r2"}
+    df = again.read()
+    assert df.columns.tolist() == ["run_id", "status", "x"] and df["x"].tolist() == [0.0, 1.0, 2.0]
+    assert again.compact([f"r{i}" for i in range(3)]).columns.tolist() == ["run_id", "status", "x"]
