@@ -304,12 +304,8 @@ class AddressedChannel:
 
     def stats(self) -> ChannelStats:
         """The counters of ``Channel.stats`` (age of information: NaN, not kept)."""
-        in_range = self._n_sent - self._n_oor
-        return ChannelStats(sent=self._n_sent, delivered=self._n_delivered, lost_random=self._n_lost,
-                            out_of_range=self._n_oor,
-                            delivery_ratio=self._n_delivered / in_range if in_range else float("nan"),
-                            aoi_mean_s=float("nan"), aoi_max_s=float("nan"), dropped_after_end=self._n_late,
-                            dropped_overflow=self._n_overflow)
+        return ChannelStats.counted(self._n_sent, self._n_delivered, self._n_lost, self._n_oor, self._n_late,
+                                    self._n_overflow)
 
     def _grow_nodes(self, cap: int) -> None:
         n = self._attached.shape[0]

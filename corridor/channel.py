@@ -175,6 +175,14 @@ class ChannelStats:
     dropped_after_end: int = 0  # copies that would have arrived after the run's end
     dropped_overflow: int = 0  # copies dropped because ``max_in_flight`` copies were in flight
 
+    @classmethod
+    def counted(cls, sent: int, delivered: int, lost: int, out_of_range: int, late: int, overflow: int) -> ChannelStats:
+        """Statistics of a channel that keeps no age of information (NaN)."""
+        in_range = sent - out_of_range
+        return cls(sent=sent, delivered=delivered, lost_random=lost, out_of_range=out_of_range,
+                   delivery_ratio=delivered / in_range if in_range else float("nan"), aoi_mean_s=float("nan"),
+                   aoi_max_s=float("nan"), dropped_after_end=late, dropped_overflow=overflow)
+
     def as_dict(self, prefix: str = "") -> dict[str, float]:
         """Flat dict for a results row, e.g. ``prefix="v2x_"``."""
         return {prefix + k: float(v) for k, v in self.__dict__.items()}

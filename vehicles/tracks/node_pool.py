@@ -317,13 +317,7 @@ class NodeTrackPool:
         k = src.shape[0]
         if k == 0:
             return
-        if self._row_of.shape[1] < len(self.index):  # a column per node the channel knows
-            self._row_of = _grown2(self._row_of, self._row_of.shape[0], 2 * len(self.index))
-        if self._n_free < k:
-            self._grow_rows(max(2 * self._cap, self._cap + k))
-        if self._upd_row.shape[0] < k:
-            self._upd_row, self._upd_z = np.empty(2 * k, dtype=np.int64), np.empty((2 * k, 2))
-            self._upd_dt, self._ahead = np.empty(2 * k), np.empty(2 * k, dtype=bool)
+        self._room(k)
         m, self._n_free = _select_rows(src, dst, t_sent_s, t_recv_s, z, ref, rsu, self._slot_of, listen_keys,
                                        self._n_free, self._row_of, self._r, self.x, self.P, self.t_s, self._row_slot,
                                        self._row_src, self._free, self._upd_row, self._upd_z, self._upd_dt,
