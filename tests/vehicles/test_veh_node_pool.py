@@ -5,6 +5,8 @@ keeps tracks; the roadside unit tracks everyone, a vehicle the senders it listen
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from corridor.vehicles.tracks.node_pool import NodeTrackPool
@@ -28,6 +30,22 @@ def _reference_fuse(pool: TrackPool, copies: list[tuple[int, int, int, float, fl
     if kept:
         pool.fuse([c[2] for c in kept], [c[3] for c in kept], np.array([c[4] for c in kept]),
                   np.array([c[5] for c in kept]))
+
+
+def _churn(rng: np.random.Generator, pools: tuple[Any, ...]) -> None:
+    """Receivers come and go: the same draw decides for every pool."""
+    for name in NAMES[1:]:
+        u = rng.random()
+        for p in pools:
+            if u < 0.05:
+                p.remove_receiver(name)
+            elif u < 0.2:
+                p.add_receiver(name)
+
+
+def _listen(rng: np.random.Generator) -> dict[str, set[str]]:
+    """Which senders each vehicle listens to (about 60 % of them listen, to 3 draws each)."""
+    return {v: {NAMES[k] for k in rng.choice(len(NAMES), 3).tolist()} for v in NAMES[1:] if rng.random() < 0.6}
 
 
 def _tick_copies(rng: np.random.Generator, t: float, seq0: int) -> list[tuple[int, int, int, float, float, float, float, int]]:
@@ -54,14 +72,8 @@ def test_node_pool_equals_track_pool_with_the_former_filter() -> None:
     fused = 0
     for step in range(400):
         t = 0.1 * step
-        for name in NAMES[1:]:  # receivers come and go
-            u = rng.random()
-            for p in (ref, new):
-                if u < 0.05:
-                    p.remove_receiver(name)
-                elif u < 0.2:
-                    p.add_receiver(name)
-        listen = {v: {NAMES[k] for k in rng.choice(len(NAMES), 3).tolist()} for v in NAMES[1:] if rng.random() < 0.6}
+        _churn(rng, (ref, new))
+        listen = _listen(rng)
         copies = _tick_copies(rng, t, 100 * step)
         _reference_fuse(ref, copies, listen)
         keys = sorted((INDEX[v] << 32) | INDEX[s] for v, srcs in listen.items() for s in srcs)
@@ -99,14 +111,8 @@ def test_the_one_call_fuse_and_drop_equals_fuse_delivered_then_drop_stale() -> N
     fused = 0
     for step in range(500):
         t = 0.1 * step
-        for name in NAMES[1:]:
-            u = rng.random()
-            for p in (old, new):
-                if u < 0.05:
-                    p.remove_receiver(name)
-                elif u < 0.2:
-                    p.add_receiver(name)
-        listen = {v: {NAMES[k] for k in rng.choice(len(NAMES), 3).tolist()} for v in NAMES[1:] if rng.random() < 0.6}
+        _churn(rng, (old, new))
+        listen = _listen(rng)
         copies = _tick_copies(rng, t, 100 * step)
         if step % 4 == 0:  # send times off the grid: new intervals
             copies = [(c[0], c[1], c[2], c[3] + float(rng.choice([0.5e-9, 1.5e-9, rng.uniform(0, 0.05)])), *c[4:])
@@ -188,7 +194,7 @@ def test_the_delivery_in_the_same_call_equals_deliver_then_fuse_and_drop() -> No
         val = np.column_stack([rng.normal(0, 50, k), rng.normal(20, 5, k)])
         ref = np.where(rng.random(k) < 0.9, -1, np.arange(k)).astype(np.int64)
         node_pos = rng.uniform(-150.0, 150.0, (len(NAMES), 3))
-        listen = {v: {NAMES[j] for j in rng.choice(len(NAMES), 3).tolist()} for v in NAMES[1:] if rng.random() < 0.6}
+        listen = _listen(rng)
         keys = np.array(sorted((INDEX[v] << 32) | INDEX[s] for v, srcs in listen.items() for s in srcs), dtype=np.int64)
         for ch in chans:
             ch.set_positions(np.arange(len(NAMES)), node_pos)
