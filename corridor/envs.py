@@ -17,7 +17,8 @@ monitors) is the scenario as ``run_scenario`` runs it.
   ENU frame; row 0 the agent itself, then the ``n_nearest`` nearest other entities (ground truth
   from the world snapshot, relative to the agent), zero rows when fewer exist.
 - Reward: 0 until the run ends; at the end ``objective(row) - penalty x violations(row)`` on the
-  run's results row (the same expressions as ``run_scenario --learn``).  The episode ends by
+  run's results row (the same expressions as ``run_scenario --learn``; ``penalty_kind="hinge"``, as
+  ``--penalty hinge``: each broken constraint costs 1 + how far the row is past its bound).  The episode ends by
   truncation at the scenario's duration; ``info`` then holds the row's metrics, the run's ``seed`` and its ``draw.*`` values.
 
 libsumo allows one simulation per process: ``reset`` closes the previous run before building the
@@ -42,7 +43,7 @@ from corridor.batch import draws_for
 from corridor.ego_env import EgoParallelEnv
 from corridor.engine import Simulation
 from corridor.errors import CorridorError
-from corridor.objective import Expression, value, violations
+from corridor.objective import Expression, hinge_violations, value, violations
 from corridor.run import ScratchRun, event_counts
 from corridor.scenario import load
 from corridor.snapshot import nearest_indices
@@ -57,7 +58,7 @@ class _Episode:
 
     def __init__(self, scenario: str | Path, controller: str, variant: str | None, sets: list[str] | None,
                  switch: tuple[str, str], objective: str, constraints: tuple[str, ...], penalty: float,
-                 n_nearest: int) -> None:
+                 n_nearest: int, penalty_kind: str = "count") -> None:
         self.path = Path(scenario) if Path(scenario).exists() else SCENARIOS / scenario
         self.sc, self.raw = load(self.path, sets)
         if variant is not None and variant not in self.sc.sweep:
@@ -65,7 +66,10 @@ class _Episode:
         self.variant_overrides = dict(self.sc.sweep[variant]) if variant else {}
         if controller not in self.sc.controllers:
             raise CorridorError(f"{self.path.name}: no controller {controller!r}")
+        if penalty_kind not in ("count", "hinge"):
+            raise CorridorError(f"penalty_kind {penalty_kind!r}: one of count, hinge")
         self.controller, self.switch, self.penalty, self.n_nearest = controller, switch, penalty, n_nearest
+        self.penalty_kind = penalty_kind
         self.objective = Expression(objective, "objective")
         self.constraints = tuple(Expression(c, "constraint") for c in constraints)
         self.sim: Simulation | None = None
@@ -117,7 +121,8 @@ class _Episode:
 
     def reward(self, metrics: dict[str, Any]) -> float:
         v = value(self.objective, metrics)
-        return (v if np.isfinite(v) else -self.penalty) - self.penalty * violations(self.constraints, metrics)
+        broken = (hinge_violations if self.penalty_kind == "hinge" else violations)(self.constraints, metrics)
+        return (v if np.isfinite(v) else -self.penalty) - self.penalty * broken
 
     def observe(self, agent: str) -> np.ndarray:
         out = np.zeros((1 + self.n_nearest, FEATURES), np.float32)
@@ -154,8 +159,9 @@ class CorridorEnv(gym.Env):
                  variant: str | None = "potential_field", agent: str | None = None, sets: list[str] | None = None,
                  switch: tuple[str, str] = ("avoid_enter", "avoid_exit"), objective: str = "-path_ratio_max",
                  constraints: tuple[str, ...] = ("nmac == 0", "collisions == 0"), penalty: float = 10.0,
-                 n_nearest: int = 3) -> None:
-        self.episode = _Episode(scenario, controller, variant, sets, switch, objective, constraints, penalty, n_nearest)
+                 n_nearest: int = 3, penalty_kind: str = "count") -> None:
+        self.episode = _Episode(scenario, controller, variant, sets, switch, objective, constraints, penalty, n_nearest,
+                                penalty_kind)
         self.agent = agent
         self.observation_space = _observation_space(n_nearest)
         self.action_space = spaces.Discrete(2)
@@ -196,8 +202,9 @@ class CorridorParallelEnv(ParallelEnv):  # type: ignore[misc]  # pettingzoo has 
                  variant: str | None = "potential_field", sets: list[str] | None = None,
                  switch: tuple[str, str] = ("avoid_enter", "avoid_exit"), objective: str = "-path_ratio_max",
                  constraints: tuple[str, ...] = ("nmac == 0", "collisions == 0"), penalty: float = 10.0,
-                 n_nearest: int = 3) -> None:
-        self.episode = _Episode(scenario, controller, variant, sets, switch, objective, constraints, penalty, n_nearest)
+                 n_nearest: int = 3, penalty_kind: str = "count") -> None:
+        self.episode = _Episode(scenario, controller, variant, sets, switch, objective, constraints, penalty, n_nearest,
+                                penalty_kind)
         self._obs_space, self._act_space = _observation_space(n_nearest), spaces.Discrete(2)  # one object each
         self.episode.start(0)  # the agents' names are known once a run is built
         self.possible_agents = list(self.episode.agents)

@@ -110,7 +110,7 @@ def make_env(pb: Problem, sets: list[str], switch: tuple[str, ...]) -> Any:
     return CorridorEnv(scenario=pb.path, controller=pb.controller, variant=pb.variant, sets=sets,
                        switch=(switch[0], switch[1]),
                        objective=pb.objective.text, constraints=tuple(c.text for c in pb.constraints),
-                       penalty=PENALTY)
+                       penalty=PENALTY, penalty_kind=pb.penalty)
 
 
 def decisions_per_run(env: Any) -> int:

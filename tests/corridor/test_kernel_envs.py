@@ -76,3 +76,19 @@ def test_bad_variant_and_uav_none_are_one_line_errors() -> None:
     env = CorridorEnv(variant="none", sets=SHORT)
     with pytest.raises(CorridorError, match="no agents with modes"):
         env.reset(seed=0)
+
+
+def test_the_hinge_penalty_reaches_the_reward() -> None:
+    """--penalty hinge with --method ppo on uav_encounter: the environment's reward is the learner's (1 + how
+    far past the bound per broken constraint), not the count penalty; a wrong kind is a one-line error."""
+    from corridor.learn import problem
+    from corridor.learn_ppo import make_env
+
+    row = {"path_ratio_mean": 1.25, "nmac": 3, "collisions": 0, "status": "ok"}  # 3 past nmac == 0
+    for kind, want in (("hinge", -1.25 - 4.0), ("count", -1.25 - 1.0)):
+        pb = problem("uav_encounter", "avoid_enter.dist_m", "-path_ratio_mean", ["nmac == 0", "collisions == 0"], 8,
+                     "ppo", "potential_field", SHORT, kind)
+        env = make_env(pb, SHORT, ("avoid_enter", "avoid_exit"))
+        assert env.episode.reward(row) == pb.reward(row) == want
+    with pytest.raises(CorridorError, match="penalty_kind 'squared'"):
+        CorridorEnv(sets=SHORT, penalty_kind="squared")
