@@ -49,6 +49,15 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
 from corridor.controllers.merging.cam_kernel import STATUS_OK, CamStage
+from corridor.controllers.merging.coord_kernel import (
+    F_AOI_MAX,
+    F_AOI_SUM,
+    I_AOI_N,
+    STATUS_TIE,
+    ArrayCoordinator,
+    coordinate_into,
+    tie_zone,
+)
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -80,6 +89,7 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 #   keep right all off); TraCI-requested changes respect the others' gaps
 
 
+_NO_DRAWS = np.zeros(0)
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
 # the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
@@ -187,7 +197,17 @@ class V2XMerging(Controller):
         super().__init__(name)
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
-        self.coord = Coordinator(params.policy, params.coordinator, self._slot_check(params))
+        # the RSU's coordinator: as arrays in compiled code (coord_kernel), unless a SlotCheck is set (Python)
+        check = self._slot_check(params)
+        self.coord: Coordinator | ArrayCoordinator = (Coordinator(params.policy, params.coordinator, check)
+                                                      if check is not None else
+                                                      ArrayCoordinator(params.policy, params.coordinator))
+        # vehicle id -> key (coord_kernel; the coordinator's id_of is the inverse)
+        self._key_of: dict[str, int] = self.coord.key_of if isinstance(self.coord, ArrayCoordinator) else {}
+        self._row_key = np.zeros(0, dtype=np.int64)  # per road row: its vehicle key (with _row_node)
+        self._entered_of = np.full(64, np.nan)  # per key: the FCFS key (NaN: not in the zone yet), see _coordinate
+        self._zbuf = tuple(np.empty(0) for _ in range(7))  # the kernel's zone (see _coordinate_compiled)
+        self._slot_row = np.empty(0, dtype=np.int64)
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
@@ -200,7 +220,9 @@ class V2XMerging(Controller):
         self._cam = CamStage()  # the compiled CAM stage and its buffers
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
-        self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
+        # the AoI sums: the compiled coordinator's state arrays (coord_kernel), or these
+        self._aoi_f, self._aoi_i = ((self.coord.sf, self.coord.si) if isinstance(self.coord, ArrayCoordinator)
+                                    else (np.zeros(4), np.zeros(8, dtype=np.int64)))
         self.stale_releases = 0
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
@@ -221,6 +243,7 @@ class V2XMerging(Controller):
         nose, end = float(lm.merge_start_x), float(lm.merge_end_x)
         self.x_merge = nose + self.p.merge_point_frac * (end - nose)
         self.y_rsu = -float(lm.lane_width_m) * float(lm.mainline_lanes)
+        self._rsu_pos = np.array([self.x_merge, self.y_rsu, 0.0])  # an assignment's sender position (not read)
         self.cos_ramp = np.cos(np.radians(lm.ramp_angle_deg))
         # per lane code: a ramp lane / the mainline lane that ramp vehicles join / a mainline lane past
         # the nose (a ramp vehicle there has merged) (filled as lanes appear)
@@ -379,6 +402,13 @@ class V2XMerging(Controller):
             index = self.channel.index
             self._row_node = np.array([index.get(v, -1) for v in ids], dtype=np.int64)
             self._row_node_key = ids
+            if isinstance(self.coord, ArrayCoordinator):  # and each row's vehicle key (coord_kernel)
+                key_of, id_of = self._key_of, self.coord.id_of
+                for v in ids:
+                    if v not in key_of:
+                        key_of[v] = len(id_of)
+                        id_of.append(v)
+                self._row_key = np.array([key_of[v] for v in ids], dtype=np.int64)
         return self._row_node
 
     def _admit(self, t: float, s: dict[str, Any]) -> None:
@@ -460,7 +490,70 @@ class V2XMerging(Controller):
     def _coordinate(self, t: float, s: dict[str, Any], target: float
                     ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
         """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times;
-        returns the zone (vehicle -> row) and the assignments to send."""
+        returns the zone (vehicle -> row) and the assignments to send. One compiled call
+        (``coord_kernel.coordinate_into``) with the coordinator as arrays; in Python with a ``SlotCheck``
+        (``_coordinate_py``, the reference)."""
+        if isinstance(self.coord, ArrayCoordinator) and s.get("cand") is not None:
+            return self._coordinate_compiled(t, s, target)
+        return self._coordinate_py(t, s, target)
+
+    def _coordinate_compiled(self, t: float, s: dict[str, Any], target: float
+                             ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """``_coordinate_py``'s zone, predictions, sensor readings (the same draws: two standard normals per
+        unconnected candidate, in row order), requested arrivals, FCFS keys, crossings, AoI sums and the
+        coordinator's assignment in one call; the assignments (one per connected coordinated row) here."""
+        ac = self.coord
+        assert isinstance(ac, ArrayCoordinator)
+        cand, connected = s["cand"], s["connected"]
+        n_c = len(cand)
+        n_unc = n_c - int(np.count_nonzero(connected[cand])) if n_c else 0
+        z = self.sensor_rng.standard_normal(2 * n_unc) if n_unc else _NO_DRAWS
+        if len(self._entered_of) < len(ac.id_of):
+            grown = np.full(2 * len(ac.id_of), np.nan)
+            grown[: len(self._entered_of)] = self._entered_of
+            self._entered_of = grown
+        ac.room(n_c)
+        if len(self._zbuf[0]) < n_c:
+            m = max(2 * n_c, 16)
+            self._zbuf = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m),
+                          np.empty(m), np.empty(m), np.empty(m, dtype=np.int64))
+        if len(self._slot_row) < len(ac.sk):
+            self._slot_row = np.empty(len(ac.sk), dtype=np.int64)
+        slot, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
+        p = self.p
+        status, nz = coordinate_into(t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key,
+                                     self._row_node, slot, row_of, trk_x, trk_t, z, p.sensor_noise_m,
+                                     p.sensor_noise_mps, target, p.comfort_accel_mps2, self._entered_of,
+                                     *ac.state_arrays(), *ac.params, *self._zbuf, self._slot_row)
+        if status == STATUS_TIE:  # the ids break a tie of the FCFS keys: the Python coordinator, same state
+            zone = tie_zone(*self._zbuf[:6], nz, ac.id_of)
+            index = dict(zip([zv.id for zv in zone], self._zbuf[6][:nz].tolist(), strict=True))
+            dist, row = s["dist"], s["row"]
+            crossed = {vid: t for vid in ac.sequence if vid not in index and vid in row and dist[row[vid]] <= 0.0}
+            ac.assign_py(t, zone, crossed, self._key_of)
+            self._slot_row[: len(index)] = [index[v] for v in ac.sequence]
+        ac.changed()
+        if not nz:
+            return {}, []
+        order = ac.sequence
+        n = len(order)
+        rows, times = self._slot_row[:n].tolist(), ac.st[:n].tolist()
+        ramp = s["ramp"]  # the road a vehicle is on now (a slot keeps the road it was ordered with)
+        roads = ["ramp" if ramp[k] else "main" for k in rows]
+        road_of = dict(zip(order, roads, strict=True)) if self._opens_ahead else None
+        rsu_pos, conn = self._rsu_pos, connected
+        out: list[tuple[str, Any, np.ndarray, str]] = []
+        for j, k in enumerate(rows):
+            if not conn[k]:
+                continue
+            pred, pred_road = (order[j - 1], roads[j - 1]) if j > 0 else (None, None)
+            ahead = self._cross_ahead(order, j, road_of) if road_of is not None else None
+            out.append((RSU, Assignment(t, times[j], pred, pred_road, ahead), rsu_pos, order[j]))
+        return dict(zip(order, rows, strict=True)), out
+
+    def _coordinate_py(self, t: float, s: dict[str, Any], target: float
+                       ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """``_coordinate`` in Python on names (the reference; the path with a ``SlotCheck``)."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
         cand_rows = s.get("cand")  # found by the compiled CAM stage (cam_kernel), else:
@@ -605,6 +698,31 @@ class V2XMerging(Controller):
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
             ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
+
+    # age of information at the RSU, sampled per tick over the coordinated vehicles (coord_kernel's state)
+    @property
+    def _aoi_sum(self) -> float:
+        return float(self._aoi_f[F_AOI_SUM])
+
+    @_aoi_sum.setter
+    def _aoi_sum(self, v: float) -> None:
+        self._aoi_f[F_AOI_SUM] = v
+
+    @property
+    def _aoi_max(self) -> float:
+        return float(self._aoi_f[F_AOI_MAX])
+
+    @_aoi_max.setter
+    def _aoi_max(self, v: float) -> None:
+        self._aoi_f[F_AOI_MAX] = v
+
+    @property
+    def _aoi_n(self) -> int:
+        return int(self._aoi_i[I_AOI_N])
+
+    @_aoi_n.setter
+    def _aoi_n(self, v: int) -> None:
+        self._aoi_i[I_AOI_N] = v
 
     @staticmethod
     def _slot_check(p: Params) -> SlotCheck | None:
