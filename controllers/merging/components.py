@@ -613,58 +613,75 @@ class V2XMerging(Controller):
         return index, out
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
+        """Per vehicle holding an assignment: its automaton, then its command (or its release). The rows'
+        columns are read as Python lists (one ``tolist`` each a tick: the same floats, without a numpy
+        scalar per read)."""
         cmds: list[Any] = []
-        dist, speed, length = s["dist"], s["speed"], s["length"]
+        length = s["length"]
+        dist, speed = s["dist"].tolist(), s["speed"].tolist()
         lim = self.p.limits
+        a_min, a_max = lim.a_min_mps2, lim.a_max_mps2
         live = s["row"]
-        for vid in list(self.controlled):  # release vehicles past the merge or gone
+        controlled, assigned, automata = self.controlled, self.assigned, self.automata
+        for vid in list(controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
             if k is None or dist[k] < 0:  # past the nose: SUMO's lane-change model completes the merge
-                self.controlled.discard(vid)
+                controlled.discard(vid)
                 if k is not None:
                     cmds.append(Release(vid))
-        for vid, (_t_recv, a) in list(self.assigned.items()):
+        if assigned:
+            ramp_l, right_l, merged_l = s["ramp"].tolist(), s["right"].tolist(), s["merged"].tolist()
+        for vid, (_t_recv, a) in list(assigned.items()):
             k = live.get(vid)
-            if k is None or dist[k] < 0:
+            if k is None:
                 continue
+            d_k = dist[k]
+            if d_k < 0:
+                continue
+            ramp_k = ramp_l[k]
             # changed to the left lane, or a ramp vehicle that moved over: out of the conflict
-            if not (s["ramp"][k] or s["right"][k]) or s["merged"][k]:
-                if vid in self.controlled:
-                    self.controlled.discard(vid)
+            if not (ramp_k or right_l[k]) or merged_l[k]:
+                if vid in controlled:
+                    controlled.discard(vid)
                     cmds.append(Release(vid))
-                del self.assigned[vid]
-                self.automata.pop(vid, None)
+                del assigned[vid]
+                automata.pop(vid, None)
                 continue
             if t - a.t_sent_s > self.p.stale_after_s:  # the RSU went quiet: onboard car-following
                 self._fallback(t, vid, cmds)
                 continue
-            road_k = "ramp" if s["ramp"][k] else "main"
-            cross_pred = a.pred is not None and a.pred_road != road_k
-            x = MergeState(road_k, float(dist[k]), cross_pred,
-                           probe=lambda vid=vid, a=a, k=k: self._virtual_gap(t, vid, a.pred, float(dist[k]), live, length),
+            road_k = "ramp" if ramp_k else "main"
+            pred = a.pred
+            cross_pred = pred is not None and a.pred_road != road_k
+            x = MergeState(road_k, d_k, cross_pred,
+                           probe=lambda vid=vid, pred=pred, d_k=d_k: self._virtual_gap(t, vid, pred, d_k, live, length),
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
-            ha = self._automaton(vid, road_k)
+            ha = automata.get(vid)
+            if ha is None:
+                ha = self._automaton(vid, road_k)
             ha.update(t, x, self.events, settle=3)
-            near_merge = ha.in_mode("merge") or ha.in_mode("yield")
+            path = ha.path()
+            near_merge = "merge" in path or "yield" in path
+            v_k = speed[k]
             # before virtual following starts: open the gap to a predecessor from the other road early,
             # comfortably (None: no braking needed, or no track of it)
-            pre_open = self._pre_opening_accel(x, float(speed[k])) if cross_pred and not near_merge else None
-            if ha.in_mode("early"):  # open early to the ramp vehicle ahead of the mainline predecessor
-                ahead = self._virtual_gap(t, vid, a.cross_ahead, float(dist[k]), live, length)
-                pre_open = self._pre_opening_accel(MergeState(road_k, float(dist[k]), True, _gap=ahead), float(speed[k]))
+            pre_open = self._pre_opening_accel(x, v_k) if cross_pred and not near_merge else None
+            if "early" in path:  # open early to the ramp vehicle ahead of the mainline predecessor
+                ahead = self._virtual_gap(t, vid, a.cross_ahead, d_k, live, length)
+                pre_open = self._pre_opening_accel(MergeState(road_k, d_k, True, _gap=ahead), v_k)
             if road_k == "main" and not near_merge and pre_open is None:
                 # a mainline vehicle behind a mainline predecessor follows its physical leader, which
                 # is that predecessor: its own driver (SUMO) does that; only gap openers are commanded
-                if vid in self.controlled:
-                    self.controlled.discard(vid)
+                if vid in controlled:
+                    controlled.discard(vid)
                     cmds.append(Release(vid))
                 continue
             if near_merge:  # virtual-vehicle following: cruise, bounded below by the order predecessor
-                acc = min(max(float(target - speed[k]), lim.a_min_mps2), lim.a_max_mps2)  # np.clip
+                acc = min(max(target - v_k, a_min), a_max)  # np.clip
             elif road_k == "main":  # early gap opening behind a ramp predecessor
                 acc = float(pre_open)  # type: ignore[arg-type]
             else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
-                acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
+                acc = merge_accel(-d_k, v_k, t, a.t_cross_s, 0.0, target, lim)
                 if pre_open is not None:  # ... and early gap opening behind a mainline predecessor
                     acc = min(acc, pre_open)
             if near_merge and cross_pred:
@@ -672,23 +689,24 @@ class V2XMerging(Controller):
                 if not vg.known:
                     self._fallback(t, vid, cmds)
                     continue
-                if ha.in_mode("behind") or ha.in_mode("open"):  # keep the gap behind the predecessor
+                if "behind" in path or "open" in path:  # keep the gap behind the predecessor
                     gap, v_lead = vg.gap_m, max(vg.v_lead_mps, 0.0)
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
                     if vg.age_s > self.period:  # unheard since: assume it braked as hard as it can
                         x_last = gap - v_lead * vg.age_s
                         gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
-                    acc = self._gap_opening_accel(acc, gap, float(speed[k]), v_lead)
+                    acc = self._gap_opening_accel(acc, gap, v_k, v_lead)
             acc = self._physical_leader_cap(s, k, acc)
-            v_next = self._command_speed(float(speed[k]), acc)
-            if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
+            v_next = self._command_speed(v_k, acc)
+            if self.p.hold_lane_change and ramp_k and vid not in controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
-            self.controlled.add(vid)
+            controlled.add(vid)
             self.commands_sent += 1
-        for vid in [v for v in self.automata if v not in self.assigned or live.get(v) is None or dist[live[v]] < 0]:
-            del self.automata[vid]  # past the conflict point, gone, or no longer coordinated
+        if automata:  # past the conflict point, gone, or no longer coordinated
+            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist[live[v]] < 0]:
+                del automata[vid]
         return cmds
 
     def _automaton(self, vid: str, road: str) -> HybridAutomaton:
