@@ -656,9 +656,7 @@ class V2XMerging(Controller):
             x = MergeState(road_k, d_k, cross_pred,
                            probe=lambda vid=vid, pred=pred, d_k=d_k: self._virtual_gap(t, vid, pred, d_k, live, length),
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
-            ha = automata.get(vid)
-            if ha is None:
-                ha = self._automaton(vid, road_k)
+            ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
             ha.update(t, x, self.events, settle=3)
             path = ha.path()
             near_merge = "merge" in path or "yield" in path
