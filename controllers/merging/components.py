@@ -206,7 +206,10 @@ class V2XMerging(Controller):
         self._key_of: dict[str, int] = self.coord.key_of if isinstance(self.coord, ArrayCoordinator) else {}
         self._row_key = np.zeros(0, dtype=np.int64)  # per road row: its vehicle key (with _row_node)
         self._entered_of = np.full(64, np.nan)  # per key: the FCFS key (NaN: not in the zone yet), see _coordinate
-        self._zbuf = tuple(np.empty(0) for _ in range(7))  # the kernel's zone (see _coordinate_compiled)
+        self._zbuf = (np.empty((3, 0), dtype=np.int64), np.empty((4, 0)))  # the kernel's zone (_coordinate_compiled)
+        if isinstance(self.coord, ArrayCoordinator):  # coordinate_into's packed configuration
+            self._coord_cfg = np.array([*self.coord.params_f, params.sensor_noise_m, params.sensor_noise_mps,
+                                        params.comfort_accel_mps2])
         self._slot_row = np.empty(0, dtype=np.int64)
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
@@ -513,21 +516,20 @@ class V2XMerging(Controller):
             grown[: len(self._entered_of)] = self._entered_of
             self._entered_of = grown
         ac.room(n_c)
-        if len(self._zbuf[0]) < n_c:
+        z_int, z_flt = self._zbuf
+        if z_int.shape[1] < n_c:
             m = max(2 * n_c, 16)
-            self._zbuf = (np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64), np.empty(m), np.empty(m),
-                          np.empty(m), np.empty(m), np.empty(m, dtype=np.int64))
-        if len(self._slot_row) < len(ac.sk):
-            self._slot_row = np.empty(len(ac.sk), dtype=np.int64)
+            self._zbuf = z_int, z_flt = np.empty((3, m), dtype=np.int64), np.empty((4, m))
+        if len(self._slot_row) < ac.s_int.shape[1]:
+            self._slot_row = np.empty(ac.s_int.shape[1], dtype=np.int64)
         slot, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
-        p = self.p
         status, nz = coordinate_into(t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key,
-                                     self._row_node, slot, row_of, trk_x, trk_t, z, p.sensor_noise_m,
-                                     p.sensor_noise_mps, target, p.comfort_accel_mps2, self._entered_of,
-                                     *ac.state_arrays(), *ac.params, *self._zbuf, self._slot_row)
+                                     self._row_node, slot, row_of, trk_x, trk_t, z, target, self._entered_of,
+                                     ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int, z_flt,
+                                     self._slot_row)
         if status == STATUS_TIE:  # the ids break a tie of the FCFS keys: the Python coordinator, same state
-            zone = tie_zone(*self._zbuf[:6], nz, ac.id_of)
-            index = dict(zip([zv.id for zv in zone], self._zbuf[6][:nz].tolist(), strict=True))
+            zone = tie_zone(z_int[0], z_int[1], *z_flt, nz, ac.id_of)
+            index = dict(zip([zv.id for zv in zone], z_int[2][:nz].tolist(), strict=True))
             dist, row = s["dist"], s["row"]
             crossed = {vid: t for vid in ac.sequence if vid not in index and vid in row and dist[row[vid]] <= 0.0}
             ac.assign_py(t, zone, crossed, self._key_of)

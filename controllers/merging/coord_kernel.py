@@ -333,13 +333,9 @@ def _resequence(t: float, sk: np.ndarray, sr: np.ndarray, srank: np.ndarray, se:
 @njit(cache=True)
 def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.ndarray, speed: np.ndarray,
                     ramp: np.ndarray, row_key: np.ndarray, row_node: np.ndarray, rsu_slot: int, row_of: np.ndarray,
-                    trk_x: np.ndarray, trk_t: np.ndarray, z_noise: np.ndarray, sd_m: float, sd_mps: float,
-                    target: float, comfort: float, entered_of: np.ndarray, sk: np.ndarray, sr: np.ndarray,
-                    srank: np.ndarray, se: np.ndarray, st: np.ndarray, sen: np.ndarray, sd: np.ndarray,
-                    sv: np.ndarray, si: np.ndarray, sf: np.ndarray, fifo: bool, h_same: float, h_cross: float,
-                    freeze: float, repair: float, repack: float, max_shift: int, horizon: int, fair: float,
-                    w_main: float, w_ramp: float, zk: np.ndarray, zr: np.ndarray, zd: np.ndarray, zv: np.ndarray,
-                    ze: np.ndarray, zen: np.ndarray, zrow: np.ndarray, slot_row: np.ndarray) -> tuple[int, int]:
+                    trk_x: np.ndarray, trk_t: np.ndarray, z_noise: np.ndarray, target: float, entered_of: np.ndarray,
+                    s_int: np.ndarray, s_flt: np.ndarray, si: np.ndarray, sf: np.ndarray, cfg: np.ndarray,
+                    cfg_int: np.ndarray, z_int: np.ndarray, z_flt: np.ndarray, slot_row: np.ndarray) -> tuple[int, int]:
     """``V2XMerging._coordinate``'s zone and ``Coordinator.assign`` in one call (see the module docstring).
 
     ``cand``: the rows the RSU coordinates (the CAM stage's), ``row_key``: each row's vehicle key,
@@ -347,7 +343,21 @@ def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.
     the states and their times); ``z_noise``: two standard normals per unconnected candidate (distance,
     speed, in row order); ``entered_of``: per key the FCFS key (NaN: not yet in the zone). Writes the zone
     (``zk`` ... ``zrow``) and, per slot after the assignment, its row (``slot_row``). Returns (status, the
-    zone's size); ``STATUS_TIE``: the coordinator is unchanged (its zone and AoI sums are written)."""
+    zone's size); ``STATUS_TIE``: the coordinator is unchanged (its zone and AoI sums are written).
+
+    Packed (a dispatch costs ~0.1 us an argument): the slots ``s_int`` (key, road, rank) and ``s_flt``
+    (earliest, time, FCFS key, distance, speed) as ``ArrayCoordinator`` keeps them; ``cfg`` the
+    coordinator's ``params_f`` then the sensor noises [m, m/s] and the comfortable acceleration [m/s²];
+    ``cfg_int`` (fifo, max_shift, horizon); the zone ``z_int`` (key, road, row), ``z_flt`` (distance,
+    speed, earliest, FCFS key)."""
+    sk, sr, srank = s_int[0], s_int[1], s_int[2]
+    se, st, sen, sd, sv = s_flt[0], s_flt[1], s_flt[2], s_flt[3], s_flt[4]
+    zk, zr, zrow = z_int[0], z_int[1], z_int[2]
+    zd, zv, ze, zen = z_flt[0], z_flt[1], z_flt[2], z_flt[3]
+    h_same, h_cross, freeze, repair, repack, fair, w_main, w_ramp = (cfg[0], cfg[1], cfg[2], cfg[3], cfg[4], cfg[5],
+                                                                     cfg[6], cfg[7])
+    sd_m, sd_mps, comfort = cfg[8], cfg[9], cfg[10]
+    fifo, max_shift, horizon = cfg_int[0] != 0, cfg_int[1], cfg_int[2]
     nz, j_noise = 0, 0
     n_nodes = row_of.shape[1]
     for c in range(cand.shape[0]):
@@ -419,6 +429,10 @@ class ArrayCoordinator:
         c = self.cfg
         self.params = (self.policy == "fifo", c.headway_same_s, c.headway_cross_s, c.freeze_s, c.repair_tol_s,
                        c.repack_tol_s, c.max_shift, c.horizon, c.fairness_delay_s, c.weight_main, c.weight_ramp)
+        # coordinate_into's packed configuration: the floats (the caller appends its three), the ints
+        self.params_f = (c.headway_same_s, c.headway_cross_s, c.freeze_s, c.repair_tol_s, c.repack_tol_s,
+                         c.fairness_delay_s, c.weight_main, c.weight_ramp)
+        self.params_i = np.array([self.policy == "fifo", c.max_shift, c.horizon], dtype=np.int64)
         self.si = np.zeros(8, dtype=np.int64)
         self.sf = np.zeros(4)
         self._cap = 0
@@ -429,14 +443,20 @@ class ArrayCoordinator:
 
     def _grow(self, cap: int) -> None:
         n = int(self.si[I_N])
-        old = [getattr(self, a, None) for a in ("sk", "sr", "srank", "se", "st", "sen", "sd", "sv")]
-        self.sk, self.sr, self.srank = (np.zeros(cap, dtype=np.int64) for _ in range(3))
-        self.se, self.st, self.sen, self.sd, self.sv = (np.full(cap, np.nan) for _ in range(5))
-        if old[0] is not None:
-            for new, o in zip((self.sk, self.sr, self.srank, self.se, self.st, self.sen, self.sd, self.sv), old,
-                              strict=True):
-                new[:n] = o[:n]
-        self._cap = cap
+        s_int, s_flt = np.zeros((3, cap), dtype=np.int64), np.full((5, cap), np.nan)
+        if self._cap:
+            s_int[:, :n], s_flt[:, :n] = self.s_int[:, :n], self.s_flt[:, :n]
+        self.s_int, self.s_flt, self._cap = s_int, s_flt, cap
+
+    # the slots' columns (views of the packed state)
+    sk = property(lambda self: self.s_int[0])
+    sr = property(lambda self: self.s_int[1])
+    srank = property(lambda self: self.s_int[2])
+    se = property(lambda self: self.s_flt[0])
+    st = property(lambda self: self.s_flt[1])
+    sen = property(lambda self: self.s_flt[2])
+    sd = property(lambda self: self.s_flt[3])
+    sv = property(lambda self: self.s_flt[4])
 
     def room(self, n_zone: int) -> None:
         """Room for the slots and a zone of ``n_zone`` new vehicles."""
