@@ -471,12 +471,11 @@ class V2XMerging(Controller):
         d = self.tracks.deliver_fuse_and_drop(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
         if len(d):
-            is_a = d.ref >= 0
-            if is_a.any():
+            k_a = np.flatnonzero(d.ref >= 0)  # (ndarray.any() alone costs ~3 us)
+            if k_a.size:
                 names, sent = self.channel.names, self._sent_assignments
-                k = np.flatnonzero(is_a).tolist()
-                assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
-                                         d.ref[k].tolist(), strict=True), key=_recv_order)
+                assignments = sorted(zip(d.t_recv_s[k_a].tolist(), d.seq[k_a].tolist(), d.dst[k_a].tolist(),
+                                         d.ref[k_a].tolist(), strict=True), key=_recv_order)
                 for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
                     self.assigned[names[dst]] = (tr, sent[ref])
 
