@@ -330,7 +330,12 @@ def _resequence(t: float, sk: np.ndarray, sr: np.ndarray, srank: np.ndarray, se:
         sk[j], sr[j], srank[j], se[j], st[j], sen[j], sd[j], sv[j] = ck[x], cr[x], crank[x], ce[x], np.nan, cen[x], cd[x], cv[x]
 
 
-@njit(cache=True)
+# compiled at import (or loaded from the cache), not in a run's first tick
+_COORD_SIG = ("UniTuple(i8, 2)(f8, i8[:], b1[:], f8[:], f8[:], b1[:], i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:], "
+              "f8[:], f8, f8[:], i8[:, :], f8[:, :], i8[:], f8[:], f8[:], i8[:], i8[:, :], f8[:, :], i8[:])")
+
+
+@njit(_COORD_SIG, cache=True)
 def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.ndarray, speed: np.ndarray,
                     ramp: np.ndarray, row_key: np.ndarray, row_node: np.ndarray, rsu_slot: int, row_of: np.ndarray,
                     trk_x: np.ndarray, trk_t: np.ndarray, z_noise: np.ndarray, target: float, entered_of: np.ndarray,
