@@ -201,6 +201,9 @@ class AddressedChannel:
         self._n = 0  # copies in flight: the first _n rows of the queue
         self._q = _queue(64)
         self._out = _queue(64)  # the latest delivery (and, last, the queue's count after it)
+        # a send's copies (entry, receiver, in range) and per entry its count (see send)
+        self._copies = (np.empty(256, dtype=np.int64), np.empty(256, dtype=np.int64), np.empty(256, dtype=bool),
+                        np.empty(64, dtype=np.int64))
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
 
     # -- nodes, membership, positions ----------------------------------------------------------
@@ -248,8 +251,12 @@ class AddressedChannel:
         if ptr[m] == 0:  # nothing listed: send_many draws nothing
             return
         c = int(ptr[m])
-        entry_of, dst_c = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
-        near, counts = np.empty(c, dtype=bool), np.empty(m, dtype=np.int64)
+        if c > self._copies[0].shape[0] or m > self._copies[3].shape[0]:  # buffers kept from send to send
+            c2, m2 = max(c, 2 * self._copies[0].shape[0]), max(m, 2 * self._copies[3].shape[0])
+            self._copies = (np.empty(c2, dtype=np.int64), np.empty(c2, dtype=np.int64), np.empty(c2, dtype=bool),
+                            np.empty(m2, dtype=np.int64))
+        entry_of, dst_c, near, counts = self._copies
+        counts = counts[:m]
         n = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
                          entry_of, dst_c, near, counts)
         n_near = int(np.count_nonzero(near[:n]))
