@@ -658,7 +658,8 @@ class V2XMerging(Controller):
                            probe=lambda vid=vid, pred=pred, d_k=d_k: self._virtual_gap(t, vid, pred, d_k, live, length),
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
             ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
-            ha.update(t, x, self.events, settle=3)
+            if not ha.quiet_update(t, x):  # most ticks no guard fires (then the general update)
+                ha.update(t, x, self.events, settle=3)
             path = ha.path()
             near_merge = "merge" in path or "yield" in path
             v_k = speed[k]
