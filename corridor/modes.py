@@ -382,12 +382,14 @@ class HybridAutomaton:
                                 **self.event_data, **d)
 
     def quiet_update(self, t: float, x: Any) -> bool:
-        """``update(t, x, ...)`` when it would not jump, without its general machinery: True when done (the
-        boundaries' g evaluated and kept for the next crossing location, as ``update`` keeps them; nothing
-        to emit), False when the caller must call ``update`` (nothing changed here). Only for a deterministic
-        automaton (no stochastic switching, no decider, no decided outcome) without invariants on its path;
-        its guards, ``when`` conditions and boundary functions must be pure (on a jump they are evaluated
-        again by ``update``)."""
+        """``update(t, x, ...)`` when it would not jump, without its general machinery.
+
+        True when done (the boundaries' g evaluated and kept for the next crossing location, as ``update``
+        keeps them; nothing to emit), False when the caller must call ``update`` (nothing changed here).
+        Only for a deterministic automaton (no stochastic switching, no decider, no decided outcome)
+        without invariants on its path; its guards, ``when`` conditions and boundary functions must be pure
+        (on a jump they are evaluated again by ``update``).
+        """
         mode = self.mode
         if self.switching is not None or self.decider is not None or self.decided or self._path_inv[mode]:
             return False
