@@ -7,7 +7,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from corridor.controllers.merging.switching import MergeBoundaries, MergeState, VirtualGap, merge_automaton, resolved
+from corridor.controllers.merging.switching import (
+    MergeBoundaries,
+    MergeState,
+    VirtualGap,
+    merge_automaton,
+    resolved,
+)
 from corridor.events import EventLog
 from corridor.modes import SwitchingParams
 
