@@ -53,6 +53,8 @@ from corridor.controllers.merging.coord_kernel import (
     F_AOI_MAX,
     F_AOI_SUM,
     I_AOI_N,
+    I_DRAW,
+    STATUS_DRAWS,
     STATUS_TIE,
     ArrayCoordinator,
     coordinate_into,
@@ -89,7 +91,7 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 #   keep right all off); TraCI-requested changes respect the others' gaps
 
 
-_NO_DRAWS = np.zeros(0)
+_ROADS = ("main", "ramp")  # by an on-the-ramp flag
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
 # the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
@@ -210,7 +212,8 @@ class V2XMerging(Controller):
         if isinstance(self.coord, ArrayCoordinator):  # coordinate_into's packed configuration
             self._coord_cfg = np.array([*self.coord.params_f, params.sensor_noise_m, params.sensor_noise_mps,
                                         params.comfort_accel_mps2])
-        self._slot_row = np.empty(0, dtype=np.int64)
+        self._slot_out = np.empty((0, 4), dtype=np.int64)  # per slot: key, row, connected, on the ramp (coord_kernel)
+        self._draws = np.zeros(0)  # the sensor generator's standard normals, taken in batches (coord_kernel)
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
@@ -508,8 +511,6 @@ class V2XMerging(Controller):
         assert isinstance(ac, ArrayCoordinator)
         cand, connected = s["cand"], s["connected"]
         n_c = len(cand)
-        n_unc = n_c - int(np.count_nonzero(connected[cand])) if n_c else 0
-        z = self.sensor_rng.standard_normal(2 * n_unc) if n_unc else _NO_DRAWS
         if len(self._entered_of) < len(ac.id_of):
             grown = np.full(2 * len(ac.id_of), np.nan)
             grown[: len(self._entered_of)] = self._entered_of
@@ -519,37 +520,43 @@ class V2XMerging(Controller):
         if z_int.shape[1] < n_c:
             m = max(2 * n_c, 16)
             self._zbuf = z_int, z_flt = np.empty((3, m), dtype=np.int64), np.empty((4, m))
-        if len(self._slot_row) < ac.s_int.shape[1]:
-            self._slot_row = np.empty(ac.s_int.shape[1], dtype=np.int64)
+        if self._slot_out.shape[0] < ac.s_int.shape[1]:
+            self._slot_out = np.empty((ac.s_int.shape[1], 4), dtype=np.int64)
         slot, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
-        status, nz = coordinate_into(t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key,
-                                     self._row_node, slot, row_of, trk_x, trk_t, z, target, self._entered_of,
-                                     ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int, z_flt,
-                                     self._slot_row)
+        args = (t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key, self._row_node, slot, row_of,
+                trk_x, trk_t)
+        rest = (target, self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
+                z_flt, self._slot_out)
+        status, nz, n = coordinate_into(*args, self._draws, *rest)
+        if status == STATUS_DRAWS:  # the pool of sensor draws is short: the rest, then new ones (same stream)
+            self._draws = np.concatenate([self._draws[ac.si[I_DRAW]:], self.sensor_rng.standard_normal(max(2 * n_c, 1024))])
+            ac.si[I_DRAW] = 0
+            status, nz, n = coordinate_into(*args, self._draws, *rest)
         if status == STATUS_TIE:  # the ids break a tie of the FCFS keys: the Python coordinator, same state
             zone = tie_zone(z_int[0], z_int[1], *z_flt, nz, ac.id_of)
             index = dict(zip([zv.id for zv in zone], z_int[2][:nz].tolist(), strict=True))
             dist, row = s["dist"], s["row"]
             crossed = {vid: t for vid in ac.sequence if vid not in index and vid in row and dist[row[vid]] <= 0.0}
             ac.assign_py(t, zone, crossed, self._key_of)
-            self._slot_row[: len(index)] = [index[v] for v in ac.sequence]
-        ac.changed()
+            ramp, n = s["ramp"], len(index)
+            self._slot_out[:n] = [(self._key_of[v], k, connected[k], ramp[k]) for v, k in
+                                  ((v, index[v]) for v in ac.sequence)]
         if not nz:
+            ac.changed()
             return {}, []
-        order = ac.sequence
-        n = len(order)
-        rows, times = self._slot_row[:n].tolist(), ac.st[:n].tolist()
-        ramp = s["ramp"]  # the road a vehicle is on now (a slot keeps the road it was ordered with)
-        roads = ["ramp" if ramp[k] else "main" for k in rows]
-        road_of = dict(zip(order, roads, strict=True)) if self._opens_ahead else None
-        rsu_pos, conn = self._rsu_pos, connected
+        # per slot: its key, row, connected, on the ramp now (a slot keeps the road it was ordered with)
+        info, times, ids = self._slot_out[:n].tolist(), ac.s_flt[1, :n].tolist(), ac.id_of
+        order = ac.set_sequence([ids[key] for key, _, _, _ in info])
+        road_of = dict(zip(order, [_ROADS[r] for _, _, _, r in info], strict=True)) if self._opens_ahead else None
+        rsu_pos = self._rsu_pos
         out: list[tuple[str, Any, np.ndarray, str]] = []
-        for j, k in enumerate(rows):
-            if not conn[k]:
+        for j, (_, _, conn, _) in enumerate(info):
+            if not conn:
                 continue
-            pred, pred_road = (order[j - 1], roads[j - 1]) if j > 0 else (None, None)
+            pred, pred_road = (order[j - 1], _ROADS[info[j - 1][3]]) if j > 0 else (None, None)
             ahead = self._cross_ahead(order, j, road_of) if road_of is not None else None
             out.append((RSU, Assignment(t, times[j], pred, pred_road, ahead), rsu_pos, order[j]))
+        rows = [r for _, r, _, _ in info]
         return dict(zip(order, rows, strict=True)), out
 
     def _coordinate_py(self, t: float, s: dict[str, Any], target: float

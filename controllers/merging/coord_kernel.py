@@ -36,11 +36,12 @@ from corridor.controllers.merging.coordinator import (
     _State,
 )
 
-STATUS_OK, STATUS_TIE = 0, 1
+STATUS_OK, STATUS_TIE, STATUS_DRAWS = 0, 1, 2
 ROAD_MAIN, ROAD_RAMP = 0, 1
 _ROADS = ("main", "ramp")
-# int state: slots, departed, ranked, has a tail, the tail's road, max shift seen, AoI samples
-I_N, I_DONE, I_RANKED, I_HAS_TAIL, I_TAIL_ROAD, I_SHIFT, I_AOI_N = range(7)
+# int state: slots, departed, ranked, has a tail, the tail's road, max shift seen, AoI samples, and the
+# controller's cursor into its pool of sensor draws (coordinate_into)
+I_N, I_DONE, I_RANKED, I_HAS_TAIL, I_TAIL_ROAD, I_SHIFT, I_AOI_N, I_DRAW = range(8)
 F_TAIL_T, F_AOI_SUM, F_AOI_MAX = range(3)  # float state: the tail's crossing time, AoI sum and max
 
 # the C library's pow under its _Float64 name (glibc: the same function as ``pow``, which Python calls), so
@@ -331,8 +332,8 @@ def _resequence(t: float, sk: np.ndarray, sr: np.ndarray, srank: np.ndarray, se:
 
 
 # compiled at import (or loaded from the cache), not in a run's first tick
-_COORD_SIG = ("UniTuple(i8, 2)(f8, i8[:], b1[:], f8[:], f8[:], b1[:], i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:], "
-              "f8[:], f8, f8[:], i8[:, :], f8[:, :], i8[:], f8[:], f8[:], i8[:], i8[:, :], f8[:, :], i8[:])")
+_COORD_SIG = ("UniTuple(i8, 3)(f8, i8[:], b1[:], f8[:], f8[:], b1[:], i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:], "
+              "f8[:], f8, f8[:], i8[:, :], f8[:, :], i8[:], f8[:], f8[:], i8[:], i8[:, :], f8[:, :], i8[:, :])")
 
 
 @njit(_COORD_SIG, cache=True)
@@ -340,15 +341,18 @@ def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.
                     ramp: np.ndarray, row_key: np.ndarray, row_node: np.ndarray, rsu_slot: int, row_of: np.ndarray,
                     trk_x: np.ndarray, trk_t: np.ndarray, z_noise: np.ndarray, target: float, entered_of: np.ndarray,
                     s_int: np.ndarray, s_flt: np.ndarray, si: np.ndarray, sf: np.ndarray, cfg: np.ndarray,
-                    cfg_int: np.ndarray, z_int: np.ndarray, z_flt: np.ndarray, slot_row: np.ndarray) -> tuple[int, int]:
+                    cfg_int: np.ndarray, z_int: np.ndarray, z_flt: np.ndarray, slot_out: np.ndarray) -> tuple[int, int, int]:
     """``V2XMerging._coordinate``'s zone and ``Coordinator.assign`` in one call (see the module docstring).
 
     ``cand``: the rows the RSU coordinates (the CAM stage's), ``row_key``: each row's vehicle key,
     ``row_node``: its channel node (-1: none); the RSU's tracks (``NodeTrackPool``: its slot, ``row_of``,
-    the states and their times); ``z_noise``: two standard normals per unconnected candidate (distance,
-    speed, in row order); ``entered_of``: per key the FCFS key (NaN: not yet in the zone). Writes the zone
-    (``zk`` ... ``zrow``) and, per slot after the assignment, its row (``slot_row``). Returns (status, the
-    zone's size); ``STATUS_TIE``: the coordinator is unchanged (its zone and AoI sums are written).
+    the states and their times); ``z_noise``: a pool of standard normals from the sensor generator, read
+    from ``si[I_DRAW]`` on, two per unconnected candidate (distance, speed, in row order: the values one
+    draw per reading gives, as the stream is the same whatever the batch); ``entered_of``: per key the FCFS
+    key (NaN: not yet in the zone). Writes the zone (``zk`` ... ``zrow``) and, per slot after the
+    assignment, its key, row, connected and on-the-ramp flags (``slot_out``, (slots, 4)). Returns (status,
+    the zone's size, the slots); ``STATUS_DRAWS``: the pool is short, nothing done (refill and call again);
+    ``STATUS_TIE``: the coordinator is unchanged (its zone, AoI sums and draws are taken).
 
     Packed (a dispatch costs ~0.1 us an argument): the slots ``s_int`` (key, road, rank) and ``s_flt``
     (earliest, time, FCFS key, distance, speed) as ``ArrayCoordinator`` keeps them; ``cfg`` the
@@ -363,7 +367,13 @@ def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.
                                                                      cfg[6], cfg[7])
     sd_m, sd_mps, comfort = cfg[8], cfg[9], cfg[10]
     fifo, max_shift, horizon = cfg_int[0] != 0, cfg_int[1], cfg_int[2]
-    nz, j_noise = 0, 0
+    n_unc = 0
+    for c in range(cand.shape[0]):
+        if not connected[cand[c]]:
+            n_unc += 1
+    if si[I_DRAW] + 2 * n_unc > z_noise.shape[0]:
+        return STATUS_DRAWS, 0, si[I_N]  # the pool of draws is short: nothing done
+    nz, j_noise = 0, si[I_DRAW]
     n_nodes = row_of.shape[1]
     for c in range(cand.shape[0]):
         k = cand[c]
@@ -393,6 +403,7 @@ def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.
         zk[nz], zr[nz], zd[nz], zv[nz], ze[nz], zen[nz], zrow[nz] = (key, ROAD_RAMP if ramp[k] else ROAD_MAIN, d, v,
                                                                       earliest, entered_of[key], k)
         nz += 1
+    si[I_DRAW] = j_noise
     # the sequence's vehicles that left the zone: crossed now if still on the road at or past the point
     n = si[I_N]
     cross_t = np.full(n, np.nan)
@@ -413,13 +424,14 @@ def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.
                          sen, sd, sv, si, sf, fifo, h_same, h_cross, freeze, repair, repack, max_shift, horizon, fair,
                          w_main, w_ramp)
     if status != STATUS_OK:
-        return status, nz
+        return status, nz, si[I_N]
     for j in range(si[I_N]):
         for a in range(nz):
             if zk[a] == sk[j]:
-                slot_row[j] = zrow[a]
+                k = zrow[a]
+                slot_out[j, 0], slot_out[j, 1], slot_out[j, 2], slot_out[j, 3] = sk[j], k, connected[k], ramp[k]
                 break
-    return status, nz
+    return status, nz, si[I_N]
 
 
 class ArrayCoordinator:
@@ -483,6 +495,11 @@ class ArrayCoordinator:
             ids = self.id_of
             self._seq = [ids[k] for k in self.sk[: self.si[I_N]].tolist()]
         return self._seq
+
+    def set_sequence(self, seq: list[str]) -> list[str]:
+        """The sequence's ids as the caller built them from the slots' keys (the state arrays were written)."""
+        self._seq = seq
+        return seq
 
     def changed(self) -> None:
         """The state arrays were written (the sequence is rebuilt on its next read)."""
