@@ -795,8 +795,12 @@ class V2XMerging(Controller):
         j = int(leader[k])
         if j < 0:
             return acc
-        gap = float(s["lane_pos"][j] - s["length"][j] - s["lane_pos"][k])
-        return safe_accel(gap, float(s["speed"][k]), float(s["speed"][j]), acc, self.safety)
+        cols = s.get("cols")  # _decide's lists (the same floats), else the arrays
+        if cols is None:
+            cols = s["cols"] = (s["lane_pos"].tolist(), s["length"].tolist(), s["speed"].tolist())
+        lane_pos, length, speed = cols
+        gap = lane_pos[j] - length[j] - lane_pos[k]
+        return safe_accel(gap, speed[k], speed[j], acc, self.safety)
 
     def _pre_opening_accel(self, x: MergeState, v: float) -> float | None:
         """Early gap opening [m/s²], before the vehicle reaches the distance where it follows its
