@@ -35,17 +35,17 @@ from numba import njit
 
 from corridor.channel import _T_EPS_S, BernoulliLoss, ChannelConfig, ChannelStats
 
-_COPIES_SIG = "i8(i8[:], f8[:, :], i8[:], i8[:], b1[:], b1[:], f8[:, :], f8, i8[:], i8[:], b1[:], i8[:])"
+_COPIES_SIG = "UniTuple(i8, 2)(i8[:], f8[:, :], i8[:], i8[:], b1[:], b1[:], f8[:, :], f8, i8[:], i8[:], b1[:], i8[:])"
 
 
 @njit(_COPIES_SIG, cache=True)
 def _find_copies(src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray, attached: np.ndarray,
                  known: np.ndarray, pos: np.ndarray, r2: float, entry_of: np.ndarray, dst_out: np.ndarray,
-                 near_out: np.ndarray, counts: np.ndarray) -> int:
+                 near_out: np.ndarray, counts: np.ndarray) -> tuple[int, int]:
     """The copies of entries ``src`` (M,) at ``src_pos`` (M, 3) [m] to ``dst[ptr[e]:ptr[e + 1]]`` (node
     indices, -1: unknown): per copy its entry, receiver and range flag (written from index 0); per
-    entry its count. Returns the number of copies (``Channel._send_addressed``'s loop)."""
-    n = 0
+    entry its count. Returns the number of copies and of those in range (``Channel._send_addressed``'s loop)."""
+    n = n_near = 0
     n_nodes = attached.shape[0]
     for e in range(src.shape[0]):
         si = src[e]
@@ -64,10 +64,11 @@ def _find_copies(src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.
             entry_of[n] = e
             dst_out[n] = j
             near_out[n] = near
+            n_near += near
             n += 1
             c += 1
         counts[e] = c
-    return n
+    return n, n_near
 
 
 _ENQUEUE_SIG = ("UniTuple(i8, 5)(f8, f8, f8, f8[:], b1[:, :], f8, i8, i8, i8, i8[:], i8[:], i8[:], b1[:], f8[:], "
@@ -257,9 +258,8 @@ class AddressedChannel:
                             np.empty(m2, dtype=np.int64))
         entry_of, dst_c, near, counts = self._copies
         counts = counts[:m]
-        n = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
-                         entry_of, dst_c, near, counts)
-        n_near = int(np.count_nonzero(near[:n]))
+        n, n_near = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
+                                 entry_of, dst_c, near, counts)
         u = self._rng.random(2 * n + (n_near if self._loss.size == 4 else 0))
         if self._n + n > self._q[0].shape[0]:
             self._q = _queue(2 * (self._n + n), self._q, self._n)
