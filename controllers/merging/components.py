@@ -52,6 +52,7 @@ from corridor.controllers.merging.cam_kernel import STATUS_OK, CamStage
 from corridor.controllers.merging.coord_kernel import (
     F_AOI_MAX,
     F_AOI_SUM,
+    HAVE_C_POW,
     I_AOI_N,
     I_DRAW,
     STATUS_DRAWS,
@@ -199,10 +200,11 @@ class V2XMerging(Controller):
         super().__init__(name)
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
-        # the RSU's coordinator: as arrays in compiled code (coord_kernel), unless a SlotCheck is set (Python)
+        # the RSU's coordinator: as arrays in compiled code (coord_kernel), unless a SlotCheck is set or the C
+        # library has no powf64 (Python, the same rows)
         check = self._slot_check(params)
         self.coord: Coordinator | ArrayCoordinator = (Coordinator(params.policy, params.coordinator, check)
-                                                      if check is not None else
+                                                      if check is not None or not HAVE_C_POW else
                                                       ArrayCoordinator(params.policy, params.coordinator))
         # vehicle id -> key (coord_kernel; the coordinator's id_of is the inverse)
         self._key_of: dict[str, int] = self.coord.key_of if isinstance(self.coord, ArrayCoordinator) else {}

@@ -23,6 +23,7 @@ coordinator and returns ``STATUS_TIE``; the caller then runs the Python ``Coordi
 
 from __future__ import annotations
 
+import ctypes
 import math
 
 import numpy as np
@@ -47,6 +48,8 @@ F_TAIL_T, F_AOI_SUM, F_AOI_MAX = range(3)  # float state: the tail's crossing ti
 # the C library's pow under its _Float64 name (glibc: the same function as ``pow``, which Python calls), so
 # that LLVM does not recognise it and turn pow(x, 2.0) into x * x
 _c_pow = types.ExternalFunction("powf64", types.float64(types.float64, types.float64))
+# glibc has it; elsewhere (macOS, musl) the controller keeps the Python coordinator (``HAVE_C_POW`` False)
+HAVE_C_POW = hasattr(ctypes.CDLL(None), "powf64")
 
 
 @njit(cache=True)
@@ -331,12 +334,13 @@ def _resequence(t: float, sk: np.ndarray, sr: np.ndarray, srank: np.ndarray, se:
         sk[j], sr[j], srank[j], se[j], st[j], sen[j], sd[j], sv[j] = ck[x], cr[x], crank[x], ce[x], np.nan, cen[x], cd[x], cv[x]
 
 
-# compiled at import (or loaded from the cache), not in a run's first tick
+# compiled at import (or loaded from the cache), not in a run's first tick; without glibc's powf64 never
+# compiled (nothing calls it then)
 _COORD_SIG = ("UniTuple(i8, 3)(f8, i8[:], b1[:], f8[:], f8[:], b1[:], i8[:], i8[:], i8, i8[:, :], f8[:, :], f8[:], "
               "f8[:], f8, f8[:], i8[:, :], f8[:, :], i8[:], f8[:], f8[:], i8[:], i8[:, :], f8[:, :], i8[:, :])")
 
 
-@njit(_COORD_SIG, cache=True)
+@(njit(_COORD_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
 def coordinate_into(t: float, cand: np.ndarray, connected: np.ndarray, dist: np.ndarray, speed: np.ndarray,
                     ramp: np.ndarray, row_key: np.ndarray, row_node: np.ndarray, rsu_slot: int, row_of: np.ndarray,
                     trk_x: np.ndarray, trk_t: np.ndarray, z_noise: np.ndarray, target: float, entered_of: np.ndarray,

@@ -13,10 +13,13 @@ import pytest
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import ChannelConfig
 from corridor.controllers.merging.components import RSU, V2XMerging
-from corridor.controllers.merging.coord_kernel import I_DRAW, ArrayCoordinator, time_to_go_c
+from corridor.controllers.merging.coord_kernel import HAVE_C_POW, I_DRAW, ArrayCoordinator, time_to_go_c
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, ZoneVehicle
 from corridor.controllers.merging.trajectory import time_to_go
 from corridor.vehicles.tracks.node_pool import NodeTrackPool
+from tests.conftest import scenario_file
+
+pytestmark = pytest.mark.skipif(not HAVE_C_POW, reason="the C library has no powf64 (glibc's): Python coordinator")
 
 
 def test_the_compiled_time_to_go_is_pythons_bit_for_bit() -> None:
@@ -154,3 +157,30 @@ def _next_draw(c: V2XMerging) -> float:
     z = float(c.sensor_rng.standard_normal())
     c.sensor_rng.bit_generator.state = state
     return z
+
+
+def test_without_the_c_librarys_powf64_the_python_coordinator_gives_the_same_run(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Where the C library has no powf64 (macOS, musl) the controller keeps the Python coordinator, and the run is
+    the compiled one's: metrics and mode events the same."""
+    from corridor.controllers.merging import components
+    from corridor.run import simulate
+    from corridor.scenario import load
+    from corridor.variants import variant_scenarios
+
+    def run() -> tuple[dict, list]:
+        sc, _ = load(scenario_file("merging"), ["duration=90", "warmup=20", "outputs.signals=false"])
+        metrics, ctx, _ = simulate(variant_scenarios(sc)["v2x_cps"], 0)
+        return metrics, [(e.t, e.message) for e in ctx.events.of_kind("mode")]
+
+    compiled = run()
+    monkeypatch.setattr(components, "HAVE_C_POW", False)
+
+    def compiled_call(*a: object) -> None:
+        raise AssertionError("the compiled coordinator ran")
+
+    monkeypatch.setattr(components, "coordinate_into", compiled_call)
+    python = run()
+    same = lambda a, b: a == b or (a != a and b != b)  # noqa: E731  (NaN == NaN)
+    assert compiled[0].keys() == python[0].keys() and all(same(compiled[0][k], python[0][k]) for k in compiled[0])
+    assert compiled[1] == python[1] and len(compiled[1]) > 10
+    assert compiled[0]["v2x_commands"] > 0
