@@ -35,17 +35,17 @@ from numba import njit
 
 from corridor.channel import _T_EPS_S, BernoulliLoss, ChannelConfig, ChannelStats
 
-_COPIES_SIG = "i8(i8[:], f8[:, :], i8[:], i8[:], b1[:], b1[:], f8[:, :], f8, i8[:], i8[:], b1[:], i8[:])"
+_COPIES_SIG = "UniTuple(i8, 2)(i8[:], f8[:, :], i8[:], i8[:], b1[:], b1[:], f8[:, :], f8, i8[:], i8[:], b1[:], i8[:])"
 
 
 @njit(_COPIES_SIG, cache=True)
 def _find_copies(src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.ndarray, attached: np.ndarray,
                  known: np.ndarray, pos: np.ndarray, r2: float, entry_of: np.ndarray, dst_out: np.ndarray,
-                 near_out: np.ndarray, counts: np.ndarray) -> int:
+                 near_out: np.ndarray, counts: np.ndarray) -> tuple[int, int]:
     """The copies of entries ``src`` (M,) at ``src_pos`` (M, 3) [m] to ``dst[ptr[e]:ptr[e + 1]]`` (node
     indices, -1: unknown): per copy its entry, receiver and range flag (written from index 0); per
-    entry its count. Returns the number of copies (``Channel._send_addressed``'s loop)."""
-    n = 0
+    entry its count. Returns the number of copies and of those in range (``Channel._send_addressed``'s loop)."""
+    n = n_near = 0
     n_nodes = attached.shape[0]
     for e in range(src.shape[0]):
         si = src[e]
@@ -64,10 +64,11 @@ def _find_copies(src: np.ndarray, src_pos: np.ndarray, ptr: np.ndarray, dst: np.
             entry_of[n] = e
             dst_out[n] = j
             near_out[n] = near
+            n_near += near
             n += 1
             c += 1
         counts[e] = c
-    return n
+    return n, n_near
 
 
 _ENQUEUE_SIG = ("UniTuple(i8, 5)(f8, f8, f8, f8[:], b1[:, :], f8, i8, i8, i8, i8[:], i8[:], i8[:], b1[:], f8[:], "
@@ -201,6 +202,9 @@ class AddressedChannel:
         self._n = 0  # copies in flight: the first _n rows of the queue
         self._q = _queue(64)
         self._out = _queue(64)  # the latest delivery (and, last, the queue's count after it)
+        # a send's copies (entry, receiver, in range) and per entry its count (see send)
+        self._copies = (np.empty(256, dtype=np.int64), np.empty(256, dtype=np.int64), np.empty(256, dtype=bool),
+                        np.empty(64, dtype=np.int64))
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
 
     # -- nodes, membership, positions ----------------------------------------------------------
@@ -248,11 +252,14 @@ class AddressedChannel:
         if ptr[m] == 0:  # nothing listed: send_many draws nothing
             return
         c = int(ptr[m])
-        entry_of, dst_c = np.empty(c, dtype=np.int64), np.empty(c, dtype=np.int64)
-        near, counts = np.empty(c, dtype=bool), np.empty(m, dtype=np.int64)
-        n = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
-                         entry_of, dst_c, near, counts)
-        n_near = int(np.count_nonzero(near[:n]))
+        if c > self._copies[0].shape[0] or m > self._copies[3].shape[0]:  # buffers kept from send to send
+            c2, m2 = max(c, 2 * self._copies[0].shape[0]), max(m, 2 * self._copies[3].shape[0])
+            self._copies = (np.empty(c2, dtype=np.int64), np.empty(c2, dtype=np.int64), np.empty(c2, dtype=bool),
+                            np.empty(m2, dtype=np.int64))
+        entry_of, dst_c, near, counts = self._copies
+        counts = counts[:m]
+        n, n_near = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
+                                 entry_of, dst_c, near, counts)
         u = self._rng.random(2 * n + (n_near if self._loss.size == 4 else 0))
         if self._n + n > self._q[0].shape[0]:
             self._q = _queue(2 * (self._n + n), self._q, self._n)

@@ -381,6 +381,31 @@ class HybridAutomaton:
                     events.emit(t, self.name, "switch_draw", f"{d['boundary']}: eps {d['eps']:+.3f} (p {d['p']:.3f})",
                                 **self.event_data, **d)
 
+    def quiet_update(self, t: float, x: Any) -> bool:
+        """``update(t, x, ...)`` when it would not jump, without its general machinery.
+
+        True when done (the boundaries' g evaluated and kept for the next crossing location, as ``update``
+        keeps them; nothing to emit), False when the caller must call ``update`` (nothing changed here).
+        Only for a deterministic automaton (no stochastic switching, no decider, no decided outcome)
+        without invariants on its path; its guards, ``when`` conditions and boundary functions must be pure
+        (on a jump they are evaluated again by ``update``).
+        """
+        mode = self.mode
+        if self.switching is not None or self.decider is not None or self.decided or self._path_inv[mode]:
+            return False
+        g_now = {b.name: b.value(x) for b in self._path_bounds[mode]}
+        for tr in self._path_out[mode]:
+            guard = tr.guard
+            if isinstance(guard, Boundary):
+                if guard.holds(g_now[guard.name]) and (tr.when is None or bool(tr.when(x))):
+                    return False
+            elif bool(guard(x)):
+                return False
+        self._g_prev, self._t_prev = self.g_now, self._t_last  # as _evaluate
+        self.g_now, self._t_last = g_now, t
+        self.pending_draws = []
+        return True
+
     def _evaluate_new(self, x: Any) -> None:
         """After a jump: g of the boundaries leaving the new path not yet evaluated at this update."""
         for b in self._path_bounds[self.mode]:

@@ -49,6 +49,18 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from corridor.addressed_channel import AddressedChannel
 from corridor.channel import DELIVERY_TOLERANCE_S, ChannelConfig
 from corridor.controllers.merging.cam_kernel import STATUS_OK, CamStage
+from corridor.controllers.merging.coord_kernel import (
+    F_AOI_MAX,
+    F_AOI_SUM,
+    HAVE_C_POW,
+    I_AOI_N,
+    I_DRAW,
+    STATUS_DRAWS,
+    STATUS_TIE,
+    ArrayCoordinator,
+    coordinate_into,
+    tie_zone,
+)
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
@@ -80,6 +92,7 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 #   keep right all off); TraCI-requested changes respect the others' gaps
 
 
+_ROADS = ("main", "ramp")  # by an on-the-ramp flag
 _recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
 # the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
@@ -187,7 +200,22 @@ class V2XMerging(Controller):
         super().__init__(name)
         self.p = params
         self.chan_cfg = scenario.channels.get(params.channel, ChannelConfig())
-        self.coord = Coordinator(params.policy, params.coordinator, self._slot_check(params))
+        # the RSU's coordinator: as arrays in compiled code (coord_kernel), unless a SlotCheck is set or the C
+        # library has no powf64 (Python, the same rows)
+        check = self._slot_check(params)
+        self.coord: Coordinator | ArrayCoordinator = (Coordinator(params.policy, params.coordinator, check)
+                                                      if check is not None or not HAVE_C_POW else
+                                                      ArrayCoordinator(params.policy, params.coordinator))
+        # vehicle id -> key (coord_kernel; the coordinator's id_of is the inverse)
+        self._key_of: dict[str, int] = self.coord.key_of if isinstance(self.coord, ArrayCoordinator) else {}
+        self._row_key = np.zeros(0, dtype=np.int64)  # per road row: its vehicle key (with _row_node)
+        self._entered_of = np.full(64, np.nan)  # per key: the FCFS key (NaN: not in the zone yet), see _coordinate
+        self._zbuf = (np.empty((3, 0), dtype=np.int64), np.empty((4, 0)))  # the kernel's zone (_coordinate_compiled)
+        if isinstance(self.coord, ArrayCoordinator):  # coordinate_into's packed configuration
+            self._coord_cfg = np.array([*self.coord.params_f, params.sensor_noise_m, params.sensor_noise_mps,
+                                        params.comfort_accel_mps2])
+        self._slot_out = np.empty((0, 4), dtype=np.int64)  # per slot: key, row, connected, on the ramp (coord_kernel)
+        self._draws = np.zeros(0)  # the sensor generator's standard normals, taken in batches (coord_kernel)
         self._listen_depth = 1 + (params.coordinator.max_shift if params.policy == "cps" else 0)
         self.assigned: dict[str, tuple[float, Assignment]] = {}  # vid -> (t_recv, assignment)
         self.tracks: NodeTrackPool  # receivers: the controlled vehicles and the RSU (set up in setup)
@@ -200,7 +228,9 @@ class V2XMerging(Controller):
         self._cam = CamStage()  # the compiled CAM stage and its buffers
         self.entered: dict[str, float] = {}
         self.controlled: set[str] = set()
-        self._aoi_sum, self._aoi_n, self._aoi_max = 0.0, 0, 0.0
+        # the AoI sums: the compiled coordinator's state arrays (coord_kernel), or these
+        self._aoi_f, self._aoi_i = ((self.coord.sf, self.coord.si) if isinstance(self.coord, ArrayCoordinator)
+                                    else (np.zeros(4), np.zeros(8, dtype=np.int64)))
         self.stale_releases = 0
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
@@ -221,6 +251,7 @@ class V2XMerging(Controller):
         nose, end = float(lm.merge_start_x), float(lm.merge_end_x)
         self.x_merge = nose + self.p.merge_point_frac * (end - nose)
         self.y_rsu = -float(lm.lane_width_m) * float(lm.mainline_lanes)
+        self._rsu_pos = np.array([self.x_merge, self.y_rsu, 0.0])  # an assignment's sender position (not read)
         self.cos_ramp = np.cos(np.radians(lm.ramp_angle_deg))
         # per lane code: a ramp lane / the mainline lane that ramp vehicles join / a mainline lane past
         # the nose (a ramp vehicle there has merged) (filled as lanes appear)
@@ -379,6 +410,13 @@ class V2XMerging(Controller):
             index = self.channel.index
             self._row_node = np.array([index.get(v, -1) for v in ids], dtype=np.int64)
             self._row_node_key = ids
+            if isinstance(self.coord, ArrayCoordinator):  # and each row's vehicle key (coord_kernel)
+                key_of, id_of = self._key_of, self.coord.id_of
+                for v in ids:
+                    if v not in key_of:
+                        key_of[v] = len(id_of)
+                        id_of.append(v)
+                self._row_key = np.array([key_of[v] for v in ids], dtype=np.int64)
         return self._row_node
 
     def _admit(self, t: float, s: dict[str, Any]) -> None:
@@ -438,12 +476,11 @@ class V2XMerging(Controller):
         d = self.tracks.deliver_fuse_and_drop(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
         if len(d):
-            is_a = d.ref >= 0
-            if is_a.any():
+            k_a = np.flatnonzero(d.ref >= 0)  # (ndarray.any() alone costs ~3 us)
+            if k_a.size:
                 names, sent = self.channel.names, self._sent_assignments
-                k = np.flatnonzero(is_a).tolist()
-                assignments = sorted(zip(d.t_recv_s[k].tolist(), d.seq[k].tolist(), d.dst[k].tolist(),
-                                         d.ref[k].tolist(), strict=True), key=_recv_order)
+                assignments = sorted(zip(d.t_recv_s[k_a].tolist(), d.seq[k_a].tolist(), d.dst[k_a].tolist(),
+                                         d.ref[k_a].tolist(), strict=True), key=_recv_order)
                 for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
                     self.assigned[names[dst]] = (tr, sent[ref])
 
@@ -460,7 +497,73 @@ class V2XMerging(Controller):
     def _coordinate(self, t: float, s: dict[str, Any], target: float
                     ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
         """RSU: the zone's vehicles (V2X tracks for connected, noisy sensors for the others) -> times;
-        returns the zone (vehicle -> row) and the assignments to send."""
+        returns the zone (vehicle -> row) and the assignments to send. One compiled call
+        (``coord_kernel.coordinate_into``) with the coordinator as arrays; in Python with a ``SlotCheck``
+        (``_coordinate_py``, the reference)."""
+        if isinstance(self.coord, ArrayCoordinator) and s.get("cand") is not None:
+            return self._coordinate_compiled(t, s, target)
+        return self._coordinate_py(t, s, target)
+
+    def _coordinate_compiled(self, t: float, s: dict[str, Any], target: float
+                             ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """``_coordinate_py``'s zone, predictions, sensor readings (the same draws: two standard normals per
+        unconnected candidate, in row order), requested arrivals, FCFS keys, crossings, AoI sums and the
+        coordinator's assignment in one call; the assignments (one per connected coordinated row) here."""
+        ac = self.coord
+        assert isinstance(ac, ArrayCoordinator)
+        cand, connected = s["cand"], s["connected"]
+        n_c = len(cand)
+        if len(self._entered_of) < len(ac.id_of):
+            grown = np.full(2 * len(ac.id_of), np.nan)
+            grown[: len(self._entered_of)] = self._entered_of
+            self._entered_of = grown
+        ac.room(n_c)
+        z_int, z_flt = self._zbuf
+        if z_int.shape[1] < n_c:
+            m = max(2 * n_c, 16)
+            self._zbuf = z_int, z_flt = np.empty((3, m), dtype=np.int64), np.empty((4, m))
+        if self._slot_out.shape[0] < ac.s_int.shape[1]:
+            self._slot_out = np.empty((ac.s_int.shape[1], 4), dtype=np.int64)
+        slot, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
+        args = (t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key, self._row_node, slot, row_of,
+                trk_x, trk_t)
+        rest = (target, self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
+                z_flt, self._slot_out)
+        status, nz, n = coordinate_into(*args, self._draws, *rest)
+        if status == STATUS_DRAWS:  # the pool of sensor draws is short: the rest, then new ones (same stream)
+            self._draws = np.concatenate([self._draws[ac.si[I_DRAW]:], self.sensor_rng.standard_normal(max(2 * n_c, 1024))])
+            ac.si[I_DRAW] = 0
+            status, nz, n = coordinate_into(*args, self._draws, *rest)
+        if status == STATUS_TIE:  # the ids break a tie of the FCFS keys: the Python coordinator, same state
+            zone = tie_zone(z_int[0], z_int[1], *z_flt, nz, ac.id_of)
+            index = dict(zip([zv.id for zv in zone], z_int[2][:nz].tolist(), strict=True))
+            dist, row = s["dist"], s["row"]
+            crossed = {vid: t for vid in ac.sequence if vid not in index and vid in row and dist[row[vid]] <= 0.0}
+            ac.assign_py(t, zone, crossed, self._key_of)
+            ramp, n = s["ramp"], len(index)
+            self._slot_out[:n] = [(self._key_of[v], k, connected[k], ramp[k]) for v, k in
+                                  ((v, index[v]) for v in ac.sequence)]
+        if not nz:
+            ac.changed()
+            return {}, []
+        # per slot: its key, row, connected, on the ramp now (a slot keeps the road it was ordered with)
+        info, times, ids = self._slot_out[:n].tolist(), ac.s_flt[1, :n].tolist(), ac.id_of
+        order = ac.set_sequence([ids[key] for key, _, _, _ in info])
+        road_of = dict(zip(order, [_ROADS[r] for _, _, _, r in info], strict=True)) if self._opens_ahead else None
+        rsu_pos = self._rsu_pos
+        out: list[tuple[str, Any, np.ndarray, str]] = []
+        for j, (_, _, conn, _) in enumerate(info):
+            if not conn:
+                continue
+            pred, pred_road = (order[j - 1], _ROADS[info[j - 1][3]]) if j > 0 else (None, None)
+            ahead = self._cross_ahead(order, j, road_of) if road_of is not None else None
+            out.append((RSU, Assignment(t, times[j], pred, pred_road, ahead), rsu_pos, order[j]))
+        rows = [r for _, r, _, _ in info]
+        return dict(zip(order, rows, strict=True)), out
+
+    def _coordinate_py(self, t: float, s: dict[str, Any], target: float
+                       ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """``_coordinate`` in Python on names (the reference; the path with a ``SlotCheck``)."""
         zone_len = self.p.coordinator.control_zone_m
         ids, dist, speed = s["ids"], s["dist"], s["speed"]
         cand_rows = s.get("cand")  # found by the compiled CAM stage (cam_kernel), else:
@@ -520,58 +623,74 @@ class V2XMerging(Controller):
         return index, out
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
+        """Per vehicle holding an assignment: its automaton, then its command (or its release). The rows'
+        columns are read as Python lists (one ``tolist`` each a tick: the same floats, without a numpy
+        scalar per read)."""
         cmds: list[Any] = []
-        dist, speed, length = s["dist"], s["speed"], s["length"]
+        length = s["length"]
+        dist, speed = s["dist"].tolist(), s["speed"].tolist()
         lim = self.p.limits
+        a_min, a_max = lim.a_min_mps2, lim.a_max_mps2
         live = s["row"]
-        for vid in list(self.controlled):  # release vehicles past the merge or gone
+        controlled, assigned, automata = self.controlled, self.assigned, self.automata
+        for vid in list(controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
             if k is None or dist[k] < 0:  # past the nose: SUMO's lane-change model completes the merge
-                self.controlled.discard(vid)
+                controlled.discard(vid)
                 if k is not None:
                     cmds.append(Release(vid))
-        for vid, (_t_recv, a) in list(self.assigned.items()):
+        if assigned:
+            ramp_l, right_l, merged_l = s["ramp"].tolist(), s["right"].tolist(), s["merged"].tolist()
+        for vid, (_t_recv, a) in list(assigned.items()):
             k = live.get(vid)
-            if k is None or dist[k] < 0:
+            if k is None:
                 continue
+            d_k = dist[k]
+            if d_k < 0:
+                continue
+            ramp_k = ramp_l[k]
             # changed to the left lane, or a ramp vehicle that moved over: out of the conflict
-            if not (s["ramp"][k] or s["right"][k]) or s["merged"][k]:
-                if vid in self.controlled:
-                    self.controlled.discard(vid)
+            if not (ramp_k or right_l[k]) or merged_l[k]:
+                if vid in controlled:
+                    controlled.discard(vid)
                     cmds.append(Release(vid))
-                del self.assigned[vid]
-                self.automata.pop(vid, None)
+                del assigned[vid]
+                automata.pop(vid, None)
                 continue
             if t - a.t_sent_s > self.p.stale_after_s:  # the RSU went quiet: onboard car-following
                 self._fallback(t, vid, cmds)
                 continue
-            road_k = "ramp" if s["ramp"][k] else "main"
-            cross_pred = a.pred is not None and a.pred_road != road_k
-            x = MergeState(road_k, float(dist[k]), cross_pred,
-                           probe=lambda vid=vid, a=a, k=k: self._virtual_gap(t, vid, a.pred, float(dist[k]), live, length),
+            road_k = "ramp" if ramp_k else "main"
+            pred = a.pred
+            cross_pred = pred is not None and a.pred_road != road_k
+            x = MergeState(road_k, d_k, cross_pred,
+                           probe=lambda vid=vid, pred=pred, d_k=d_k: self._virtual_gap(t, vid, pred, d_k, live, length),
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
-            ha = self._automaton(vid, road_k)
-            ha.update(t, x, self.events, settle=3)
-            near_merge = ha.in_mode("merge") or ha.in_mode("yield")
+            ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
+            if not ha.quiet_update(t, x):  # most ticks no guard fires (then the general update)
+                ha.update(t, x, self.events, settle=3)
+            path = ha.path()
+            near_merge = "merge" in path or "yield" in path
+            v_k = speed[k]
             # before virtual following starts: open the gap to a predecessor from the other road early,
             # comfortably (None: no braking needed, or no track of it)
-            pre_open = self._pre_opening_accel(x, float(speed[k])) if cross_pred and not near_merge else None
-            if ha.in_mode("early"):  # open early to the ramp vehicle ahead of the mainline predecessor
-                ahead = self._virtual_gap(t, vid, a.cross_ahead, float(dist[k]), live, length)
-                pre_open = self._pre_opening_accel(MergeState(road_k, float(dist[k]), True, _gap=ahead), float(speed[k]))
+            pre_open = self._pre_opening_accel(x, v_k) if cross_pred and not near_merge else None
+            if "early" in path:  # open early to the ramp vehicle ahead of the mainline predecessor
+                ahead = self._virtual_gap(t, vid, a.cross_ahead, d_k, live, length)
+                pre_open = self._pre_opening_accel(MergeState(road_k, d_k, True, _gap=ahead), v_k)
             if road_k == "main" and not near_merge and pre_open is None:
                 # a mainline vehicle behind a mainline predecessor follows its physical leader, which
                 # is that predecessor: its own driver (SUMO) does that; only gap openers are commanded
-                if vid in self.controlled:
-                    self.controlled.discard(vid)
+                if vid in controlled:
+                    controlled.discard(vid)
                     cmds.append(Release(vid))
                 continue
             if near_merge:  # virtual-vehicle following: cruise, bounded below by the order predecessor
-                acc = min(max(float(target - speed[k]), lim.a_min_mps2), lim.a_max_mps2)  # np.clip
+                acc = min(max(target - v_k, a_min), a_max)  # np.clip
             elif road_k == "main":  # early gap opening behind a ramp predecessor
                 acc = float(pre_open)  # type: ignore[arg-type]
             else:  # a ramp vehicle on the ramp: energy-optimal arrival at its assigned crossing time
-                acc = merge_accel(-float(dist[k]), float(speed[k]), t, a.t_cross_s, 0.0, target, lim)
+                acc = merge_accel(-d_k, v_k, t, a.t_cross_s, 0.0, target, lim)
                 if pre_open is not None:  # ... and early gap opening behind a mainline predecessor
                     acc = min(acc, pre_open)
             if near_merge and cross_pred:
@@ -579,23 +698,24 @@ class V2XMerging(Controller):
                 if not vg.known:
                     self._fallback(t, vid, cmds)
                     continue
-                if ha.in_mode("behind") or ha.in_mode("open"):  # keep the gap behind the predecessor
+                if "behind" in path or "open" in path:  # keep the gap behind the predecessor
                     gap, v_lead = vg.gap_m, max(vg.v_lead_mps, 0.0)
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
                     if vg.age_s > self.period:  # unheard since: assume it braked as hard as it can
                         x_last = gap - v_lead * vg.age_s
                         gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
-                    acc = self._gap_opening_accel(acc, gap, float(speed[k]), v_lead)
+                    acc = self._gap_opening_accel(acc, gap, v_k, v_lead)
             acc = self._physical_leader_cap(s, k, acc)
-            v_next = self._command_speed(float(speed[k]), acc)
-            if self.p.hold_lane_change and s["ramp"][k] and vid not in self.controlled:
+            v_next = self._command_speed(v_k, acc)
+            if self.p.hold_lane_change and ramp_k and vid not in controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
-            self.controlled.add(vid)
+            controlled.add(vid)
             self.commands_sent += 1
-        for vid in [v for v in self.automata if v not in self.assigned or live.get(v) is None or dist[live[v]] < 0]:
-            del self.automata[vid]  # past the conflict point, gone, or no longer coordinated
+        if automata:  # past the conflict point, gone, or no longer coordinated
+            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist[live[v]] < 0]:
+                del automata[vid]
         return cmds
 
     def _automaton(self, vid: str, road: str) -> HybridAutomaton:
@@ -605,6 +725,31 @@ class V2XMerging(Controller):
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
             ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
+
+    # age of information at the RSU, sampled per tick over the coordinated vehicles (coord_kernel's state)
+    @property
+    def _aoi_sum(self) -> float:
+        return float(self._aoi_f[F_AOI_SUM])
+
+    @_aoi_sum.setter
+    def _aoi_sum(self, v: float) -> None:
+        self._aoi_f[F_AOI_SUM] = v
+
+    @property
+    def _aoi_max(self) -> float:
+        return float(self._aoi_f[F_AOI_MAX])
+
+    @_aoi_max.setter
+    def _aoi_max(self, v: float) -> None:
+        self._aoi_f[F_AOI_MAX] = v
+
+    @property
+    def _aoi_n(self) -> int:
+        return int(self._aoi_i[I_AOI_N])
+
+    @_aoi_n.setter
+    def _aoi_n(self, v: int) -> None:
+        self._aoi_i[I_AOI_N] = v
 
     @staticmethod
     def _slot_check(p: Params) -> SlotCheck | None:
@@ -652,8 +797,12 @@ class V2XMerging(Controller):
         j = int(leader[k])
         if j < 0:
             return acc
-        gap = float(s["lane_pos"][j] - s["length"][j] - s["lane_pos"][k])
-        return safe_accel(gap, float(s["speed"][k]), float(s["speed"][j]), acc, self.safety)
+        cols = s.get("cols")  # _decide's lists (the same floats), else the arrays
+        if cols is None:
+            cols = s["cols"] = (s["lane_pos"].tolist(), s["length"].tolist(), s["speed"].tolist())
+        lane_pos, length, speed = cols
+        gap = lane_pos[j] - length[j] - lane_pos[k]
+        return safe_accel(gap, speed[k], speed[j], acc, self.safety)
 
     def _pre_opening_accel(self, x: MergeState, v: float) -> float | None:
         """Early gap opening [m/s²], before the vehicle reaches the distance where it follows its

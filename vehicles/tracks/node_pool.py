@@ -290,6 +290,11 @@ class NodeTrackPool:
             return -1
         return int(self._row_of[s, j])
 
+    def receiver_arrays(self, rx: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """``rx``'s slot, the [slot, source node] -> row table, the rows' states (x, v) and their times [s]
+        (what ``predict_one`` reads; valid until the next fuse or receiver change)."""
+        return self._slots[rx], self._row_of, self.x, self.t_s
+
     def has_track(self, rx: str, src: str) -> bool:
         return self._row(rx, src) >= 0
 

@@ -1,0 +1,74 @@
+"""``HybridAutomaton.quiet_update`` (issue 27's eighth CPU pass): the merge automata driven by it (and by
+``update`` when it declines) jump, locate their crossings, log and keep their g values exactly as when driven
+by ``update`` alone; it declines whenever a guard fires and whenever switching is stochastic or decided."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from corridor.controllers.merging.switching import (
+    MergeBoundaries,
+    MergeState,
+    VirtualGap,
+    merge_automaton,
+    resolved,
+)
+from corridor.events import EventLog
+from corridor.modes import SwitchingParams
+
+
+def _states(rng: np.random.Generator, n: int) -> list[MergeState]:
+    """A drifting vehicle: distance, predecessor's road and ahead flags, virtual gaps (some unknown)."""
+    d = float(rng.uniform(50.0, 250.0))
+    out = []
+    for _ in range(n):
+        d = max(d - float(rng.uniform(0.0, 3.0)), 0.0) if rng.random() < 0.95 else float(rng.uniform(0.0, 250.0))
+        gap = (VirtualGap(True, float(rng.uniform(-15.0, 15.0)), float(rng.uniform(0.0, 30.0)), 0.1, 5.0)
+               if rng.random() < 0.9 else VirtualGap(False))
+        cross_pred = bool(rng.random() < 0.6)
+        out.append(MergeState("ramp", d, cross_pred, _gap=gap, cross_ahead=bool(rng.random() < 0.3) and not cross_pred))
+    return out
+
+
+def _same(g: dict[str, float], h: dict[str, float]) -> bool:
+    """The same boundaries in the same order with the same bits (NaN: a boundary without a known gap)."""
+    return list(g) == list(h) and all(np.float64(g[k]).tobytes() == np.float64(h[k]).tobytes() for k in g)
+
+
+@pytest.mark.parametrize("road", ["ramp", "main"])
+def test_quiet_updates_leave_the_automaton_and_the_log_as_updates_do(road: str) -> None:
+    rng = np.random.default_rng(3)
+    theta = resolved(MergeBoundaries(open_ahead={"dist_m": 150.0}), 100.0)
+    quiet_ticks = 0
+    for case in range(30):
+        a, b = merge_automaton("m", "v", road, theta), merge_automaton("m", "v", road, theta)
+        ev_a, ev_b = EventLog(), EventLog()
+        for j, x in enumerate(_states(rng, 300)):
+            t = round(0.1 * (j + 1), 1)
+            x.road = road
+            a.update(t, x, ev_a, settle=3)
+            if b.quiet_update(t, x):
+                quiet_ticks += 1
+            else:
+                b.update(t, x, ev_b, settle=3)
+            assert (b.mode, b._t_prev, b._t_last) == (a.mode, a._t_prev, a._t_last), (case, j)
+            assert _same(b.g_now, a.g_now) and _same(b._g_prev, a._g_prev), (case, j)
+        assert b.history == a.history and len(a.history) > 3
+        assert [(e.t, e.kind, e.message, e.data) for e in ev_b.events] == [(e.t, e.kind, e.message, e.data)
+                                                                           for e in ev_a.events]
+    assert quiet_ticks > 1000
+
+
+def test_quiet_update_declines_for_stochastic_switching_and_decided_outcomes() -> None:
+    theta = resolved(MergeBoundaries(), 100.0)
+    x = MergeState("ramp", 200.0, False)
+    ha = merge_automaton("m", "v", "ramp", theta, SwitchingParams(temperature=0.1), np.random.default_rng(0))
+    assert not ha.quiet_update(0.1, x)
+    ha = merge_automaton("m", "v", "ramp", theta)
+    assert ha.quiet_update(0.1, x)
+    ha.decided["merge_enter"] = False
+    assert not ha.quiet_update(0.2, x)
+    ha = merge_automaton("m", "v", "ramp", theta)
+    assert not ha.quiet_update(0.1, MergeState("ramp", 50.0, False))  # merge_enter holds: a jump
+    assert ha.mode == "approach" and ha.g_now == {}  # nothing changed
