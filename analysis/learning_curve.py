@@ -40,28 +40,41 @@ def _held_out_marks(ax: Any, rows: list[dict[str, Any]], folder: Path, name: str
 
 def figure(folders: list[Path], held_out: list[dict[str, Any]] | None = None) -> Figure:
     """Objective (mean and 95 % interval per stage) and violating runs against training runs; ``held_out``:
-    rows of ``tools/learn_benchmark.py holdout`` to mark (the hand-tuned one as a dashed line)."""
+    rows of ``tools/learn_benchmark.py holdout`` to mark (the hand-tuned one as a dashed line).
+
+    The y-axis spans the stage means and the held-out marks (with a margin of half their range, at
+    least 5 %): a stage of two or three runs has a t interval far wider than the curve, and its band
+    then runs off the axis instead of flattening every curve."""
     fig = Figure(figsize=(8.0, 4.6), layout="constrained")
     ax, ax2 = fig.subplots(2, 1, sharex=True, height_ratios=(3, 1))
+    seen: list[float] = []  # the means and marks the y-axis spans
     if held_out:
         m0 = held_out[0]["hand_tuned_objective"][0]
+        seen.extend([m0, *(r["learned_objective"][0] for r in held_out)])
         ax.axhline(m0, color="grey", ls="--", lw=1.0,
                    label=f"hand-tuned: held-out ({held_out[0]['pairs']} seeds, "
                          f"{held_out[0]['violating_hand_tuned']} runs breaking a constraint)")
     for folder in folders:
         data = json.loads((Path(folder) / "learn.json").read_text())
         runs, mean, lo, hi, viol = _curve(data)
+        seen.extend(mean[np.isfinite(mean)])
         start = ", ".join(f"{k.rsplit('.', 1)[-1]} {v:g}" for k, v in data.get("theta0", {}).items())
         name = f"{data['method']} from {start}" if start else data["method"]
-        line = ax.plot(runs, mean, marker="o", label=f"{name} (training stages)")[0]
+        line = ax.plot(runs, mean, marker="o", markersize=6 if len(runs) <= 60 else 2.5, lw=1.0 if len(runs) > 60 else 1.5,
+                       label=f"{name} (training stages)")[0]
         ax.fill_between(runs, lo, hi, alpha=0.2, color=line.get_color())
         h = data.get("holdout") or {}
         if h:
             for key, style in (("hand_tuned", "s"), ("learned", "*")):
+                seen.append(h[key]["objective_mean"])
                 ax.plot([runs[-1] + 2], [h[key]["objective_mean"]], style, color=line.get_color(), markersize=9,
                         label=f"{name}: held-out {key.replace('_', '-')} ({h['runs']} seeds)")
         _held_out_marks(ax, held_out or [], Path(folder), name, line.get_color())
         ax2.bar(runs, viol, width=2.0, alpha=0.6, color=line.get_color())
+    if seen:
+        lo_y, hi_y = min(seen), max(seen)
+        pad = max(0.5 * (hi_y - lo_y), 0.05 * max(abs(lo_y), abs(hi_y)), 1e-9)
+        ax.set_ylim(lo_y - pad, hi_y + pad)
     ax.set_ylabel(f"objective: {data['objective']}")
     keys = ", ".join(k.split("boundaries.")[-1] for k in data["keys"])
     ax.set_title("\n".join(textwrap.wrap(f"{data['scenario']} [{data['variant']}]: learning {keys}", 90)), fontsize=9)

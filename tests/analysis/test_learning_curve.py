@@ -53,3 +53,14 @@ def test_held_out_rows_of_the_benchmark_are_marked_at_their_training_runs(tmp_pa
 
 def test_a_folder_without_learn_json_is_exit_2(tmp_path: Path) -> None:
     assert main([str(tmp_path)]) == 2
+
+
+def test_a_stage_of_few_runs_does_not_flatten_the_curves(tmp_path: Path) -> None:
+    """A stage whose t interval is 100 times the curve's range (two runs) runs off the axis: the y-axis spans
+    the means and the held-out marks with a margin."""
+    d = _folder(tmp_path, "ppo", [-1.3, -1.2, -1.1, -1.25])
+    data = json.loads((d / "learn.json").read_text())
+    data["curve"][2]["objective_ci95"] = [-60.0, 58.0]
+    (d / "learn.json").write_text(json.dumps(data))
+    lo, hi = figure([d]).axes[0].get_ylim()
+    assert -1.45 <= lo < -1.3 and -1.1 < hi <= -0.95  # means -1.3..-1.1, marks -1.2 / -1.1: half the range, 0.1
