@@ -355,9 +355,12 @@ class HybridAutomaton:
 
     def _evaluate(self, t: float, x: Any) -> None:
         """Evaluate g of every boundary leaving the active path, remembered for the next crossing location."""
+        self._keep(t, {b.name: b.value(x) for b in self._path_bounds[self.mode]})
+
+    def _keep(self, t: float, g_now: dict[str, float]) -> None:
+        """``g_now`` becomes this update's g of the active path's boundaries; the previous update's is kept."""
         self._g_prev, self._t_prev = self.g_now, self._t_last  # only the previous update's
-        self.g_now = {b.name: b.value(x) for b in self._path_bounds[self.mode]}
-        self._t_last = t
+        self.g_now, self._t_last = g_now, t
 
     def update(self, t: float, x: Any, events: EventLog | None = None, settle: int = 1) -> tuple[str, Any]:
         """Take at most ``settle`` transitions whose guards hold; return (mode, possibly reset state).
@@ -401,8 +404,7 @@ class HybridAutomaton:
                     return False
             elif bool(guard(x)):
                 return False
-        self._g_prev, self._t_prev = self.g_now, self._t_last  # as _evaluate
-        self.g_now, self._t_last = g_now, t
+        self._keep(t, g_now)
         self.pending_draws = []
         return True
 
