@@ -340,6 +340,60 @@ def cam_tick_into(t: float, front_x: np.ndarray, role: np.ndarray, uid: np.ndarr
                           cam_pos, val, ref, ptr, dst, keys, cand, leader, sp, due, newcomers)
 
 
+_RO_F8_2 = types.Array(types.float64, 2, "A", readonly=True)
+
+
+def _pose_tick_signature() -> Any:
+    sig = _tick_signature()
+    args = list(sig.args)
+    # front_x (1) and pos (15) give way to the raw poses (ref_xy, back, cos, sin, size) and two buffers
+    rest = args[2:15] + args[16:]
+    return sig.return_type(args[0], _RO_F8_2, _RO_F8_2, types.float64[:], types.float64[:], _RO_F8_2,
+                           types.float64[:], types.float64[:, :], *rest)
+
+
+@njit(types.void(_RO_F8_2, _RO_F8_2, types.float64[:], types.float64[:], _RO_F8_2, types.float64[:],
+                 types.float64[:, :]), cache=True)
+def front_and_centre(ref_xy: np.ndarray, back: np.ndarray, cos_yaw: np.ndarray, sin_yaw: np.ndarray,
+                     size: np.ndarray, front_x: np.ndarray, pos: np.ndarray) -> None:
+    """The rows' centre (``corridor.poses.planar_geometry``: the reference point ``ref_xy`` (n, 2) [m] less
+    ``back`` (n, 1) [m] along the yaw whose cosine and sine are given, numpy's) written to ``pos[:n, :2]``,
+    and ``V2XMerging._sense``'s front-bumper x (the centre's x plus half the length ``size[:, 0]`` along the
+    yaw) to ``front_x[:n]``, with the same operations in the same order (the same bits)."""
+    for k in range(ref_xy.shape[0]):
+        c = cos_yaw[k]
+        b = back[k, 0]
+        x = ref_xy[k, 0] - b * c
+        pos[k, 0] = x
+        pos[k, 1] = ref_xy[k, 1] - b * sin_yaw[k]
+        front_x[k] = x + 0.5 * size[k, 0] * c
+
+
+@njit(_pose_tick_signature(), cache=True)
+def cam_pose_tick_into(t: float, ref_xy: np.ndarray, back: np.ndarray, cos_yaw: np.ndarray, sin_yaw: np.ndarray,
+                       size: np.ndarray, front_x: np.ndarray, pos: np.ndarray, role: np.ndarray, uid: np.ndarray,
+                       conn_of: np.ndarray, on_ramp_lane: np.ndarray, joins_lane: np.ndarray,
+                       merged_lane: np.ndarray, ramp_code: int, cos_ramp: float, dist: np.ndarray,
+                       connected: np.ndarray, ramp: np.ndarray, right: np.ndarray, merged: np.ndarray,
+                       speed: np.ndarray, row_node: np.ndarray, near_lo: float, near_hi: float, zone_lo: float,
+                       zone_hi: float, stream_lo: float, stream_hi: float, slot_of: np.ndarray, n_vehicle_rx: int,
+                       next_s: np.ndarray, period: float, known: np.ndarray, chan_pos: np.ndarray, rsu: int,
+                       x_rsu: float, y_rsu: float, order_node: np.ndarray, depth: int, fifo: bool, r0: int,
+                       lane: np.ndarray, lane_pos: np.ndarray, near: np.ndarray, src: np.ndarray,
+                       cam_pos: np.ndarray, val: np.ndarray, ref: np.ndarray, ptr: np.ndarray, dst: np.ndarray,
+                       keys: np.ndarray, cand: np.ndarray, leader: np.ndarray, sp: np.ndarray, due: np.ndarray,
+                       newcomers: np.ndarray) -> tuple[int, int, int, int, int, int, int, float, int]:
+    """:func:`front_and_centre` from the raw poses (the snapshot's geometry is not derived: the yaw's cosine
+    and sine come from numpy), then :func:`cam_tick_into` on its front x and centres, in one call."""
+    n = ref_xy.shape[0]
+    front_and_centre(ref_xy, back, cos_yaw, sin_yaw, size, front_x, pos)
+    return cam_tick_into(t, front_x[:n], role, uid, conn_of, on_ramp_lane, joins_lane, merged_lane, ramp_code,
+                         cos_ramp, dist, connected, ramp, right, merged, pos[:n], speed, row_node, near_lo, near_hi,
+                         zone_lo, zone_hi, stream_lo, stream_hi, slot_of, n_vehicle_rx, next_s, period, known,
+                         chan_pos, rsu, x_rsu, y_rsu, order_node, depth, fifo, r0, lane, lane_pos, near, src, cam_pos,
+                         val, ref, ptr, dst, keys, cand, leader, sp, due, newcomers)
+
+
 class CamStage:
     """``cam_stage_into`` with its buffers (grown as needed): a call returns (status, the senders' rows, the
     sends' nodes, positions, contents, ptr, receivers (the buffer: the room's receivers after the CAMs'),
@@ -364,7 +418,7 @@ class CamStage:
         if n_keys > self._n_keys:
             self._n_keys, self.keys = n_keys, np.empty(n_keys, dtype=np.int64)
         if n > len(self.dist):
-            self.dist = np.empty(n)
+            self.dist, self.front_x, self.centre = np.empty(n), np.empty(n), np.empty((n, 2))
             self.connected, self.ramp, self.right, self.merged = (np.empty(n, dtype=bool) for _ in range(4))
 
     def __call__(self, t: float, dist: np.ndarray, *args: Any) -> tuple[Any, ...]:
@@ -384,6 +438,19 @@ class CamStage:
                             *self._buffers())
         return (*self._views(n, out), self.dist[:n], self.connected[:n], self.ramp[:n], self.right[:n],
                 self.merged[:n])
+
+    def pose_tick(self, t: float, poses: tuple[np.ndarray, ...], raw: tuple[Any, ...], *args: Any) -> tuple[Any, ...]:
+        """``cam_pose_tick_into``: ``tick`` with the rows' front x and centres derived from ``poses`` (the
+        reference points, the distances back to the centre, the yaw's cosine and sine, the sizes) instead of
+        given (``args`` as ``tick`` takes them after ``pos``). Returns ``tick``'s tuple, then the centres (n, 2)."""
+        n = poses[0].shape[0]
+        self._room(n, args[17].shape[0], args[18])
+        if self.front_x.shape[0] < n:
+            self.front_x, self.centre = np.empty(len(self.dist)), np.empty((len(self.dist), 2))
+        out = cam_pose_tick_into(t, *poses, self.front_x, self.centre, *raw, self.dist, self.connected, self.ramp,
+                                 self.right, self.merged, *args, *self._buffers())
+        return (*self._views(n, out), self.dist[:n], self.connected[:n], self.ramp[:n], self.right[:n],
+                self.merged[:n], self.centre[:n])
 
     def _room(self, n: int, n_order: int, depth: int) -> None:
         need_dst, need_keys = n * (1 + n_order) + n, n_order * (depth + n)

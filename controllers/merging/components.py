@@ -79,6 +79,7 @@ from corridor.controllers.merging.switching import (
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
 from corridor.modes import HybridAutomaton, SwitchingParams
+from corridor.poses import PlanarPoses
 from corridor.snapshot import RoadTables, Role
 from corridor.traffic.networks.landmarks import OnrampLandmarks
 from corridor.traffic.sumo.commands import Release, SetLaneChangeMode, SetSpeed
@@ -320,7 +321,19 @@ class V2XMerging(Controller):
         sl, tb = r.sl, r.tables
         self._classify_lanes(tb)
         ids, row = self._id_rows(snap.ids, sl)
-        pos, size, heading = snap.position[sl], snap.size[sl], snap.heading[sl]
+        size = snap.size[sl]
+        geo = snap.geometry_source()
+        if isinstance(geo, PlanarPoses) and sl == slice(0, len(geo)):
+            # SUMO's raw poses: the yaw's cosine and sine as corridor.poses.planar_geometry computes them
+            # (numpy's bits), the rows' centres and front x in the compiled CAM stage; the snapshot's own
+            # geometry is left to whoever reads it (the monitors derive it in blocks of ticks)
+            yaw = np.radians(90.0 - geo.bearing_deg)
+            c, sn = np.cos(yaw), np.sin(yaw)
+            sp = geo.speed_mps  # the snapshot's speed: the hypot of its velocity (np.hypot's bits: tested)
+            return {"ids": ids, "poses": (geo.ref_xy, geo.back_m, c, sn, size), "uid": r.uid, "tables": tb,
+                    "speed": np.hypot(sp * c, sp * sn), "accel": r.accel, "lane": r.lane, "length": size[:, 0],
+                    "lane_pos": r.lane_pos, "row": row}
+        pos, heading = snap.position[sl], snap.heading[sl]
         front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
         # the rest comes with the compiled CAM stage (_communicate; cam_kernel.derive_rows): "dist" (to the
         # conflict point, along the inclined ramp on a ramp lane), "ramp" (on the ramp route), "merged" (a
@@ -396,11 +409,16 @@ class V2XMerging(Controller):
         tb = s["tables"]
         raw = (tb.role, s["uid"], tb.connected, self._on_ramp_lane, self._joins_lane, self._merged_lane, _RAMP,
                self.cos_ramp)
-        out = self._cam.tick(t, s["front_x"], raw, s["pos"], s["speed"], self._row_nodes(s), *self._cam_bounds,
-                             self.tracks.slot_of, len(self.tracks) - 1, self._next_cam, self._cam_period, known,
-                             chan_pos, self._rsu_node, self.x_merge, self.y_rsu, order_node, self._listen_depth,
-                             self.coord.policy == "fifo", self._n_refs, s["lane"], s["lane_pos"])
-        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:]  # (views of the stage's buffers)
+        rest = (s["speed"], self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
+                self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu, order_node,
+                self._listen_depth, self.coord.policy == "fifo", self._n_refs, s["lane"], s["lane_pos"])
+        poses = s.get("poses")
+        if poses is not None:  # the rows' front x and centres from SUMO's raw poses, in the same call
+            out = self._cam.pose_tick(t, poses, raw, *rest)
+            s["pos"] = out[20]
+        else:
+            out = self._cam.tick(t, s["front_x"], raw, s["pos"], *rest)
+        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:20]  # (views of the stage's buffers)
         return out[:15]
 
     def _row_nodes(self, s: dict[str, Any]) -> np.ndarray:

@@ -286,3 +286,51 @@ def test_the_compiled_row_facts_are_the_former_sense_lines() -> None:
             assert (a.tobytes() == b.tobytes()) if isinstance(a, np.ndarray) else a == b, j
         for j in (17, 19, 20):  # next_s, known, chan_pos advanced alike
             np.testing.assert_array_equal(twin[j], args[j])
+
+
+def test_the_stage_from_raw_poses_is_the_stage_on_the_snapshots_geometry() -> None:
+    """``CamStage.pose_tick`` (issue 27's ninth CPU pass: SUMO's raw poses, the snapshot's geometry not
+    derived) gives what ``tick`` gives on the geometry ``corridor.poses.planar_geometry`` derives: the rows'
+    front x (``V2XMerging._sense``'s former line), their centres, and with them every output of the stage;
+    and ``_sense``'s speed (``np.hypot`` of the raw speed along the yaw) is the snapshot's ``speed``."""
+    from corridor.poses import planar_geometry
+
+    rng = np.random.default_rng(29)
+    stage, ref_stage = CamStage(), CamStage()
+    for _ in range(300):
+        c = _case(rng, bool(rng.random() < 0.5))
+        n = len(c["names"])
+        n_uid, n_lanes = n + int(rng.integers(1, 20)), int(rng.integers(1, 8))
+        role = rng.integers(0, 3, n_uid).astype(np.int8)
+        uid = rng.permutation(n_uid)[:n].astype(np.int64)
+        conn_of = rng.random(n_uid) < 0.8
+        lane = rng.integers(0, n_lanes, n)
+        on_ramp, joins, past = (rng.random(n_lanes) < 0.4 for _ in range(3))
+        # SUMO's columns: the front bumper, the bearing (often due east, else any), the speed, half lengths
+        ref_xy = np.column_stack([rng.uniform(900.0, 1700.0, n), rng.uniform(-60.0, 5.0, n)])
+        bearing = np.where(rng.random(n) < 0.5, 90.0, rng.uniform(-180.0, 360.0, n))
+        speed = rng.uniform(0.0, 35.0, n)
+        size = np.column_stack([rng.uniform(3.0, 16.0, n), np.full(n, 1.8), np.full(n, 1.5)])
+        back = (0.5 * size[:, 0])[:, None]
+        # the snapshot's geometry and the former _sense lines on it
+        pos, vel, heading = planar_geometry(ref_xy, bearing, speed, back)
+        front_x = pos[:, 0] + 0.5 * size[:, 0] * np.cos(heading)
+        yaw = np.radians(90.0 - bearing)
+        cos_yaw, sin_yaw = np.cos(yaw), np.sin(yaw)
+        assert np.hypot(speed * cos_yaw, speed * sin_yaw).tobytes() == np.hypot(vel[:, 0], vel[:, 1]).tobytes()
+        x_merge, cos_ramp = 1521.022, np.cos(np.radians(float(rng.uniform(2.0, 20.0))))
+        c.update(pos=pos, lane=lane)
+        args = list(_kernel_args(c, rng))
+        args[22] = x_merge
+        twin = [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+        raw = (role, uid, conn_of, on_ramp, joins, past, 1, cos_ramp)
+        want = ref_stage.tick(args[0], front_x, raw, pos, *args[4:5], *args[8:])
+        out = stage.pose_tick(twin[0], (ref_xy, back, cos_yaw, sin_yaw, size), raw, *twin[4:5], *twin[8:])
+        assert out[20].tobytes() == np.ascontiguousarray(pos[:, :2]).tobytes()
+        assert out[15].tobytes() == want[15].tobytes()  # dist: from the front x
+        for j, (a, b) in enumerate(zip(out[:20], want[:20], strict=True)):
+            if j == 6:
+                a, b = a[: out[12]], b[: want[12]]
+            assert (a.tobytes() == b.tobytes()) if isinstance(a, np.ndarray) else a == b, j
+        for j in (17, 19, 20):  # next_s, known, chan_pos advanced alike
+            assert twin[j].tobytes() == args[j].tobytes(), j

@@ -97,3 +97,44 @@ def test_the_crossing_speed_has_the_bits_of_np_mean(n: int) -> None:
         v = float(np.mean(s["speed"][near])) if near.any() else comp.p.limits.v_max_mps
         want = min(max(v, 8.0), comp.p.limits.v_max_mps)
         assert comp._stream_speed(s) == want
+
+
+def test_a_run_senses_from_the_raw_poses_with_the_geometrys_bits(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
+    """A real 60 s ``v2x_cps`` run (issue 27's ninth CPU pass): a tick whose snapshot geometry is not derived
+    yet is sensed from SUMO's raw poses without deriving it, and its speeds, front x and centres are the
+    geometry's (a tick whose geometry a monitor derived before takes the geometry's path)."""
+    from corridor.controllers.merging.cam_kernel import front_and_centre
+    from corridor.run import build
+
+    sense, seen = V2XMerging._sense, [0]
+
+    def checked_sense(self, ctx):  # type: ignore[no-untyped-def]
+        snap = ctx.snapshot
+        lazy = bool(snap.pending_poses())  # not derived yet (a monitor derives it on some ticks before)
+        s = sense(self, ctx)
+        if s is None or not lazy:
+            return s
+        assert "poses" in s and snap.pending_poses()  # still not derived after _sense
+        sl = snap.road.sl
+        pos, size = snap.position[sl], snap.size[sl]  # derived here, for the check (elementwise: same bits)
+        assert s["speed"].tobytes() == snap.speed[sl].tobytes()
+        n = len(s["ids"])
+        front_x, centre = np.empty(n), np.empty((n, 2))
+        front_and_centre(*s["poses"][:2], *s["poses"][2:], front_x, centre)
+        assert front_x.tobytes() == (pos[:, 0] + 0.5 * size[:, 0] * np.cos(snap.heading[sl])).tobytes()
+        assert centre.tobytes() == np.ascontiguousarray(pos[:, :2]).tobytes()
+        seen[0] += 1
+        return s
+
+    monkeypatch.setattr(V2XMerging, "_sense", checked_sense)
+    sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
+    sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
+    try:
+        for c in sim.setup_order:
+            c.setup(sim.ctx)
+        for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
+            sim.step()
+    finally:
+        for c in sim.ctx.components.values():
+            c.close()
+    assert seen[0] > 400
