@@ -299,10 +299,14 @@ class AddressedChannel:
     def commit_delivery(self, n_due: int) -> Delivered:
         """After :func:`pop_due` on :meth:`delivery_buffers`: the queue's count, the statistics, and the
         delivered copies (views, valid until the next delivery), as ``deliver`` returns them."""
-        out = self._out
-        self._n = int(out[0][-1])
+        self.commit_count(n_due)
+        return Delivered(*(a[:n_due] for a in self._out))
+
+    def commit_count(self, n_due: int) -> None:
+        """``commit_delivery`` without the copies (the consumer read them from :meth:`delivery_buffers`' output
+        arrays: seq, src, dst, t_sent, t_recv, val, ref, their first ``n_due`` rows)."""
+        self._n = int(self._out[0][-1])
         self._n_delivered += n_due
-        return Delivered(*(a[:n_due] for a in out))
 
     @property
     def in_flight(self) -> int:

@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from operator import itemgetter
 from typing import Any, ClassVar, Literal
 
 import numpy as np
@@ -94,7 +93,6 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _ROADS = ("main", "ramp")  # by an on-the-ramp flag
-_recv_order = itemgetter(0, 1)  # a delivered copy's (t_recv, send order)
 # the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
 # references: the CAMs first, then room for the RSU's assignments
@@ -491,16 +489,12 @@ class V2XMerging(Controller):
         """The copies due now: fuse the CAMs into the listeners' tracks and forget the stale tracks (with
         the channel's delivery, one compiled call), and keep each vehicle's newest assignment, in the
         channel's delivery order ((t_recv, send order) per pair)."""
-        d = self.tracks.deliver_fuse_and_drop(self.channel, t, self._rsu_node, self._listen_keys)
+        k, t_recv, dst_ref = self.tracks.deliver_fuse_and_drop_refs(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
-        if len(d):
-            k_a = np.flatnonzero(d.ref >= 0)  # (ndarray.any() alone costs ~3 us)
-            if k_a.size:
-                names, sent = self.channel.names, self._sent_assignments
-                assignments = sorted(zip(d.t_recv_s[k_a].tolist(), d.seq[k_a].tolist(), d.dst[k_a].tolist(),
-                                         d.ref[k_a].tolist(), strict=True), key=_recv_order)
-                for tr, _, dst, ref in assignments:  # a vehicle keeps the last one delivered
-                    self.assigned[names[dst]] = (tr, sent[ref])
+        if k:  # the delivered assignments in the order (t_recv, send order), found in the same call
+            names, sent, assigned = self.channel.names, self._sent_assignments, self.assigned
+            for tr, (dst, ref) in zip(t_recv[:k].tolist(), dst_ref[:k].tolist(), strict=True):
+                assigned[names[dst]] = (tr, sent[ref])  # a vehicle keeps the last one delivered
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the

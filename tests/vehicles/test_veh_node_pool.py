@@ -166,14 +166,14 @@ def test_the_delivery_in_the_same_call_equals_deliver_then_fuse_and_drop() -> No
     from corridor.channel import BernoulliLoss, ChannelConfig
 
     cfg = ChannelConfig(range_m=200.0, latency_s=0.05, jitter_s=0.12, loss=BernoulliLoss(p=0.2), max_in_flight=60)
-    chans = [AddressedChannel(cfg, np.random.default_rng(4), t_end_s=60.0) for _ in range(2)]
-    pools = [NodeTrackPool(INDEX, process_noise=1.0, meas_noise=0.5, vel_noise=0.3, stale_after_s=0.45) for _ in range(2)]
+    chans = [AddressedChannel(cfg, np.random.default_rng(4), t_end_s=60.0) for _ in range(3)]
+    pools = [NodeTrackPool(INDEX, process_noise=1.0, meas_noise=0.5, vel_noise=0.3, stale_after_s=0.45) for _ in range(3)]
     for ch, pool in zip(chans, pools, strict=True):
         for name in NAMES:
             ch.attach(name)
         pool.add_receiver(RSU)
     rng = np.random.default_rng(9)
-    delivered = fused = 0
+    delivered = fused = n_refs = 0
     for step in range(650):  # past the end of the run (60 s): copies dropped after it
         t = 0.1 * step
         names_u = rng.random(len(NAMES))
@@ -205,6 +205,14 @@ def test_the_delivery_in_the_same_call_equals_deliver_then_fuse_and_drop() -> No
         for f in ("seq", "src", "dst", "t_sent_s", "t_recv_s", "val", "ref"):
             assert getattr(d2, f).tobytes() == getattr(d, f).tobytes(), f
         assert repr(chans[1].stats()) == repr(chans[0].stats()) and chans[1].in_flight == chans[0].in_flight
+        # the same call returning only the references, in the order (t_recv, send order): V2XMerging's former sort
+        k3, t3, dr3 = pools[2].deliver_fuse_and_drop_refs(chans[2], t, INDEX[RSU], keys)
+        a = np.flatnonzero(d.ref >= 0)
+        want = sorted(zip(d.t_recv_s[a].tolist(), d.seq[a].tolist(), d.dst[a].tolist(), d.ref[a].tolist()),
+                      key=lambda c: (c[0], c[1]))
+        assert list(zip(t3[:k3].tolist(), *zip(*dr3[:k3].tolist()))) == [(c[0], c[2], c[3]) for c in want]
+        assert repr(chans[2].stats()) == repr(chans[0].stats()) and chans[2].in_flight == chans[0].in_flight
+        n_refs += k3
         delivered += len(d)
         for rx in pools[0].receivers:
             for s in NAMES:
@@ -214,4 +222,27 @@ def test_the_delivery_in_the_same_call_equals_deliver_then_fuse_and_drop() -> No
                     x, p = pools[0].state(rx, s)
                     x2, p2 = pools[1].state(rx, s)
                     assert x2.tobytes() == x.tobytes() and p2.tobytes() == p.tobytes()
-    assert delivered > 1000 and fused > 1000
+                    x3, p3 = pools[2].state(rx, s)
+                    assert x3.tobytes() == x.tobytes() and p3.tobytes() == p.tobytes()
+    assert delivered > 1000 and fused > 1000 and n_refs > 100
+
+
+def test_the_references_in_delivery_order_are_pythons_stable_sort() -> None:
+    """``referenced_in_order`` (issue 27's ninth CPU pass) orders the delivered copies with a reference as
+    Python's stable ``sorted`` on (arrival, send order) did in ``V2XMerging._receive``, ties included."""
+    from corridor.vehicles.tracks.node_pool import referenced_in_order
+
+    rng = np.random.default_rng(31)
+    ties = 0
+    for _ in range(3000):
+        n = int(rng.integers(0, 30))
+        t_recv = rng.choice(np.array([0.1, 0.12, 0.125, 0.2]), n) if rng.random() < 0.5 else rng.uniform(0, 1, n)
+        seq = rng.integers(0, 6, n)
+        dst, ref = rng.integers(0, 40, n), np.where(rng.random(n) < 0.6, rng.integers(0, 500, n), -1)
+        out_t, out_dr = np.empty(n), np.empty((n, 2), dtype=np.int64)
+        k = referenced_in_order(t_recv, seq, dst, ref, n, out_t, out_dr)
+        a = [i for i in range(n) if ref[i] >= 0]
+        want = sorted(((float(t_recv[i]), int(seq[i]), int(dst[i]), int(ref[i])) for i in a), key=lambda c: (c[0], c[1]))
+        assert [(float(out_t[j]), *out_dr[j].tolist()) for j in range(k)] == [(c[0], c[2], c[3]) for c in want]
+        ties += len({(c[0], c[1]) for c in want}) < len(want)
+    assert ties > 500

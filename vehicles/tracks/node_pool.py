@@ -213,6 +213,31 @@ def _deliver_fuse_tick(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.
     return n_due, m, n_free, n_miss
 
 
+@njit("i8(f8[:], i8[:], i8[:], i8[:], i8, f8[:], i8[:, :])", cache=True)
+def referenced_in_order(t_recv: np.ndarray, seq: np.ndarray, dst: np.ndarray, ref: np.ndarray, n: int,
+                        out_t: np.ndarray, out_dr: np.ndarray) -> int:
+    """The first ``n`` delivered copies that carry a reference (``ref >= 0``) in the order (arrival, send
+    order), ties kept in delivery order (Python's stable ``sorted`` on that key): their arrival times [s] to
+    ``out_t`` and (receiver, reference) to ``out_dr``. Returns their number."""
+    idx = np.empty(n, dtype=np.int64)
+    k = 0
+    for i in range(n):  # insertion sort, stable: a copy goes after every copy not greater
+        if ref[i] < 0:
+            continue
+        tr, sq = t_recv[i], seq[i]
+        j = k
+        while j > 0 and (t_recv[idx[j - 1]] > tr or (t_recv[idx[j - 1]] == tr and seq[idx[j - 1]] > sq)):
+            idx[j] = idx[j - 1]
+            j -= 1
+        idx[j] = i
+        k += 1
+    for j in range(k):
+        i = idx[j]
+        out_t[j] = t_recv[i]
+        out_dr[j, 0], out_dr[j, 1] = dst[i], ref[i]
+    return k
+
+
 class NodeTrackPool:
     """1-D CV tracks of receiver nodes on source nodes (see the module docstring).
 
@@ -242,6 +267,7 @@ class NodeTrackPool:
         self._upd_row, self._upd_z = np.empty(64, dtype=np.int64), np.empty((64, 2))
         self._upd_dt, self._ahead = np.empty(64), np.empty(64, dtype=bool)
         self._at, self._missing = np.empty(64, dtype=np.int64), np.empty(64)  # see fuse_and_drop
+        self._ref_t, self._ref_dr = np.empty(64), np.empty((64, 2), dtype=np.int64)  # see deliver_fuse_and_drop_refs
         # the process-noise terms per interval seen (sorted, rounded to the nanosecond): (dt, q11, q12, q22)
         self._q_table: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] = (np.zeros(0),) * 4
 
@@ -353,6 +379,25 @@ class NodeTrackPool:
                                                             *self._fuse_args(listen_keys))
         self._finish(t_s, m, n_miss)
         return channel.commit_delivery(n_due)
+
+    def deliver_fuse_and_drop_refs(self, channel: AddressedChannel, t_s: float, rsu: int,
+                                   listen_keys: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+        """``deliver_fuse_and_drop`` for a consumer that reads only the delivered references: returns their
+        number ``k`` and (views valid until the next call) their arrival times [s] and (receiver node,
+        reference) pairs, in the order (arrival, send order) (see :func:`referenced_in_order`)."""
+        args = channel.delivery_buffers(t_s)
+        self._room(args[2])
+        n_due, m, self._n_free, n_miss = _deliver_fuse_tick(*args, float(t_s), self.stale_after_s, rsu,
+                                                            *self._fuse_args(listen_keys))
+        self._finish(t_s, m, n_miss)
+        channel.commit_count(n_due)
+        if not n_due:
+            return 0, self._ref_t, self._ref_dr
+        if self._ref_t.shape[0] < n_due:
+            self._ref_t, self._ref_dr = np.empty(2 * n_due), np.empty((2 * n_due, 2), dtype=np.int64)
+        out = args[3:]  # the queue (7), then the delivery's seven arrays
+        k = referenced_in_order(out[11], out[7], out[9], out[13], n_due, self._ref_t, self._ref_dr)
+        return k, self._ref_t, self._ref_dr
 
     def _room(self, k: int) -> None:
         """Room for ``k`` delivered copies: a column per node, free rows, update buffers."""
