@@ -443,12 +443,20 @@ class CamStage:
         """``cam_pose_tick_into``: ``tick`` with the rows' front x and centres derived from ``poses`` (the
         reference points, the distances back to the centre, the yaw's cosine and sine, the sizes) instead of
         given (``args`` as ``tick`` takes them after ``pos``). Returns ``tick``'s tuple, then the centres (n, 2)."""
+        return self.pose_views(poses[0].shape[0], cam_pose_tick_into(*self.pose_args(t, poses, raw, *args)))
+
+    def pose_args(self, t: float, poses: tuple[np.ndarray, ...], raw: tuple[Any, ...], *args: Any) -> tuple[Any, ...]:
+        """``cam_pose_tick_into``'s arguments for ``pose_tick`` (the buffers grown first; for a caller that makes
+        the call itself, then reads ``pose_views``)."""
         n = poses[0].shape[0]
         self._room(n, args[17].shape[0], args[18])
         if self.front_x.shape[0] < n:
             self.front_x, self.centre = np.empty(len(self.dist)), np.empty((len(self.dist), 2))
-        out = cam_pose_tick_into(t, *poses, self.front_x, self.centre, *raw, self.dist, self.connected, self.ramp,
-                                 self.right, self.merged, *args, *self._buffers())
+        return (t, *poses, self.front_x, self.centre, *raw, self.dist, self.connected, self.ramp, self.right,
+                self.merged, *args, *self._buffers())
+
+    def pose_views(self, n: int, out: tuple[Any, ...]) -> tuple[Any, ...]:
+        """``pose_tick``'s tuple from ``cam_pose_tick_into``'s counts ``out`` on ``n`` rows."""
         return (*self._views(n, out), self.dist[:n], self.connected[:n], self.ramp[:n], self.right[:n],
                 self.merged[:n], self.centre[:n])
 

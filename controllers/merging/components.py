@@ -75,6 +75,7 @@ from corridor.controllers.merging.switching import (
     merge_automaton,
     resolved,
 )
+from corridor.controllers.merging.tick_kernel import NOT_RUN, fused_tick_into
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
 from corridor.modes import HybridAutomaton, SwitchingParams
@@ -262,6 +263,9 @@ class V2XMerging(Controller):
         # information it reports is its own (of the states the coordinator used)
         self.channel = AddressedChannel(self.chan_cfg, ctx.rng(f"{self.name}.channel"), t_end_s=ctx.duration)
         self._send_with_assignments = self.chan_cfg.latency_s > DELIVERY_TOLERANCE_S
+        # the CAM stage, the delivery and fuse, and the coordination in one call (tick_kernel), unless the CAMs
+        # go out before the delivery (a channel without delay) or the coordinator is Python's
+        self._fused = self._send_with_assignments and isinstance(self.coord, ArrayCoordinator)
         self.channel.attach(RSU)
         self._rsu_node = self.channel.node(RSU)
         # the CAM schedule (traffic.v2x.CamGenerator's, per node in cam_kernel): a first CAM at a random phase
@@ -282,9 +286,12 @@ class V2XMerging(Controller):
         state = self._sense(ctx)
         if state is None:
             return
-        cams = self._communicate(ctx.t, state)
-        target = self.p.target_speed_mps or self._stream_speed(state)
-        zone, assignments = self._coordinate(ctx.t, state, target)
+        if self._fused and state.get("poses") is not None:  # the three stages below in one compiled call
+            cams, target, (zone, assignments) = self._communicate_and_coordinate(ctx.t, state)
+        else:
+            cams = self._communicate(ctx.t, state)
+            target = self.p.target_speed_mps or self._stream_speed(state)
+            zone, assignments = self._coordinate(ctx.t, state, target)
         # the tick's CAMs and the RSU's assignments in one send_many (the same draws, in the same
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
         self._send(ctx.t, cams, assignments)
@@ -387,20 +394,64 @@ class V2XMerging(Controller):
             self._admit(t, s)
             out = self._cam_stage(t, s)
             assert out[0] == STATUS_OK, out[0]
-        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref, leader = out
-        self._listen_keys = keys
-        s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
-        s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
-        s["leader"] = leader  # each row's lane leader (see _physical_leader_cap)
-        cams: _Cams = (n_c, m, src, pos, val, ptr, dst, ref)
+        cams = self._took_stage(s, out)
+        src, pos, val, ptr, dst, ref = cams[2:]
+        n_c, m = cams[0], cams[1]
         if not self._send_with_assignments:  # a copy sent now may be due now: send before delivering
             self._send(t, cams, [])
             cams = (0, 0, src[n_c:], pos[n_c:], val[n_c:], ptr[n_c:] - ptr[n_c], dst[m:], ref[n_c:])
         self._receive(t)
         return cams
 
-    def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
-        """``cam_kernel.CamStage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
+    def _communicate_and_coordinate(self, t: float, s: dict[str, Any]
+                                    ) -> tuple[_Cams, float, tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]]:
+        """``_communicate``, the crossing speed and ``_coordinate`` (compiled) in one compiled call
+        (``tick_kernel.fused_tick_into``), with the Python steps around them in the former order: the
+        admission (then the call again), the assignments delivered, the coordination's draws and ties.
+        Returns the CAMs to send, the target speed [m/s], and the zone and assignments."""
+        got = self._fused_call(t, s)
+        if got is None:
+            self._admit(t, s)
+            got = self._fused_call(t, s)
+            assert got is not None
+        r_cam, r_dlv, k, r_crd, target = got
+        out = self._cam.pose_views(len(s["ids"]), r_cam)
+        s["pos"] = out[20]
+        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:20]
+        cams = self._took_stage(s, out[:15])
+        self.tracks.fused_done(self.channel, t, r_dlv)  # _receive's steps after its call
+        self._forget_sent(t)
+        if k:
+            self._take_assignments(k, *self._ref_bufs)
+        if r_crd[0] == NOT_RUN:  # the fuse was completed in Python: the coordination on its own
+            target = self.p.target_speed_mps or self._stream_speed(s)
+            return cams, target, self._coordinate(t, s, target)
+        return cams, target, self._coordinated(t, s, target, *r_crd)
+
+    def _fused_call(self, t: float, s: dict[str, Any]) -> tuple[Any, ...] | None:
+        """``fused_tick_into`` on the tick (None: the CAM stage's status > 0, nothing done, see ``_admit``)."""
+        cam_args = self._cam.pose_args(t, s["poses"], *self._cam_args(t, s))
+        ac = self.coord
+        assert isinstance(ac, ArrayCoordinator)
+        self._coord_room(len(s["ids"]))  # a zone of every row at most
+        dlv, ref_t, ref_dr = self.tracks.fused_args(self.channel, t)
+        self._ref_bufs = (ref_t, ref_dr)
+        z_int, z_flt = self._zbuf
+        given = self.p.target_speed_mps
+        got = fused_tick_into(*cam_args, *dlv, self._row_key, self.tracks.slot_of_receiver(RSU), self._draws,
+                              self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
+                              z_flt, self._slot_out, ref_t, ref_dr, given if given else math.nan,
+                              self.p.limits.v_max_mps)
+        cam = self._cam
+        if got[0][0] != STATUS_OK:  # the rows were derived (for _admit), nothing else done
+            n = len(s["ids"])
+            s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = (
+                cam.dist[:n], cam.connected[:n], cam.ramp[:n], cam.right[:n], cam.merged[:n])
+            return None
+        return got
+
+    def _cam_args(self, t: float, s: dict[str, Any]) -> tuple[tuple[Any, ...], ...]:
+        """The CAM stage's arguments after the rows' geometry: ``derive_rows``' raw rows, then the rest."""
         index = self.channel.index
         known, chan_pos = self.channel.position_arrays()
         order_node = np.array([index.get(v, -1) for v in self.coord.sequence], dtype=np.int64)
@@ -410,6 +461,20 @@ class V2XMerging(Controller):
         rest = (s["speed"], self._row_nodes(s), *self._cam_bounds, self.tracks.slot_of, len(self.tracks) - 1,
                 self._next_cam, self._cam_period, known, chan_pos, self._rsu_node, self.x_merge, self.y_rsu, order_node,
                 self._listen_depth, self.coord.policy == "fifo", self._n_refs, s["lane"], s["lane_pos"])
+        return raw, *rest  # type: ignore[return-value]
+
+    def _took_stage(self, s: dict[str, Any], out: tuple[Any, ...]) -> _Cams:
+        """The CAM stage's outputs ``out`` into the tick's state; returns the tick's CAMs to send."""
+        _, _near, src, pos, val, ptr, dst, keys, stream_sum, stream_n, cand, n_c, m, ref, leader = out
+        self._listen_keys = keys
+        s["stream"] = (stream_sum, stream_n)  # the crossing speed's sum and count (see _stream_speed)
+        s["cand"] = cand  # the rows the RSU coordinates (see _coordinate)
+        s["leader"] = leader  # each row's lane leader (see _physical_leader_cap)
+        return (n_c, m, src, pos, val, ptr, dst, ref)
+
+    def _cam_stage(self, t: float, s: dict[str, Any]) -> tuple[Any, ...]:
+        """``cam_kernel.CamStage`` on the tick's rows (status > 0: nothing done, see ``_admit``)."""
+        raw, *rest = self._cam_args(t, s)
         poses = s.get("poses")
         if poses is not None:  # the rows' front x and centres from SUMO's raw poses, in the same call
             out = self._cam.pose_tick(t, poses, raw, *rest)
@@ -492,9 +557,13 @@ class V2XMerging(Controller):
         k, t_recv, dst_ref = self.tracks.deliver_fuse_and_drop_refs(self.channel, t, self._rsu_node, self._listen_keys)
         self._forget_sent(t)
         if k:  # the delivered assignments in the order (t_recv, send order), found in the same call
-            names, sent, assigned = self.channel.names, self._sent_assignments, self.assigned
-            for tr, (dst, ref) in zip(t_recv[:k].tolist(), dst_ref[:k].tolist(), strict=True):
-                assigned[names[dst]] = (tr, sent[ref])  # a vehicle keeps the last one delivered
+            self._take_assignments(k, t_recv, dst_ref)
+
+    def _take_assignments(self, k: int, t_recv: np.ndarray, dst_ref: np.ndarray) -> None:
+        """The ``k`` delivered assignments (arrival times [s], (receiver node, reference)) in delivery order."""
+        names, sent, assigned = self.channel.names, self._sent_assignments, self.assigned
+        for tr, (dst, ref) in zip(t_recv[:k].tolist(), dst_ref[:k].tolist(), strict=True):
+            assigned[names[dst]] = (tr, sent[ref])  # a vehicle keeps the last one delivered
 
     def _forget_sent(self, t: float) -> None:
         """Forget the assignments whose copies were all delivered or dropped (sent longer ago than the
@@ -521,10 +590,14 @@ class V2XMerging(Controller):
         """``_coordinate_py``'s zone, predictions, sensor readings (the same draws: two standard normals per
         unconnected candidate, in row order), requested arrivals, FCFS keys, crossings, AoI sums and the
         coordinator's assignment in one call; the assignments (one per connected coordinated row) here."""
+        self._coord_room(len(s["cand"]))
+        args, rest = self._coord_args(t, s, target)
+        return self._coordinated(t, s, target, *coordinate_into(*args, self._draws, *rest))
+
+    def _coord_room(self, n_c: int) -> None:
+        """Room for a zone of ``n_c`` vehicles: the FCFS keys, the coordinator's slots, the zone, the slots' output."""
         ac = self.coord
         assert isinstance(ac, ArrayCoordinator)
-        cand, connected = s["cand"], s["connected"]
-        n_c = len(cand)
         if len(self._entered_of) < len(ac.id_of):
             grown = np.full(2 * len(ac.id_of), np.nan)
             grown[: len(self._entered_of)] = self._entered_of
@@ -533,16 +606,33 @@ class V2XMerging(Controller):
         z_int, z_flt = self._zbuf
         if z_int.shape[1] < n_c:
             m = max(2 * n_c, 16)
-            self._zbuf = z_int, z_flt = np.empty((3, m), dtype=np.int64), np.empty((4, m))
+            self._zbuf = np.empty((3, m), dtype=np.int64), np.empty((4, m))
         if self._slot_out.shape[0] < ac.s_int.shape[1]:
             self._slot_out = np.empty((ac.s_int.shape[1], 4), dtype=np.int64)
+
+    def _coord_args(self, t: float, s: dict[str, Any], target: float) -> tuple[tuple[Any, ...], tuple[Any, ...]]:
+        """``coordinate_into``'s arguments before and after its pool of draws (room made: ``_coord_room``)."""
+        ac = self.coord
+        assert isinstance(ac, ArrayCoordinator)
         slot, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
-        args = (t, cand, connected, s["dist"], s["speed"], s["ramp"], self._row_key, self._row_node, slot, row_of,
-                trk_x, trk_t)
+        z_int, z_flt = self._zbuf
+        args = (t, s["cand"], s["connected"], s["dist"], s["speed"], s["ramp"], self._row_key, self._row_node, slot,
+                row_of, trk_x, trk_t)
         rest = (target, self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
                 z_flt, self._slot_out)
-        status, nz, n = coordinate_into(*args, self._draws, *rest)
+        return args, rest
+
+    def _coordinated(self, t: float, s: dict[str, Any], target: float, status: int, nz: int, n: int
+                     ) -> tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]:
+        """After ``coordinate_into``'s call: more draws (then the call again), the Python coordinator on a tie,
+        and the zone and the assignments from the slots."""
+        ac = self.coord
+        assert isinstance(ac, ArrayCoordinator)
+        connected = s["connected"]
+        z_int, z_flt = self._zbuf
         if status == STATUS_DRAWS:  # the pool of sensor draws is short: the rest, then new ones (same stream)
+            n_c = len(s["cand"])
+            args, rest = self._coord_args(t, s, target)
             self._draws = np.concatenate([self._draws[ac.si[I_DRAW]:], self.sensor_rng.standard_normal(max(2 * n_c, 1024))])
             ac.si[I_DRAW] = 0
             status, nz, n = coordinate_into(*args, self._draws, *rest)

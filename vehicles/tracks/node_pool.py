@@ -238,6 +238,9 @@ def referenced_in_order(t_recv: np.ndarray, seq: np.ndarray, dst: np.ndarray, re
     return k
 
 
+_NO_KEYS = np.zeros(0, dtype=np.int64)
+
+
 class NodeTrackPool:
     """1-D CV tracks of receiver nodes on source nodes (see the module docstring).
 
@@ -315,6 +318,10 @@ class NodeTrackPool:
         if s is None or j is None or j >= self._row_of.shape[1]:
             return -1
         return int(self._row_of[s, j])
+
+    def slot_of_receiver(self, rx: str) -> int:
+        """``rx``'s slot (the row of ``receiver_arrays``' table)."""
+        return self._slots[rx]
 
     def receiver_arrays(self, rx: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """``rx``'s slot, the [slot, source node] -> row table, the rows' states (x, v) and their times [s]
@@ -398,6 +405,23 @@ class NodeTrackPool:
         out = args[3:]  # the queue (7), then the delivery's seven arrays
         k = referenced_in_order(out[11], out[7], out[9], out[13], n_due, self._ref_t, self._ref_dr)
         return k, self._ref_t, self._ref_dr
+
+    def fused_args(self, channel: AddressedChannel, t_s: float) -> tuple[tuple[Any, ...], np.ndarray, np.ndarray]:
+        """For a compiled caller that makes ``deliver_fuse_and_drop_refs``' calls itself (in one call with its
+        own work): ``_deliver_fuse_tick``'s arguments but the time, the roadside unit's node, ``slot_of`` and the
+        listen keys (the caller's), and the references' buffers; then ``fused_done`` with the call's counts."""
+        args = channel.delivery_buffers(t_s)
+        self._room(args[2])
+        if self._ref_t.shape[0] < args[2]:
+            self._ref_t, self._ref_dr = np.empty(2 * args[2]), np.empty((2 * args[2], 2), dtype=np.int64)
+        return (*args, self.stale_after_s, *self._fuse_args(_NO_KEYS)[2:]), self._ref_t, self._ref_dr
+
+    def fused_done(self, channel: AddressedChannel, t_s: float, counts: tuple[int, int, int, int]) -> None:
+        """After ``_deliver_fuse_tick`` on ``fused_args``: the free rows, the fuse completed when intervals were
+        missing from the table, the channel's counts."""
+        n_due, m, self._n_free, n_miss = counts
+        self._finish(t_s, m, n_miss)
+        channel.commit_count(n_due)
 
     def _room(self, k: int) -> None:
         """Room for ``k`` delivered copies: a column per node, free rows, update buffers."""

@@ -1,0 +1,94 @@
+"""V2X merging: the CAM stage, the delivery and fuse, and the coordination in one compiled call
+(``tick_kernel.fused_tick_into``, issue 27's ninth CPU pass) give what the three separate calls give: two
+real runs side by side, one with the fused call and one without it, the same commands every tick, the same
+tracks, coordinator state, assignments, event log and metrics; the Python steps around the call (the
+admission, the fuse completed for a new interval, the pool of sensor draws refilled) all happen in them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from corridor.controllers.merging.components import V2XMerging
+from corridor.run import build
+from corridor.scenario import load
+from corridor.variants import variant_scenarios
+from tests.conftest import scenario_file
+
+
+def _run(variant: str, fused: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch) -> dict:
+    counts = {"fused": 0, "admit": 0, "own_coordination": 0, "draws": 0}
+    setup, fused_call, admit = V2XMerging.setup, V2XMerging._fused_call, V2XMerging._admit
+    coordinate, coordinated, decide = V2XMerging._coordinate, V2XMerging._coordinated, V2XMerging._decide
+    commands: list[str] = []
+
+    def logged_decide(self, t, s, zone, target):  # type: ignore[no-untyped-def]
+        cmds = decide(self, t, s, zone, target)
+        commands.append(f"{target!r} {sorted(zone.items())!r} {cmds!r}")
+        return cmds
+
+    def set_up(self, ctx):  # type: ignore[no-untyped-def]
+        setup(self, ctx)
+        self._fused = self._fused and fused
+
+    def counted_call(self, t, s):  # type: ignore[no-untyped-def]
+        counts["fused"] += 1
+        return fused_call(self, t, s)
+
+    def counted_admit(self, t, s):  # type: ignore[no-untyped-def]
+        counts["admit"] += 1
+        return admit(self, t, s)
+
+    def counted_coordinate(self, t, s, target):  # type: ignore[no-untyped-def]
+        counts["own_coordination"] += 1
+        return coordinate(self, t, s, target)
+
+    def counted_coordinated(self, t, s, target, status, nz, n):  # type: ignore[no-untyped-def]
+        counts["draws"] += status == 2
+        return coordinated(self, t, s, target, status, nz, n)
+
+    with monkeypatch.context() as m:
+        m.setattr(V2XMerging, "setup", set_up)
+        m.setattr(V2XMerging, "_fused_call", counted_call)
+        m.setattr(V2XMerging, "_admit", counted_admit)
+        m.setattr(V2XMerging, "_coordinate", counted_coordinate)
+        m.setattr(V2XMerging, "_coordinated", counted_coordinated)
+        m.setattr(V2XMerging, "_decide", logged_decide)
+        sc, _ = load(scenario_file("merging"), ["duration=90", "warmup=0", "outputs.signals=false"])
+        sim = build(variant_scenarios(sc)[variant], 0, tmp)
+        ctl = sim.ctx.components["merge"]
+        ticks = []
+        try:
+            for c in sim.setup_order:
+                c.setup(sim.ctx)
+            for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
+                sim.step()
+                tracks = ctl.tracks
+                ticks.append((repr(ctl.assigned), list(ctl.coord.sequence), tracks.x.tobytes(), tracks.P.tobytes(),
+                              tracks.t_s.tobytes(), ctl.controlled.copy(), commands[-1] if commands else ""))
+            metrics = ctl.finish(sim.ctx)
+        finally:
+            for c in sim.ctx.components.values():
+                c.close()
+    events = [(e.t, e.source, e.kind, e.message, sorted(e.data.items())) for e in sim.ctx.events.events]
+    return {"ticks": ticks, "metrics": metrics, "events": events, "counts": counts,
+            "draws": ctl.sensor_rng.standard_normal(), "channel": repr(ctl.channel.stats())}
+
+
+@pytest.mark.parametrize("variant", ["v2x_cps", "v2x_fifo"])
+def test_the_fused_call_gives_the_separate_calls_bit_for_bit(variant: str, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    got = _run(variant, True, tmp_path / "a", monkeypatch)
+    want = _run(variant, False, tmp_path / "b", monkeypatch)
+    assert want["counts"]["fused"] == 0
+    c = got["counts"]
+    assert c["fused"] > 700 and c["admit"] > 50 and c["own_coordination"] >= 1 and c["draws"] >= 1, c
+    assert len(got["ticks"]) == len(want["ticks"])
+    for j, (a, b) in enumerate(zip(got["ticks"], want["ticks"], strict=True)):
+        assert a == b, j
+    assert got["events"] == want["events"] and len(got["events"]) > 10
+    for k, v in want["metrics"].items():
+        assert (np.isnan(v) and np.isnan(got["metrics"][k])) if isinstance(v, float) and np.isnan(v) else got["metrics"][k] == v, k
+    assert got["draws"] == want["draws"] and got["channel"] == want["channel"]
