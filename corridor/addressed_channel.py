@@ -163,6 +163,7 @@ def _pop_due(t_due: float, attached: np.ndarray, n_fl: int, q_seq: np.ndarray, q
 
 
 pop_due = _pop_due  # for a compiled consumer (AddressedChannel.delivery_buffers)
+find_copies, draw_and_enqueue = _find_copies, _draw_and_enqueue  # for a compiled sender (AddressedChannel.send_buffers)
 
 
 class Delivered:
@@ -206,6 +207,9 @@ class AddressedChannel:
         self._copies = (np.empty(256, dtype=np.int64), np.empty(256, dtype=np.int64), np.empty(256, dtype=bool),
                         np.empty(64, dtype=np.int64))
         self._n_sent = self._n_delivered = self._n_lost = self._n_oor = self._n_late = self._n_overflow = 0
+        # the generator's uniforms, drawn ahead in batches and read in order: the values one rng.random call per
+        # send gives (a float64 uniform is one draw of the bit generator, whatever the batch), see send_buffers
+        self._pool, self._pool_at = np.zeros(0), 0
 
     # -- nodes, membership, positions ----------------------------------------------------------
     def node(self, name: str) -> int:
@@ -260,7 +264,7 @@ class AddressedChannel:
         counts = counts[:m]
         n, n_near = _find_copies(src, src_pos, ptr, dst, self._attached, self._known, self._pos, self._r2,
                                  entry_of, dst_c, near, counts)
-        u = self._rng.random(2 * n + (n_near if self._loss.size == 4 else 0))
+        u = self._uniforms(2 * n + (n_near if self._loss.size == 4 else 0))
         if self._n + n > self._q[0].shape[0]:
             self._q = _queue(2 * (self._n + n), self._q, self._n)
         room = max(self.cfg.max_in_flight - self._n, 0)
@@ -273,6 +277,48 @@ class AddressedChannel:
         self._n_lost += lost
         self._n_late += late
         self._n_overflow += over
+
+    def _uniforms(self, k: int) -> np.ndarray:
+        """The next ``k`` uniforms of the pool (refilled from the generator when short)."""
+        self._fill(k)
+        at = self._pool_at
+        self._pool_at = at + k
+        return self._pool[at:at + k]
+
+    def _fill(self, k: int) -> None:
+        if self._pool_at + k > self._pool.shape[0]:
+            self._pool = np.concatenate([self._pool[self._pool_at:], self._rng.random(max(k, 4096))])
+            self._pool_at = 0
+
+    def send_buffers(self, max_copies: int, max_entries: int) -> tuple[Any, ...]:
+        """For a compiled sender that makes ``send``'s calls itself (``find_copies``, then ``draw_and_enqueue`` on
+        the next uniforms of the pool, in the same call as its own work), with room for ``max_copies`` copies of
+        ``max_entries`` entries (after a delivery: the copies in flight at most as now): the range check's
+        arrays (attached, known, positions, the squared range), the copies' buffers (entry, receiver, in
+        range, per entry its count), the loss model and Gilbert-Elliott states, the end of the run, the queue's
+        room, the latency and jitter [s], the next send order, the pool and its cursor, the queue's seven
+        arrays; then ``commit_send`` with the call's counts."""
+        if max_copies > self._copies[0].shape[0] or max_entries > self._copies[3].shape[0]:
+            c2, m2 = max(max_copies, 2 * self._copies[0].shape[0]), max(max_entries, 2 * self._copies[3].shape[0])
+            self._copies = (np.empty(c2, dtype=np.int64), np.empty(c2, dtype=np.int64), np.empty(c2, dtype=bool),
+                            np.empty(m2, dtype=np.int64))
+        if self._n + max_copies > self._q[0].shape[0]:
+            self._q = _queue(2 * (self._n + max_copies), self._q, self._n)
+        self._fill(3 * max_copies)  # per copy a loss and a delay uniform, and a link transition's
+        return (self._attached, self._known, self._pos, self._r2, *self._copies, self._loss, self._ge_bad,
+                self._t_last, self.cfg.max_in_flight, self.cfg.latency_s, self.cfg.jitter_s, self._seq, self._pool,
+                self._pool_at, *self._q)
+
+    def commit_send(self, n_fl: int, seq: int, n: int, n_near: int, lost: int, late: int, over: int, n_u: int) -> None:
+        """After a compiled send on ``send_buffers``: the copies in flight and the next send order, the
+        statistics of its ``n`` copies (``n_near`` in range), the ``n_u`` uniforms it read."""
+        self._n, self._seq = n_fl, seq
+        self._n_sent += n
+        self._n_oor += n - n_near
+        self._n_lost += lost
+        self._n_late += late
+        self._n_overflow += over
+        self._pool_at += n_u
 
     def deliver(self, t_s: float) -> Delivered:
         """Pop every copy with ``t_recv <= t_s`` (1e-9 s tolerance) to an attached receiver, in send

@@ -286,7 +286,7 @@ class V2XMerging(Controller):
         state = self._sense(ctx)
         if state is None:
             return
-        if self._fused and state.get("poses") is not None:  # the three stages below in one compiled call
+        if self._fused and state.get("poses") is not None:  # the four stages below in one compiled call
             cams, target, (zone, assignments) = self._communicate_and_coordinate(ctx.t, state)
         else:
             cams = self._communicate(ctx.t, state)
@@ -294,7 +294,8 @@ class V2XMerging(Controller):
             zone, assignments = self._coordinate(ctx.t, state, target)
         # the tick's CAMs and the RSU's assignments in one send_many (the same draws, in the same
         # order, as one call each: no copy sent now is due before the next tick, see _communicate)
-        self._send(ctx.t, cams, assignments)
+        if cams is not None:  # (None: sent in the compiled call)
+            self._send(ctx.t, cams, assignments)
         ctx.commands.extend(self._decide(ctx.t, state, zone, target))
         self._last_state = state  # the overlays' vehicle positions
 
@@ -404,17 +405,18 @@ class V2XMerging(Controller):
         return cams
 
     def _communicate_and_coordinate(self, t: float, s: dict[str, Any]
-                                    ) -> tuple[_Cams, float, tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]]:
-        """``_communicate``, the crossing speed and ``_coordinate`` (compiled) in one compiled call
+                                    ) -> tuple[_Cams | None, float, tuple[dict[str, int], list[tuple[str, Any, np.ndarray, str]]]]:
+        """``_communicate``, the crossing speed, ``_coordinate`` (compiled) and ``_send`` in one compiled call
         (``tick_kernel.fused_tick_into``), with the Python steps around them in the former order: the
-        admission (then the call again), the assignments delivered, the coordination's draws and ties.
-        Returns the CAMs to send, the target speed [m/s], and the zone and assignments."""
+        admission (then the call again), the assignments delivered, the coordination's draws and ties (then
+        ``_send`` follows in Python). Returns the CAMs to send (None: sent), the target speed [m/s], and the
+        zone and assignments."""
         got = self._fused_call(t, s)
         if got is None:
             self._admit(t, s)
             got = self._fused_call(t, s)
             assert got is not None
-        r_cam, r_dlv, k, r_crd, target = got
+        r_cam, r_dlv, k, r_crd, target, r_send = got
         out = self._cam.pose_views(len(s["ids"]), r_cam)
         s["pos"] = out[20]
         s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:20]
@@ -426,7 +428,17 @@ class V2XMerging(Controller):
         if r_crd[0] == NOT_RUN:  # the fuse was completed in Python: the coordination on its own
             target = self.p.target_speed_mps or self._stream_speed(s)
             return cams, target, self._coordinate(t, s, target)
-        return cams, target, self._coordinated(t, s, target, *r_crd)
+        zone_out = self._coordinated(t, s, target, *r_crd)
+        if r_send[0] == NOT_RUN:  # coordinated in Python (a tie, more draws): _send follows
+            return cams, target, zone_out
+        self.channel.commit_send(*r_send[1:])
+        assignments = zone_out[1]
+        if assignments:  # their references, as _send keeps them
+            sent = self._sent_assignments
+            for r, a in enumerate(assignments, start=self._n_refs):
+                sent[r] = a[1]
+            self._n_refs += len(assignments)
+        return None, target, zone_out
 
     def _fused_call(self, t: float, s: dict[str, Any]) -> tuple[Any, ...] | None:
         """``fused_tick_into`` on the tick (None: the CAM stage's status > 0, nothing done, see ``_admit``)."""
@@ -434,6 +446,8 @@ class V2XMerging(Controller):
         ac = self.coord
         assert isinstance(ac, ArrayCoordinator)
         self._coord_room(len(s["ids"]))  # a zone of every row at most
+        cam = self._cam
+        snd = self.channel.send_buffers(cam.dst.shape[0], cam.src.shape[0])  # the stage's sends at most
         dlv, ref_t, ref_dr = self.tracks.fused_args(self.channel, t)
         self._ref_bufs = (ref_t, ref_dr)
         z_int, z_flt = self._zbuf
@@ -441,8 +455,7 @@ class V2XMerging(Controller):
         got = fused_tick_into(*cam_args, *dlv, self._row_key, self.tracks.slot_of_receiver(RSU), self._draws,
                               self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
                               z_flt, self._slot_out, ref_t, ref_dr, given if given else math.nan,
-                              self.p.limits.v_max_mps)
-        cam = self._cam
+                              self.p.limits.v_max_mps, True, *snd[3:17])
         if got[0][0] != STATUS_OK:  # the rows were derived (for _admit), nothing else done
             n = len(s["ids"])
             s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = (

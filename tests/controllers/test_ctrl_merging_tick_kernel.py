@@ -18,7 +18,7 @@ from corridor.variants import variant_scenarios
 from tests.conftest import scenario_file
 
 
-def _run(variant: str, fused: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch) -> dict:
+def _run(variant: str, fused: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch, extra: list[str]) -> dict:
     counts = {"fused": 0, "admit": 0, "own_coordination": 0, "draws": 0}
     setup, fused_call, admit = V2XMerging.setup, V2XMerging._fused_call, V2XMerging._admit
     coordinate, coordinated, decide = V2XMerging._coordinate, V2XMerging._coordinated, V2XMerging._decide
@@ -56,7 +56,7 @@ def _run(variant: str, fused: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch) 
         m.setattr(V2XMerging, "_coordinate", counted_coordinate)
         m.setattr(V2XMerging, "_coordinated", counted_coordinated)
         m.setattr(V2XMerging, "_decide", logged_decide)
-        sc, _ = load(scenario_file("merging"), ["duration=90", "warmup=0", "outputs.signals=false"])
+        sc, _ = load(scenario_file("merging"), ["duration=90", "warmup=0", "outputs.signals=false", *extra])
         sim = build(variant_scenarios(sc)[variant], 0, tmp)
         ctl = sim.ctx.components["merge"]
         ticks = []
@@ -77,11 +77,14 @@ def _run(variant: str, fused: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch) 
             "draws": ctl.sensor_rng.standard_normal(), "channel": repr(ctl.channel.stats())}
 
 
-@pytest.mark.parametrize("variant", ["v2x_cps", "v2x_fifo"])
-def test_the_fused_call_gives_the_separate_calls_bit_for_bit(variant: str, tmp_path: Path,
+# the flagship's channel, and a lossy one whose queue overflows (its room is the send's)
+@pytest.mark.parametrize(("variant", "extra"), [
+    ("v2x_cps", []), ("v2x_fifo", []),
+    ("v2x_cps", ["channels.v2x.max_in_flight=40", "channels.v2x.loss.p=0.2", "channels.v2x.jitter_s=0.3"])])
+def test_the_fused_call_gives_the_separate_calls_bit_for_bit(variant: str, extra: list[str], tmp_path: Path,
                                                             monkeypatch: pytest.MonkeyPatch) -> None:
-    got = _run(variant, True, tmp_path / "a", monkeypatch)
-    want = _run(variant, False, tmp_path / "b", monkeypatch)
+    got = _run(variant, True, tmp_path / "a", monkeypatch, extra)
+    want = _run(variant, False, tmp_path / "b", monkeypatch, extra)
     assert want["counts"]["fused"] == 0
     c = got["counts"]
     assert c["fused"] > 700 and c["admit"] > 50 and c["own_coordination"] >= 1 and c["draws"] >= 1, c
@@ -92,3 +95,5 @@ def test_the_fused_call_gives_the_separate_calls_bit_for_bit(variant: str, tmp_p
     for k, v in want["metrics"].items():
         assert (np.isnan(v) and np.isnan(got["metrics"][k])) if isinstance(v, float) and np.isnan(v) else got["metrics"][k] == v, k
     assert got["draws"] == want["draws"] and got["channel"] == want["channel"]
+    if extra:
+        assert "dropped_overflow=0," not in got["channel"] and "lost_random=0," not in got["channel"], got["channel"]
