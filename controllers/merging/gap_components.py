@@ -43,6 +43,8 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
+from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, plan_slots
+from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
 from corridor.controllers.merging.wave_components import RSU, RoadAhead, WaveDamping
@@ -137,6 +139,7 @@ class GapMerging(WaveDamping):
         super().setup(ctx)
         self.pos_rng = ctx.rng(f"{self.name}.position")
         self.cross_x = float(self.lm.past_merge_x)  # [m] where the ramp's lane joins the highway's
+        self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp)  # gap_kernel's parameters
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -170,7 +173,50 @@ class GapMerging(WaveDamping):
                          slots, {c: r for r, c in self.pairs.items() if r in slots and c in connected}, v_cross)
 
     def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
-        """Pair the connected ramp vehicles, then per pair: the ramp vehicle's arrival at the junction,
+        """``_slots_py`` in one compiled call (``gap_kernel.plan_slots``: the same values, draws and
+        events); Python keeps the names, the draws and the event log."""
+        if not HAVE_C_POW:
+            return self._slots_py(t, s, v_cross)
+        p, ids = self.gp, s["ids"]
+        n = len(ids)
+        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
+        v_noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, n)
+        row = self._rows(s)
+        m = len(self.pairs)
+        pairs = np.empty((m, 2), dtype=np.int64)
+        t_slot, has_slot = np.zeros(m), np.zeros(m, dtype=bool)
+        for q, (r, c) in enumerate(self.pairs.items()):
+            pairs[q, 0], pairs[q, 1] = row.get(r, -1), row.get(c, -1)
+            ts = self._t_slot.get(r)
+            if ts is not None:
+                t_slot[q], has_slot[q] = ts, True
+        x, v = np.empty(n), np.empty(n)
+        out_pair, out_slot = np.empty((m + n, 4), dtype=np.int64), np.empty((m + n, 11))
+        n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
+                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
+        rows, vals = out_pair[:n_out].tolist(), out_slot[:n_out].tolist()
+        for kr, kc, _, _ in rows[m:]:  # the new pairs, in pairing order
+            self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
+        self.pairs, self._t_slot = {}, {}
+        out: dict[str, Slot] = {}
+        for (kr, kc, status, j), f in zip(rows, vals, strict=True):
+            if status != ST_SLOT:
+                continue
+            r = ids[kr]
+            self.pairs[r], self._t_slot[r] = ids[kc], f[0]
+            out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
+        return out
+
+    def _rows(self, s: dict[str, Any]) -> dict[str, int]:
+        """Vehicle -> row of this tick's state (once per tick)."""
+        row = s.get("_row")
+        if row is None:
+            row = s["_row"] = {vid: k for k, vid in enumerate(s["ids"])}
+        return row  # type: ignore[no-any-return]
+
+    def _slots_py(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
+        """The reference of ``_slots`` (``gap_kernel.plan_slots`` computes the same).  Pair the connected
+        ramp vehicles, then per pair: the ramp vehicle's arrival at the junction,
         ``ramp_time_gap_s`` after the predicted arrival of the highway vehicle just ahead of its partner
         (and no earlier than it can make it), its partner's ``open_time_gap_s`` later (RSU sensing: noisy)."""
         p = self.gp
@@ -183,7 +229,7 @@ class GapMerging(WaveDamping):
         for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
             earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
-        self._pair(t, s, eta, earliest, dist)
+        self._pair_py(t, s, eta, earliest, dist)
         row = {vid: k for k, vid in enumerate(s["ids"])}
         state = lambda j: (float(x[j]), float(v[j]), float(s["length"][j]))  # noqa: E731
         out: dict[str, Slot] = {}
@@ -215,7 +261,7 @@ class GapMerging(WaveDamping):
         self._t_slot = {r: v for r, v in self._t_slot.items() if r in self.pairs}
         return out
 
-    def _pair(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
+    def _pair_py(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
         """Keep the pairs whose ramp vehicle has not crossed and whose partner has not reached the
         junction; give every other connected ramp vehicle (in their order on the ramp) the first
         connected highway vehicle that can arrive ``open_time_gap_s`` after it without slowing below
