@@ -36,7 +36,9 @@ Measured on ``scenarios/flow_merge.yaml`` (variant ``cal_all10_ramp``): docs/gui
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
@@ -139,6 +141,7 @@ class GapMerging(WaveDamping):
         super().setup(ctx)
         self.pos_rng = ctx.rng(f"{self.name}.position")
         self.cross_x = float(self.lm.past_merge_x)  # [m] where the ramp's lane joins the highway's
+        self._near_cells = np.flatnonzero((self.cells < self.merge_x) & (self.cells > self.merge_x - 100.0))
         self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp)  # gap_kernel's parameters
 
     # ------------------------------------------------------------------ geometry
@@ -155,22 +158,35 @@ class GapMerging(WaveDamping):
         """The connected highway vehicles in the zone, the partners, and the connected ramp vehicles
         before the junction's end."""
         ramp = s["connected"] & s["ramp"] & (s["front"] < self.cross_x)
-        partners = set(self.pairs.values())
-        partner = np.fromiter((vid in partners for vid in s["ids"]), dtype=bool, count=len(s["ids"]))
-        return super()._receivers(s) | ramp | partner
+        out = super()._receivers(s) | ramp
+        if self.pairs:  # the partners on the road (a pair is a few vehicles: their rows, not every id tested)
+            row = self._rows(s)
+            out[[row[c] for c in self.pairs.values() if c in row]] = True
+        return out
 
     def _unheard(self, s: dict[str, Any]) -> bool:
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
         base = super()._measure(t, s)
-        near = np.isfinite(base.cell_speed_mps) & (base.cell_x_m < self.merge_x) & (base.cell_x_m > self.merge_x - 100.0)
-        v_merge = float(np.mean(base.cell_speed_mps[near])) if near.any() else self.p.u_max_mps
-        v_cross = min(v_merge, self.gp.cross_speed_mps)
+        v_cross = min(self._merge_speed(base.cell_speed_mps), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
-        connected = {vid for vid, c in zip(s["ids"], s["connected"], strict=True) if c}
+        row, connected = self._rows(s), s["connected"]
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
-                         slots, {c: r for r, c in self.pairs.items() if r in slots and c in connected}, v_cross)
+                         slots, {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, v_cross)
+
+    def _merge_speed(self, cell_speed: np.ndarray) -> float:
+        """[m/s] the mean measured speed of the cells in the 100 m before the merge (u_max: none known):
+        ``np.mean``'s value (fewer than 8 values: summed in order from the first), on Python floats."""
+        vals = [v for v in cell_speed[self._near_cells].tolist() if math.isfinite(v)]
+        if not vals:
+            return self.p.u_max_mps
+        if len(vals) >= 8:  # numpy's pairwise sum
+            return float(np.mean(vals))
+        total = vals[0]
+        for v in vals[1:]:
+            total += v
+        return total / len(vals)
 
     def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
         """``_slots_py`` in one compiled call (``gap_kernel.plan_slots``: the same values, draws and
@@ -338,11 +354,15 @@ class GapMerging(WaveDamping):
     # ------------------------------------------------------------------ decide
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds = super()._decide(t, s)
-        ids, front = s["ids"], s["front"]
-        x = self._projected(s)
-        for k in np.flatnonzero(s["connected"] & s["ramp"]):
+        rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
+        if not rows:
+            return cmds
+        ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
+        x, speed = self._projected(s).tolist(), s["speed"].tolist()  # Python floats: the same values
+        leaders = self._ramp_leaders(s, front)
+        for k in rows:
             vid = ids[k]
-            if front[k] >= self.cross_x or not (s["on_ramp"][k] or vid in self.committed):
+            if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
                 self.committed.discard(vid)
                 self._release(vid, cmds)  # joined the highway (or entered the junction on its own)
                 continue
@@ -353,17 +373,19 @@ class GapMerging(WaveDamping):
                 self.committed.discard(vid)
                 self._release(vid, cmds)
                 continue
-            v_cmd, mode = self._ramp_command(t, msg, s, k, x)
+            v_cmd, mode = self._ramp_command(t, msg, vid, x[k], speed[k], leaders(k))
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
         return cmds
 
-    def _ramp_command(self, t: float, msg: MergePlan, s: dict[str, Any], k: int, x: np.ndarray) -> tuple[float, int]:
-        """Speed and speed mode of a connected ramp vehicle: its arrival plan, the safety layer against
-        its virtual leader and its physical leader; a reserved crossing once the go / no-go holds."""
-        p, v, vid = self.gp, float(s["speed"][k]), s["ids"][k]
-        dist = max(self.merge_x - float(x[k]), 0.0)  # [m] to the junction along the ramp
+    def _ramp_command(self, t: float, msg: MergePlan, vid: str, x: float, v: float, leader: tuple[float, float]
+                      ) -> tuple[float, int]:
+        """Speed and speed mode of connected ramp vehicle ``vid`` (projected ``x`` [m], speed ``v`` [m/s],
+        its physical leader's gap [m] and speed [m/s]): its arrival plan, the safety layer against its
+        virtual leader and its physical leader; a reserved crossing once the go / no-go holds."""
+        p = self.gp
+        dist = max(self.merge_x - x, 0.0)  # [m] to the junction along the ramp
         slot = msg.slots.get(vid)
         age = t - msg.t_sent_s
         if vid in self.committed:  # crossing: on at the crossing speed (the safety layer still bounds it)
@@ -378,15 +400,15 @@ class GapMerging(WaveDamping):
         lead_ok = True
         if slot is not None and slot.lead is not None:
             x_l, v_l, len_l = slot.lead
-            gap = x_l + v_l * age - len_l - float(x[k])
+            gap = x_l + v_l * age - len_l - x
             if gap > 0.0:  # projected ahead: keep a safe gap behind it (behind: the slot waits for it)
                 a = safe_accel(gap, v, v_l, a, self.safety)
             lead_ok = gap > 0.0 and a > -p.b_comfort_mps2
-        gap, v_lead = self._ramp_leader(s, k)
+        gap, v_lead = leader
         if math.isfinite(gap):
             a = safe_accel(gap, v, v_lead, a, self.safety)
         v_next = max(0.0, v + a * self.period)
-        if vid not in self.committed and slot is not None and lead_ok and self._partner_ok(slot, age, x[k], v):
+        if vid not in self.committed and slot is not None and lead_ok and self._partner_ok(slot, age, x, v):
             if dist <= v * v / (2.0 * p.b_comfort_mps2) + p.commit_m:
                 self.committed.add(vid)
                 self.reserved_crossings += 1
@@ -401,8 +423,25 @@ class GapMerging(WaveDamping):
         gap = x_r - slot.ramp[2] - (x_c + v_c * age)
         return gap > 0.0 and safe_accel(gap, v_c, v_r, 0.0, self.safety) > -self.gp.b_comfort_mps2
 
+    def _ramp_leaders(self, s: dict[str, Any], front: list[float]) -> Callable[[int], tuple[float, float]]:
+        """``_ramp_leader`` for any row of this tick (``front``: the fronts as floats), from one sort: the
+        vehicles on the ramp by front (ties by row: argmin's pick), the first whose front is greater."""
+        on = np.flatnonzero(s["on_ramp"])
+        order = on[np.argsort(s["front"][on], kind="stable")].tolist()
+        keys = [front[j] for j in order]
+        length, speed, cos_ramp = s["length"].tolist(), s["speed"].tolist(), self.cos_ramp
+
+        def leader(k: int) -> tuple[float, float]:
+            i = bisect.bisect_right(keys, front[k] + 1e-6)
+            if i == len(order):
+                return math.inf, 0.0
+            j = order[i]
+            return (front[j] - front[k]) / cos_ramp - length[j], speed[j]
+        return leader
+
     def _ramp_leader(self, s: dict[str, Any], k: int) -> tuple[float, float]:
-        """The physical leader on the ramp (gap [m], its speed [m/s]); (inf, 0) when none."""
+        """The physical leader on the ramp (gap [m], its speed [m/s]); (inf, 0) when none (the reference
+        of ``_ramp_leaders``)."""
         on = np.flatnonzero(s["on_ramp"] & (s["front"] > s["front"][k] + 1e-6))
         if not len(on):
             return math.inf, 0.0

@@ -133,3 +133,40 @@ def test_the_run_test_squares_as_python() -> None:
             ref = v >= params.min_run_speed_mps and d <= v ** 2 / (2.0 * params.b_comfort_mps2) + params.commit_m
             assert _running(cfg, v, d, b2) == ref, (v, d)
     assert n_apart > 0  # the cases where x * x would give another answer are among them
+
+
+def test_ramp_leaders_of_a_tick_are_the_ramp_leader() -> None:
+    """``_ramp_leaders`` (one sort a tick) against ``_ramp_leader`` (a search per vehicle) for every row:
+    fronts tied, 1e-6 m apart (the search's edge) and apart; vehicles off the ramp."""
+    c = _controller(GapMerging.Params(), 0)
+    rng = np.random.default_rng(11)
+    n_found = 0
+    for _ in range(3000):
+        n = int(rng.integers(1, 30))
+        front = rng.uniform(300.0, 700.0, n)
+        for _ in range(int(rng.integers(0, 4))):  # ties and the 1e-6 m edge
+            a, b = rng.integers(0, n, 2)
+            front[b] = front[a] + float(rng.choice([0.0, 1e-6, 2e-6]))
+        s = {"front": front, "on_ramp": rng.random(n) < 0.6, "length": rng.choice([4.5, 5.0, 7.5], n),
+             "speed": rng.uniform(0.0, 20.0, n)}
+        leader = c._ramp_leaders(s, front.tolist())
+        for k in range(n):
+            ref = c._ramp_leader(s, k)
+            assert leader(k) == ref, (k, front, s["on_ramp"])
+            n_found += math.isfinite(ref[0])
+    assert n_found > 10000
+
+
+def test_merge_speed_is_numpys_mean() -> None:
+    """``_merge_speed`` (Python floats) against numpy's mean of the finite cells in the 100 m before the merge."""
+    c = _controller(GapMerging.Params(), 0)
+    rng = np.random.default_rng(12)
+    for cell_m in (50.0, 20.0, 10.0, 7.0):  # 2 to 14 cells in the window: numpy's pairwise sum from 8 on
+        c.cells = np.arange(MERGE_X - 300.0, 760.0, cell_m) + 0.5 * cell_m
+        c._near_cells = np.flatnonzero((c.cells < c.merge_x) & (c.cells > c.merge_x - 100.0))
+        for _ in range(3000):
+            cs = rng.uniform(0.0, 30.0, len(c.cells)) * 10.0 ** rng.integers(-2, 2, len(c.cells))
+            cs[rng.random(len(cs)) < 0.3] = np.nan
+            near = np.isfinite(cs) & (c.cells < c.merge_x) & (c.cells > c.merge_x - 100.0)
+            ref = float(np.mean(cs[near])) if near.any() else c.p.u_max_mps
+            assert c._merge_speed(cs) == ref
