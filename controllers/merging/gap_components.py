@@ -107,6 +107,8 @@ class GapMerging(WaveDamping):
         Metric('v2x_reserved_crossings', '1', 'Connected ramp vehicles that crossed the junction on a reservation.'),
     )
 
+    compiled_tick: ClassVar[bool] = False  # its RSU plans slots (gap_kernel); the tick stays in Python
+
     class Params(WaveDamping.Params):
         ramp_time_gap_s: float = Field(1.5, ge=0)  # [s] the ramp vehicle's arrival after its virtual leader's
         open_time_gap_s: float = Field(2.0, ge=0)  # [s] the partner's arrival after the ramp vehicle's
