@@ -107,7 +107,7 @@ class GapMerging(WaveDamping):
         Metric('v2x_reserved_crossings', '1', 'Connected ramp vehicles that crossed the junction on a reservation.'),
     )
 
-    compiled_tick: ClassVar[bool] = False  # its RSU plans slots (gap_kernel); the tick stays in Python
+    measure_compiled: ClassVar[bool] = False  # the RSU's message carries its slots: measured in Python (_measure)
 
     class Params(WaveDamping.Params):
         ramp_time_gap_s: float = Field(1.5, ge=0)  # [s] the ramp vehicle's arrival after its virtual leader's
@@ -356,9 +356,14 @@ class GapMerging(WaveDamping):
     # ------------------------------------------------------------------ decide
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds = super()._decide(t, s)
+        self._decide_more(t, s, cmds)
+        return cmds
+
+    def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
+        """The connected ramp vehicles' commands."""
         rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
         if not rows:
-            return cmds
+            return
         ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
         x, speed = self._projected(s).tolist(), s["speed"].tolist()  # Python floats: the same values
         leaders = self._ramp_leaders(s, front)
@@ -368,7 +373,7 @@ class GapMerging(WaveDamping):
                 self.committed.discard(vid)
                 self._release(vid, cmds)  # joined the highway (or entered the junction on its own)
                 continue
-            msg = self.latest.get(vid)
+            msg = self._latest_of(vid)
             if not isinstance(msg, MergePlan) or t - msg.t_sent_s > self.p.stale_after_s:
                 if vid in self.controlled:
                     self.fallbacks += 1
@@ -379,7 +384,6 @@ class GapMerging(WaveDamping):
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
-        return cmds
 
     def _ramp_command(self, t: float, msg: MergePlan, vid: str, x: float, v: float, leader: tuple[float, float]
                       ) -> tuple[float, int]:
@@ -454,7 +458,15 @@ class GapMerging(WaveDamping):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """The wave-damping speed; for a partner capped to reach the junction no earlier than its slot
         and bounded by the safety layer behind the projected ramp vehicle."""
-        v_cmd = super()._speed(t, msg, x, v, gap, v_lead, vid)
+        return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
+
+    def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        msg = self._latest_of(vid)
+        assert msg is not None  # commanded: a fresh message
+        return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+
+    def _partner_cap(self, t: float, msg: RoadAhead, x: float, v: float, vid: str, v_cmd: float) -> float:
+        """``v_cmd`` [m/s] of vehicle ``vid`` at ``x`` [m], ``v`` [m/s] capped for a partner (see ``_speed``)."""
         if not isinstance(msg, MergePlan) or vid not in msg.partners:
             return v_cmd
         slot = msg.slots[msg.partners[vid]]

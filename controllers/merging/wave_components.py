@@ -88,6 +88,7 @@ class WaveDamping(Controller):
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
     compiled_tick: ClassVar[bool] = True  # the plain law may run as one compiled call (wave_kernel.wave_tick)
+    measure_compiled: ClassVar[bool] = True  # ... its measurement too (False: _measure's message, kept as an object)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -174,6 +175,7 @@ class WaveDamping(Controller):
                 64, dtype=np.int64)  # the copies in flight, in send order
             self._out = (np.empty(64, dtype=np.int64), np.empty(64, dtype=np.int64), np.empty(64))
             self._none = np.empty(0)
+            self._msg_objs: list[RoadAhead] = []  # by send order, when measured in Python (measure_compiled False)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -242,11 +244,17 @@ class WaveDamping(Controller):
                 self._latest_row = np.concatenate([self._latest_row,
                                                    np.full(len(ch._attached) - len(self._latest_row), -1)])
         m, cnt = len(members), self._cnt
-        send, noise, u = False, self._none, self._none
+        send, noise, u, cells_in = False, self._none, self._none, self._none
         if t + 1e-9 >= self._next_rsu_s:
             self._next_rsu_s += self.p.rsu_period_s
             send = True
-            noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
+            if self.measure_compiled:
+                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
+            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
+                msg = self._measure(t, s)
+                cells_in = msg.cell_speed_mps
+                if m:
+                    self._msg_objs.append(msg)  # its row: the send order
             if m:
                 u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
         if m:
@@ -257,14 +265,14 @@ class WaveDamping(Controller):
                                                    np.empty(2 * len(ids), dtype=np.int64), np.empty(2 * len(ids)))
         nodes = np.array([ch.index[r] for r in members], dtype=np.int64)
         k = wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
-                      s["connected"], s["pos"], send, noise, rows, nodes, u, self._rsu_pos, ch._attached,
+                      s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, nodes, u, self._rsu_pos, ch._attached,
                       self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t, self._pend_msg,
                       cnt, out_row, out_act, out_v)
         cmds: list[Any] = []
         for j, act, v in zip(out_row[:k].tolist(), out_act[:k].tolist(), out_v[:k].tolist(), strict=True):
             vid = ids[j]
             if act == ACT_COMMAND:
-                cmds.append(SetSpeed(vid, v, self.p.command_speed_mode))
+                cmds.append(SetSpeed(vid, self._capped(t, s, j, vid, v), self.p.command_speed_mode))
                 self.controlled.add(vid)
                 self.commands_sent += 1
                 continue
@@ -272,7 +280,25 @@ class WaveDamping(Controller):
                 self.fallbacks += 1
                 self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, own driver model")
             self._release(vid, cmds)
+        self._decide_more(t, s, cmds)
         return cmds
+
+    def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        """The compiled tick's command [m/s] for vehicle ``vid`` (row ``k``) whose law gives ``v_cmd``
+        (a subclass caps it as its ``_speed`` does)."""
+        return v_cmd
+
+    def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
+        """The commands a subclass's ``_decide`` adds after the law's (the compiled tick's hook)."""
+
+    def _latest_of(self, vid: str) -> RoadAhead | None:
+        """The newest message ``vid`` received (None: none), on either path (the compiled tick keeps the
+        messages by row, the objects when measured in Python)."""
+        if not self.compiled:
+            return self.latest.get(vid)
+        node = self.channel.index.get(vid)
+        q = -1 if node is None else int(self._latest_row[node])
+        return self._msg_objs[q] if q >= 0 else None
 
     def _make_room(self, n_msg: int, n_pend: int) -> None:
         """The compiled tick's arrays hold ``n_msg`` messages and ``n_pend`` copies in flight (doubled)."""

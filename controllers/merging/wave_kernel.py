@@ -137,7 +137,8 @@ def law_speed(cfg: np.ndarray, cells_x: np.ndarray, cells: np.ndarray, x: float,
 _RF, _RB = types.Array(types.float64, 1, "A", readonly=True), types.Array(types.bool_, 1, "A", readonly=True)
 _RF2, _RI = types.Array(types.float64, 2, "A", readonly=True), types.Array(types.int64, 1, "A", readonly=True)
 # u and src go on to rsu_kernel.broadcast_copies, whose signature has writable arrays
-_SIG = types.int64(types.float64, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, _RF2, types.boolean, _RF, _RI, _RI,
+_SIG = types.int64(types.float64, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, _RF2, types.boolean, types.boolean, _RF, _RF,
+                   _RI, _RI,
                    types.float64[:], types.float64[:], _RB, types.int64[:], types.float64[:], types.float64[:, :], types.int64[:], types.float64[:],
                    types.int64[:], types.int64[:], types.int64[:], types.int64[:], types.float64[:])
 
@@ -145,11 +146,12 @@ _SIG = types.int64(types.float64, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, _RF2, 
 @(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
 def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
               on_ramp: np.ndarray, ramp: np.ndarray, connected: np.ndarray, pos: np.ndarray, send: bool,
-              noise: np.ndarray, member_rows: np.ndarray, member_nodes: np.ndarray, u: np.ndarray, src: np.ndarray,
+              measure: bool, noise: np.ndarray, cells_in: np.ndarray, member_rows: np.ndarray, member_nodes: np.ndarray, u: np.ndarray, src: np.ndarray,
               attached: np.ndarray, latest: np.ndarray, msg_t: np.ndarray, msg_cells: np.ndarray,
               pend_node: np.ndarray, pend_t: np.ndarray, pend_msg: np.ndarray, cnt: np.ndarray, out_row: np.ndarray,
               out_act: np.ndarray, out_v: np.ndarray) -> int:
-    """The RSU's broadcast (``send``: its measurement from ``noise`` and its copies to ``member_rows`` at
+    """The RSU's broadcast (``send``: its measurement from ``noise``, or ``cells_in`` when not ``measure``:
+    the caller measured, and its copies to ``member_rows`` at
     nodes ``member_nodes`` from the channel's uniforms ``u``), the delivery of the copies due to the
     ``attached`` nodes and the newest message per node (``latest``), then per connected highway vehicle
     rear first: ``out_row``, ``out_act`` (``ACT_*``) and ``out_v`` (the command [m/s]).  Returns how many.
@@ -159,10 +161,14 @@ def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray,
     if send and m > 0:  # the measurement (WaveDamping._measure: rsu_kernel.road_ahead's cells) and its copies
         q = cnt[K_SEQ]
         n_cells = msg_cells.shape[1]
+        if not measure:
+            noise = np.zeros(0)  # nothing measured here: the cells are the caller's
+            for c in range(n_cells):
+                msg_cells[q, c] = cells_in[c]
         total = np.zeros(n_cells)
         count = np.zeros(n_cells, dtype=np.int64)
         base, cell_m = cfg[C_CELL_BASE], cfg[C_CELL_M]
-        for i in range(n):
+        for i in range(n if measure else 0):
             if not on_ramp[i]:
                 vi = speed[i] + noise[i]
                 vi = vi if (vi >= 0.0 or math.isnan(vi)) else 0.0
@@ -170,7 +176,7 @@ def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray,
                 if k >= 0 and k < n_cells:
                     total[k] += vi
                     count[k] += 1
-        for c in range(n_cells):
+        for c in range(n_cells if measure else 0):
             msg_cells[q, c] = total[c] / count[c] if count[c] > 0 else np.nan
         msg_t[q] = t
         perm = np.argsort(member_nodes, kind="mergesort")

@@ -92,8 +92,8 @@ def _controller(params: WaveDamping.Params, chan: ChannelConfig, duration: float
 class _Drive:
     """Vehicles on a highway line and a ramp lane (fronts in [0, 760] m), moving, entering and leaving."""
 
-    def __init__(self, rng: np.random.Generator) -> None:
-        self.rng, self.serial = rng, 0
+    def __init__(self, rng: np.random.Generator, min_speed: float = 0.0) -> None:
+        self.rng, self.serial, self.min_speed = rng, 0, min_speed
         self.veh: dict[str, list[Any]] = {}  # id -> [front, speed, length, connected, ramp role, on ramp, y]
         for _ in range(int(rng.integers(0, 40))):
             self._add(float(rng.uniform(0.0, END_X)))
@@ -103,7 +103,7 @@ class _Drive:
         if rng.random() < 0.15:  # on a 5 m grid: cell edges, centres and centres - horizon (the law's edges)
             front = 5.0 * float(rng.integers(0, 152))
         ramp = bool(rng.random() < 0.2)
-        speed = 0.0 if rng.random() < 0.1 else float(rng.uniform(0.0, 32.0))
+        speed = self.min_speed if rng.random() < 0.1 else float(rng.uniform(self.min_speed, 32.0))
         self.veh[f"v{self.serial}"] = [front, speed, float(rng.choice([4.5, 5.0, 7.5])), bool(rng.random() < 0.5), ramp,
                                        ramp and front < MERGE_X, float(rng.choice([0.0, 0.0, 40.0, 400.0]))]
         self.serial += 1
@@ -112,7 +112,7 @@ class _Drive:
         rng = self.rng
         for vid, v in list(self.veh.items()):
             v[0] += v[1] * 0.5 * float(rng.uniform(0.0, 1.5))
-            v[1] = max(0.0, v[1] + float(rng.normal(0.0, 2.0)))
+            v[1] = max(self.min_speed, v[1] + float(rng.normal(0.0, 2.0)))
             if v[5] and v[0] >= MERGE_X:
                 v[5] = False
             if v[0] > END_X or rng.random() < 0.02:
@@ -224,3 +224,61 @@ def test_law_is_wave_dampings_speed(params: WaveDamping.Params) -> None:
             assert got == ref, (x, v, gap, v_lead, cells)
             n_free += not math.isfinite(gap)
     assert n_free > 1000
+
+
+def _gap_controller(params: Any, chan: ChannelConfig, duration: float, seed: int, compiled: bool) -> Any:
+    from corridor.controllers.merging.gap_components import GapMerging
+
+    c = GapMerging("gaps", params, SimpleNamespace(channels={"v2x": chan}))
+    c.period = 0.5
+    c.setup(_ctx(duration, seed))
+    assert c.compiled
+    c.compiled = compiled
+    return c
+
+
+@pytest.mark.parametrize("case", range(len(CHANNELS)))
+def test_compiled_tick_of_merge_gaps_is_its_python_tick(case: int) -> None:
+    """``v2x_merge_gaps`` on the compiled tick (its RSU's message measured in Python, the copies, the
+    delivery and the highway law compiled, the partners' caps and the ramp vehicles in Python) against
+    ``_communicate`` + ``_decide``."""
+    from corridor.controllers.merging.gap_components import GapMerging
+
+    chan = CHANNELS[case]
+    params = GapMerging.Params(**{k: v for k, v in PARAMS[case].model_dump().items() if k not in ("stopper", "safety")})
+    rng = np.random.default_rng(400 + case)
+    n_cmd = n_partner = n_pairs = 0
+    for drive_no in range(12):
+        duration = 60.0 if drive_no % 3 else 20.0
+        # moving: a standstill before the merge (all its cells at 0 m/s) makes the planned crossing speed 0,
+        # and time_to_go divides by it (on both paths)
+        drive = _Drive(rng, min_speed=4.0)
+        ref, got = (_gap_controller(params, chan, duration, drive_no, False),
+                    _gap_controller(params, chan, duration, drive_no, True))
+        for tick in range(120):
+            t = 0.5 * tick
+            s_ref = drive.state()
+            s_got = {k: v.copy() for k, v in s_ref.items()}
+            ref._communicate(t, s_ref)
+            cmds_ref = ref._decide(t, s_ref)
+            cmds_got = got._tick_compiled(t, s_got)
+            assert cmds_got == cmds_ref, (drive_no, tick)
+            assert got.events.events == ref.events.events
+            assert (got.fallbacks, got.commands_sent, got.controlled, got.committed, got.reserved_crossings) == (
+                ref.fallbacks, ref.commands_sent, ref.controlled, ref.committed, ref.reserved_crossings)
+            assert list(got.pairs.items()) == list(ref.pairs.items()) and got._t_slot == ref._t_slot
+            assert repr(got._channel_stats()) == repr(ref._channel_stats())
+            for g in ("sensor_rng", "pos_rng"):
+                assert getattr(got, g).bit_generator.state == getattr(ref, g).bit_generator.state
+            assert got.channel._rng.bit_generator.state == ref.channel._rng.bit_generator.state
+            for vid, msg in ref.latest.items():
+                mine = got._latest_of(vid)
+                assert mine is not None and mine.t_sent_s == msg.t_sent_s and mine.slots == msg.slots
+                assert mine.partners == msg.partners and mine.cross_speed_mps == msg.cross_speed_mps
+                q = got._latest_row[got.channel.index[vid]]
+                assert np.array_equal(got._msg_cells[q], msg.cell_speed_mps, equal_nan=True)
+            n_cmd += sum(type(c).__name__ == "SetSpeed" for c in cmds_ref)
+            n_partner += sum(vid in m.partners for vid, m in ref.latest.items())
+            n_pairs += len(ref.pairs)
+            drive.step()
+    assert n_cmd > 100 and n_partner > 20 and n_pairs > 100, (n_cmd, n_partner, n_pairs)
