@@ -365,8 +365,9 @@ class GapMerging(WaveDamping):
         if not rows:
             return
         ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
-        x, speed = self._projected(s).tolist(), s["speed"].tolist()  # Python floats: the same values
-        leaders = self._ramp_leaders(s, front)
+        speed = s["speed"].tolist()  # Python floats: the same values
+        leaders = self._ramp_leaders(s, front, speed)
+        merge_x, cos_ramp = self.merge_x, self.cos_ramp
         for k in rows:
             vid = ids[k]
             if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
@@ -380,7 +381,8 @@ class GapMerging(WaveDamping):
                 self.committed.discard(vid)
                 self._release(vid, cmds)
                 continue
-            v_cmd, mode = self._ramp_command(t, msg, vid, x[k], speed[k], leaders(k))
+            x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value
+            v_cmd, mode = self._ramp_command(t, msg, vid, x, speed[k], leaders(k))
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
@@ -429,20 +431,21 @@ class GapMerging(WaveDamping):
         gap = x_r - slot.ramp[2] - (x_c + v_c * age)
         return gap > 0.0 and safe_accel(gap, v_c, v_r, 0.0, self.safety) > -self.gp.b_comfort_mps2
 
-    def _ramp_leaders(self, s: dict[str, Any], front: list[float]) -> Callable[[int], tuple[float, float]]:
-        """``_ramp_leader`` for any row of this tick (``front``: the fronts as floats), from one sort: the
-        vehicles on the ramp by front (ties by row: argmin's pick), the first whose front is greater."""
-        on = np.flatnonzero(s["on_ramp"])
-        order = on[np.argsort(s["front"][on], kind="stable")].tolist()
+    def _ramp_leaders(self, s: dict[str, Any], front: list[float], speed: list[float]
+                      ) -> Callable[[int], tuple[float, float]]:
+        """``_ramp_leader`` for any row of this tick (``front``, ``speed``: the rows' as floats), from one
+        stable sort of the vehicles on the ramp by front (ties by row: argmin's pick; finite fronts), the
+        first whose front is greater."""
+        order = sorted(np.flatnonzero(s["on_ramp"]).tolist(), key=front.__getitem__)
         keys = [front[j] for j in order]
-        length, speed, cos_ramp = s["length"].tolist(), s["speed"].tolist(), self.cos_ramp
+        length, cos_ramp = s["length"], self.cos_ramp
 
         def leader(k: int) -> tuple[float, float]:
             i = bisect.bisect_right(keys, front[k] + 1e-6)
             if i == len(order):
                 return math.inf, 0.0
             j = order[i]
-            return (front[j] - front[k]) / cos_ramp - length[j], speed[j]
+            return (front[j] - front[k]) / cos_ramp - float(length[j]), speed[j]
         return leader
 
     def _ramp_leader(self, s: dict[str, Any], k: int) -> tuple[float, float]:

@@ -149,7 +149,7 @@ def test_ramp_leaders_of_a_tick_are_the_ramp_leader() -> None:
             front[b] = front[a] + float(rng.choice([0.0, 1e-6, 2e-6]))
         s = {"front": front, "on_ramp": rng.random(n) < 0.6, "length": rng.choice([4.5, 5.0, 7.5], n),
              "speed": rng.uniform(0.0, 20.0, n)}
-        leader = c._ramp_leaders(s, front.tolist())
+        leader = c._ramp_leaders(s, front.tolist(), s["speed"].tolist())
         for k in range(n):
             ref = c._ramp_leader(s, k)
             assert leader(k) == ref, (k, front, s["on_ramp"])
@@ -170,3 +170,14 @@ def test_merge_speed_is_numpys_mean() -> None:
             near = np.isfinite(cs) & (c.cells < c.merge_x) & (c.cells > c.merge_x - 100.0)
             ref = float(np.mean(cs[near])) if near.any() else c.p.u_max_mps
             assert c._merge_speed(cs) == ref
+
+
+def test_projected_position_on_floats_is_projected() -> None:
+    """The ramp commands' projected x (one row at a time, Python floats) is ``_projected``'s (numpy)."""
+    c = _controller(GapMerging.Params(), 0)
+    rng = np.random.default_rng(13)
+    front = rng.uniform(0.0, 760.0, 20000)
+    on = rng.random(20000) < 0.5
+    ref = c._projected({"front": front, "on_ramp": on}).tolist()
+    got = [c.merge_x - (c.merge_x - f) / c.cos_ramp if o else f for f, o in zip(front.tolist(), on.tolist(), strict=True)]
+    assert got == ref
