@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, plan_slots
+from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, measure_plan, plan_slots
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
@@ -144,7 +144,9 @@ class GapMerging(WaveDamping):
         self.pos_rng = ctx.rng(f"{self.name}.position")
         self.cross_x = float(self.lm.past_merge_x)  # [m] where the ramp's lane joins the highway's
         self._near_cells = np.flatnonzero((self.cells < self.merge_x) & (self.cells > self.merge_x - 100.0))
-        self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp)  # gap_kernel's parameters
+        self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
+        # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
+        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -170,6 +172,8 @@ class GapMerging(WaveDamping):
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
+        if self.compiled and self._fused:
+            return self._measure_fused(t, s)
         base = super()._measure(t, s)
         v_cross = min(self._merge_speed(base.cell_speed_mps), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
@@ -199,8 +203,38 @@ class GapMerging(WaveDamping):
         n = len(ids)
         x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
         v_noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, n)
-        row = self._rows(s)
-        m = len(self.pairs)
+        pairs, t_slot, has_slot = self._pair_arrays(s)
+        x, v = np.empty(n), np.empty(n)
+        out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
+        n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
+                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
+        return self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+
+    def _measure_fused(self, t: float, s: dict[str, Any]) -> MergePlan:
+        """``_measure`` (the plain law's measurement and the slots) in one compiled call
+        (``gap_kernel.measure_plan``): the same draws (the sensor's n for the cells then n for the slots,
+        one stream), values and events."""
+        p, ids = self.gp, s["ids"]
+        n = len(ids)
+        noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
+        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
+        pairs, t_slot, has_slot = self._pair_arrays(s)
+        x, v = np.empty(n), np.empty(n)
+        out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
+        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))
+        v_cross = np.empty(1)
+        n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
+                             s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
+                             self._near_cells, cell_speed, eta, v_cross)
+        yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
+        slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+        row, connected = self._rows(s), s["connected"]
+        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots,
+                         {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, float(v_cross[0]))
+
+    def _pair_arrays(self, s: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pairs as rows (ramp vehicle, partner; -1: gone), their slots so far and whether they have one."""
+        row, m = self._rows(s), len(self.pairs)
         pairs = np.empty((m, 2), dtype=np.int64)
         t_slot, has_slot = np.zeros(m), np.zeros(m, dtype=bool)
         for q, (r, c) in enumerate(self.pairs.items()):
@@ -208,11 +242,12 @@ class GapMerging(WaveDamping):
             ts = self._t_slot.get(r)
             if ts is not None:
                 t_slot[q], has_slot[q] = ts, True
-        x, v = np.empty(n), np.empty(n)
-        out_pair, out_slot = np.empty((m + n, 4), dtype=np.int64), np.empty((m + n, 11))
-        n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
-                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
-        rows, vals = out_pair[:n_out].tolist(), out_slot[:n_out].tolist()
+        return pairs, t_slot, has_slot
+
+    def _slots_from(self, t: float, ids: list[str], m: int, out_pair: np.ndarray, out_slot: np.ndarray
+                    ) -> dict[str, Slot]:
+        """The pairs, slots and events from ``plan_slots``' output (``m`` pairs before it)."""
+        rows, vals = out_pair.tolist(), out_slot.tolist()
         for kr, kc, _, _ in rows[m:]:  # the new pairs, in pairing order
             self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
         self.pairs, self._t_slot = {}, {}

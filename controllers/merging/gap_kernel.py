@@ -33,7 +33,8 @@ from corridor.controllers.merging.coord_kernel import HAVE_C_POW, _c_pow, time_t
 
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
- C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, N_CFG) = range(15)
+ C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
+ C_U_MAX, N_CFG) = range(19)
 # out_pair columns: ramp row, partner row, status, lead row (-1: none)
 P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
@@ -41,9 +42,11 @@ ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phas
 S_T_RAMP, S_T_PARTNER, S_LEAD_X, S_LEAD_V, S_LEAD_LEN, S_PX, S_PV, S_PLEN, S_RX, S_RV, S_RLEN = range(11)
 
 
-def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float) -> np.ndarray:
-    """:func:`plan_slots`'s parameters from ``GapMerging.Params`` ``p`` and the network's geometry."""
+def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base: float = math.nan) -> np.ndarray:
+    """:func:`plan_slots`'s (and :func:`measure_plan`'s) parameters from ``GapMerging.Params`` ``p``, the
+    network's geometry and the first cell's start [m]."""
     cfg = np.empty(N_CFG)
+    cfg[C_CELL_BASE], cfg[C_CELL_M], cfg[C_CROSS_SPEED], cfg[C_U_MAX] = cell_base, p.cell_m, p.cross_speed_mps, p.u_max_mps
     cfg[C_MERGE_X], cfg[C_CROSS_X], cfg[C_COS_RAMP] = merge_x, cross_x, cos_ramp
     cfg[C_OPEN_GAP], cfg[C_RAMP_GAP], cfg[C_PAIR_ZONE] = p.open_time_gap_s, p.ramp_time_gap_s, p.pair_zone_m
     cfg[C_PARTNER_MIN], cfg[C_RESTART_PARTNER] = p.partner_min_speed_mps, p.restart_partner_speed_mps
@@ -88,18 +91,11 @@ def _fits_at(cfg: np.ndarray, connected: bool, x_j: float, eta_j: float, t: floa
     return h2 <= cfg[C_OPEN_GAP] and eta_j >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
 
 
-# the state's columns may be read-only views (the snapshot's): read-only array types (writable ones convert)
-_RF, _RB = types.Array(types.float64, 1, "A", readonly=True), types.Array(types.bool_, 1, "A", readonly=True)
-_SIG = types.int64(types.float64, types.float64, _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, types.int64[:, :],
-                   types.float64[:], types.bool_[:], types.float64[:], types.float64[:], types.int64[:, :],
-                   types.float64[:, :])
-
-
-@(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
-def plan_slots(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
-               x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
-               pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
-               out_pair: np.ndarray, out_slot: np.ndarray) -> int:
+@njit(cache=True)
+def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+          x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+          pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+          out_pair: np.ndarray, out_slot: np.ndarray) -> int:
     """``GapMerging._slots`` (with ``_pair``) on rows.  ``pairs`` (m, 2): the pairs (ramp row, partner row;
     -1: gone from the road) in the controller's order, ``t_slot_of`` / ``has_slot`` their slots so far.
     Writes the noisy view ``x``, ``v`` and per pair, the kept ones in order then the new ones in pairing
@@ -241,4 +237,73 @@ def plan_slots(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, spe
     return n_out
 
 
-__all__ = ["HAVE_C_POW", "ST_SLOT", "cfg_array", "plan_slots"]
+
+# the state's columns may be read-only views (the snapshot's): read-only array types (writable ones convert)
+_RF, _RB = types.Array(types.float64, 1, "A", readonly=True), types.Array(types.bool_, 1, "A", readonly=True)
+_RI = types.Array(types.int64, 1, "A", readonly=True)
+_SIG = types.int64(types.float64, types.float64, _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, types.int64[:, :],
+                   types.float64[:], types.bool_[:], types.float64[:], types.float64[:], types.int64[:, :],
+                   types.float64[:, :])
+
+
+@(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def plan_slots(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+               x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+               pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+               out_pair: np.ndarray, out_slot: np.ndarray) -> int:
+    """``GapMerging._slots`` (see :func:`_plan`)."""
+    return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
+                 has_slot, x, v, out_pair, out_slot)
+
+
+_MEASURE_SIG = types.int64(types.float64, types.float64[:], _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB,
+                           types.int64[:, :], types.float64[:], types.bool_[:], types.float64[:], types.float64[:],
+                           types.int64[:, :], types.float64[:, :], _RI, types.float64[:], types.float64[:],
+                           types.float64[:])
+
+
+@(njit(_MEASURE_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray, noise: np.ndarray,
+                 x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+                 pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+                 out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray, eta_ramp: np.ndarray,
+                 v_cross_out: np.ndarray) -> int:
+    """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``
+    on ``speed`` + ``noise``, into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
+    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at most ``cross_speed``: into
+    ``v_cross_out[0]``), then :func:`plan_slots`."""
+    n, n_cells = front.shape[0], cell_speed.shape[0]
+    merge_x, cos_ramp, base, cell_m = cfg[C_MERGE_X], cfg[C_COS_RAMP], cfg[C_CELL_BASE], cfg[C_CELL_M]
+    total = np.zeros(n_cells)
+    count = np.zeros(n_cells, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        vi = speed[i] + noise[i]
+        vi = vi if (vi >= 0.0 or math.isnan(vi)) else 0.0  # np.maximum(v, 0.0)
+        if on_ramp[i]:
+            dist = (merge_x - front[i]) / cos_ramp
+            d = dist if (dist >= 0.0 or math.isnan(dist)) else 0.0
+            w = vi if (vi >= 1.0 or math.isnan(vi)) else 1.0
+            eta_ramp[r] = t + d / w
+            r += 1
+        else:
+            k = np.int64(math.floor((front[i] - base) / cell_m))
+            if k >= 0 and k < n_cells:
+                total[k] += vi
+                count[k] += 1
+    for c in range(n_cells):
+        cell_speed[c] = total[c] / count[c] if count[c] > 0 else np.nan
+    acc, m = 0.0, 0
+    for c in near:
+        cv = cell_speed[c]
+        if math.isfinite(cv):
+            acc = cv if m == 0 else acc + cv
+            m += 1
+    v_merge = acc / m if m else cfg[C_U_MAX]
+    v_cross = cfg[C_CROSS_SPEED] if cfg[C_CROSS_SPEED] < v_merge else v_merge  # Python's min(v_merge, cross)
+    v_cross_out[0] = v_cross
+    return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
+                 has_slot, x, v, out_pair, out_slot)
+
+
+__all__ = ["HAVE_C_POW", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]

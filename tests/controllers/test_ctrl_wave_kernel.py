@@ -232,7 +232,7 @@ def _gap_controller(params: Any, chan: ChannelConfig, duration: float, seed: int
     c = GapMerging("gaps", params, SimpleNamespace(channels={"v2x": chan}))
     c.period = 0.5
     c.setup(_ctx(duration, seed))
-    assert c.compiled
+    assert c.compiled and c._fused
     c.compiled = compiled
     return c
 
@@ -275,6 +275,8 @@ def test_compiled_tick_of_merge_gaps_is_its_python_tick(case: int) -> None:
                 mine = got._latest_of(vid)
                 assert mine is not None and mine.t_sent_s == msg.t_sent_s and mine.slots == msg.slots
                 assert mine.partners == msg.partners and mine.cross_speed_mps == msg.cross_speed_mps
+                assert np.array_equal(mine.ramp_eta_s, msg.ramp_eta_s) and mine.yielder == msg.yielder
+                assert np.array_equal(mine.cell_speed_mps, msg.cell_speed_mps, equal_nan=True)
                 q = got._latest_row[got.channel.index[vid]]
                 assert np.array_equal(got._msg_cells[q], msg.cell_speed_mps, equal_nan=True)
             n_cmd += sum(type(c).__name__ == "SetSpeed" for c in cmds_ref)
