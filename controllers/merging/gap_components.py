@@ -138,6 +138,8 @@ class GapMerging(WaveDamping):
         self._t_slot: dict[str, float] = {}  # ramp vehicle -> its slot at the junction [s]
         self._dropped: set[str] = set()  # ramp vehicles that missed their slot this broadcast
         self.reserved_crossings = 0
+        self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
+        self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -219,10 +221,8 @@ class GapMerging(WaveDamping):
         noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
         x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
         pairs, t_slot, has_slot = self._pair_arrays(s)
-        x, v = np.empty(n), np.empty(n)
-        out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
-        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))
-        v_cross = np.empty(1)
+        x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
+        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))  # the message's
         n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
                              s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
                              self._near_cells, cell_speed, eta, v_cross)
@@ -232,8 +232,19 @@ class GapMerging(WaveDamping):
         return MergePlan(t, self.cells, cell_speed, eta, yielder, slots,
                          {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, float(v_cross[0]))
 
+    def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``measure_plan``'s work arrays (noisy x, v; pairs and slots out; the crossing speed) for ``n`` rows,
+        kept from call to call (grown by doubling)."""
+        w = self._work
+        if w is None or len(w[0]) < n:
+            k = max(n, 64) if w is None else max(n, 2 * len(w[0]))
+            w = self._work = (np.empty(k), np.empty(k), np.empty((k, 4), dtype=np.int64), np.empty((k, 11)), np.empty(1))
+        return w
+
     def _pair_arrays(self, s: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The pairs as rows (ramp vehicle, partner; -1: gone), their slots so far and whether they have one."""
+        if not self.pairs:
+            return self._no_pairs
         row, m = self._rows(s), len(self.pairs)
         pairs = np.empty((m, 2), dtype=np.int64)
         t_slot, has_slot = np.zeros(m), np.zeros(m, dtype=bool)
@@ -264,7 +275,7 @@ class GapMerging(WaveDamping):
         """Vehicle -> row of this tick's state (once per tick)."""
         row = s.get("_row")
         if row is None:
-            row = s["_row"] = {vid: k for k, vid in enumerate(s["ids"])}
+            row = s["_row"] = dict(zip(s["ids"], range(len(s["ids"]))))
         return row  # type: ignore[no-any-return]
 
     def _slots_py(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
