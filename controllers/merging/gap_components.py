@@ -36,13 +36,17 @@ Measured on ``scenarios/flow_merge.yaml`` (variant ``cal_all10_ramp``): docs/gui
 
 from __future__ import annotations
 
+import bisect
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 from pydantic import Field
 
+from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, measure_plan, plan_slots
+from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
 from corridor.controllers.merging.wave_components import RSU, RoadAhead, WaveDamping
@@ -103,6 +107,8 @@ class GapMerging(WaveDamping):
         Metric('v2x_reserved_crossings', '1', 'Connected ramp vehicles that crossed the junction on a reservation.'),
     )
 
+    measure_compiled: ClassVar[bool] = False  # the RSU's message carries its slots: measured in Python (_measure)
+
     class Params(WaveDamping.Params):
         ramp_time_gap_s: float = Field(1.5, ge=0)  # [s] the ramp vehicle's arrival after its virtual leader's
         open_time_gap_s: float = Field(2.0, ge=0)  # [s] the partner's arrival after the ramp vehicle's
@@ -132,11 +138,17 @@ class GapMerging(WaveDamping):
         self._t_slot: dict[str, float] = {}  # ramp vehicle -> its slot at the junction [s]
         self._dropped: set[str] = set()  # ramp vehicles that missed their slot this broadcast
         self.reserved_crossings = 0
+        self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
+        self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
         self.pos_rng = ctx.rng(f"{self.name}.position")
         self.cross_x = float(self.lm.past_merge_x)  # [m] where the ramp's lane joins the highway's
+        self._near_cells = np.flatnonzero((self.cells < self.merge_x) & (self.cells > self.merge_x - 100.0))
+        self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
+        # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
+        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -152,25 +164,123 @@ class GapMerging(WaveDamping):
         """The connected highway vehicles in the zone, the partners, and the connected ramp vehicles
         before the junction's end."""
         ramp = s["connected"] & s["ramp"] & (s["front"] < self.cross_x)
-        partners = set(self.pairs.values())
-        partner = np.fromiter((vid in partners for vid in s["ids"]), dtype=bool, count=len(s["ids"]))
-        return super()._receivers(s) | ramp | partner
+        out = super()._receivers(s) | ramp
+        if self.pairs:  # the partners on the road (a pair is a few vehicles: their rows, not every id tested)
+            row = self._rows(s)
+            out[[row[c] for c in self.pairs.values() if c in row]] = True
+        return out
 
     def _unheard(self, s: dict[str, Any]) -> bool:
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
+        if self.compiled and self._fused:
+            return self._measure_fused(t, s)
         base = super()._measure(t, s)
-        near = np.isfinite(base.cell_speed_mps) & (base.cell_x_m < self.merge_x) & (base.cell_x_m > self.merge_x - 100.0)
-        v_merge = float(np.mean(base.cell_speed_mps[near])) if near.any() else self.p.u_max_mps
-        v_cross = min(v_merge, self.gp.cross_speed_mps)
+        v_cross = min(self._merge_speed(base.cell_speed_mps), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
-        connected = {vid for vid, c in zip(s["ids"], s["connected"], strict=True) if c}
+        row, connected = self._rows(s), s["connected"]
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
-                         slots, {c: r for r, c in self.pairs.items() if r in slots and c in connected}, v_cross)
+                         slots, {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, v_cross)
+
+    def _merge_speed(self, cell_speed: np.ndarray) -> float:
+        """[m/s] the mean measured speed of the cells in the 100 m before the merge (u_max: none known):
+        ``np.mean``'s value (fewer than 8 values: summed in order from the first), on Python floats."""
+        vals = [v for v in cell_speed[self._near_cells].tolist() if math.isfinite(v)]
+        if not vals:
+            return self.p.u_max_mps
+        if len(vals) >= 8:  # numpy's pairwise sum
+            return float(np.mean(vals))
+        total = vals[0]
+        for v in vals[1:]:
+            total += v
+        return total / len(vals)
 
     def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
-        """Pair the connected ramp vehicles, then per pair: the ramp vehicle's arrival at the junction,
+        """``_slots_py`` in one compiled call (``gap_kernel.plan_slots``: the same values, draws and
+        events); Python keeps the names, the draws and the event log."""
+        if not HAVE_C_POW:
+            return self._slots_py(t, s, v_cross)
+        p, ids = self.gp, s["ids"]
+        n = len(ids)
+        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
+        v_noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, n)
+        pairs, t_slot, has_slot = self._pair_arrays(s)
+        x, v = np.empty(n), np.empty(n)
+        out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
+        n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
+                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
+        return self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+
+    def _measure_fused(self, t: float, s: dict[str, Any]) -> MergePlan:
+        """``_measure`` (the plain law's measurement and the slots) in one compiled call
+        (``gap_kernel.measure_plan``): the same draws (the sensor's n for the cells then n for the slots,
+        one stream), values and events."""
+        p, ids = self.gp, s["ids"]
+        n = len(ids)
+        noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
+        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
+        pairs, t_slot, has_slot = self._pair_arrays(s)
+        x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
+        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))  # the message's
+        n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
+                             s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
+                             self._near_cells, cell_speed, eta, v_cross)
+        yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
+        slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+        row, connected = self._rows(s), s["connected"]
+        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots,
+                         {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, float(v_cross[0]))
+
+    def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``measure_plan``'s work arrays (noisy x, v; pairs and slots out; the crossing speed) for ``n`` rows,
+        kept from call to call (grown by doubling)."""
+        w = self._work
+        if w is None or len(w[0]) < n:
+            k = max(n, 64) if w is None else max(n, 2 * len(w[0]))
+            w = self._work = (np.empty(k), np.empty(k), np.empty((k, 4), dtype=np.int64), np.empty((k, 11)), np.empty(1))
+        return w
+
+    def _pair_arrays(self, s: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pairs as rows (ramp vehicle, partner; -1: gone), their slots so far and whether they have one."""
+        if not self.pairs:
+            return self._no_pairs
+        row, m = self._rows(s), len(self.pairs)
+        pairs = np.empty((m, 2), dtype=np.int64)
+        t_slot, has_slot = np.zeros(m), np.zeros(m, dtype=bool)
+        for q, (r, c) in enumerate(self.pairs.items()):
+            pairs[q, 0], pairs[q, 1] = row.get(r, -1), row.get(c, -1)
+            ts = self._t_slot.get(r)
+            if ts is not None:
+                t_slot[q], has_slot[q] = ts, True
+        return pairs, t_slot, has_slot
+
+    def _slots_from(self, t: float, ids: list[str], m: int, out_pair: np.ndarray, out_slot: np.ndarray
+                    ) -> dict[str, Slot]:
+        """The pairs, slots and events from ``plan_slots``' output (``m`` pairs before it)."""
+        rows, vals = out_pair.tolist(), out_slot.tolist()
+        for kr, kc, _, _ in rows[m:]:  # the new pairs, in pairing order
+            self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
+        self.pairs, self._t_slot = {}, {}
+        out: dict[str, Slot] = {}
+        for (kr, kc, status, j), f in zip(rows, vals, strict=True):
+            if status != ST_SLOT:
+                continue
+            r = ids[kr]
+            self.pairs[r], self._t_slot[r] = ids[kc], f[0]
+            out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
+        return out
+
+    def _rows(self, s: dict[str, Any]) -> dict[str, int]:
+        """Vehicle -> row of this tick's state (once per tick)."""
+        row = s.get("_row")
+        if row is None:
+            row = s["_row"] = dict(zip(s["ids"], range(len(s["ids"]))))
+        return row  # type: ignore[no-any-return]
+
+    def _slots_py(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
+        """The reference of ``_slots`` (``gap_kernel.plan_slots`` computes the same).  Pair the connected
+        ramp vehicles, then per pair: the ramp vehicle's arrival at the junction,
         ``ramp_time_gap_s`` after the predicted arrival of the highway vehicle just ahead of its partner
         (and no earlier than it can make it), its partner's ``open_time_gap_s`` later (RSU sensing: noisy)."""
         p = self.gp
@@ -183,7 +293,7 @@ class GapMerging(WaveDamping):
         for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
             earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
-        self._pair(t, s, eta, earliest, dist)
+        self._pair_py(t, s, eta, earliest, dist)
         row = {vid: k for k, vid in enumerate(s["ids"])}
         state = lambda j: (float(x[j]), float(v[j]), float(s["length"][j]))  # noqa: E731
         out: dict[str, Slot] = {}
@@ -215,7 +325,7 @@ class GapMerging(WaveDamping):
         self._t_slot = {r: v for r, v in self._t_slot.items() if r in self.pairs}
         return out
 
-    def _pair(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
+    def _pair_py(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
         """Keep the pairs whose ramp vehicle has not crossed and whose partner has not reached the
         junction; give every other connected ramp vehicle (in their order on the ramp) the first
         connected highway vehicle that can arrive ``open_time_gap_s`` after it without slowing below
@@ -292,32 +402,44 @@ class GapMerging(WaveDamping):
     # ------------------------------------------------------------------ decide
     def _decide(self, t: float, s: dict[str, Any]) -> list[Any]:
         cmds = super()._decide(t, s)
-        ids, front = s["ids"], s["front"]
-        x = self._projected(s)
-        for k in np.flatnonzero(s["connected"] & s["ramp"]):
+        self._decide_more(t, s, cmds)
+        return cmds
+
+    def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
+        """The connected ramp vehicles' commands."""
+        rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
+        if not rows:
+            return
+        ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
+        speed = s["speed"].tolist()  # Python floats: the same values
+        leaders = self._ramp_leaders(s, front, speed)
+        merge_x, cos_ramp = self.merge_x, self.cos_ramp
+        for k in rows:
             vid = ids[k]
-            if front[k] >= self.cross_x or not (s["on_ramp"][k] or vid in self.committed):
+            if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
                 self.committed.discard(vid)
                 self._release(vid, cmds)  # joined the highway (or entered the junction on its own)
                 continue
-            msg = self.latest.get(vid)
+            msg = self._latest_of(vid)
             if not isinstance(msg, MergePlan) or t - msg.t_sent_s > self.p.stale_after_s:
                 if vid in self.controlled:
                     self.fallbacks += 1
                 self.committed.discard(vid)
                 self._release(vid, cmds)
                 continue
-            v_cmd, mode = self._ramp_command(t, msg, s, k, x)
+            x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value
+            v_cmd, mode = self._ramp_command(t, msg, vid, x, speed[k], leaders(k))
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
-        return cmds
 
-    def _ramp_command(self, t: float, msg: MergePlan, s: dict[str, Any], k: int, x: np.ndarray) -> tuple[float, int]:
-        """Speed and speed mode of a connected ramp vehicle: its arrival plan, the safety layer against
-        its virtual leader and its physical leader; a reserved crossing once the go / no-go holds."""
-        p, v, vid = self.gp, float(s["speed"][k]), s["ids"][k]
-        dist = max(self.merge_x - float(x[k]), 0.0)  # [m] to the junction along the ramp
+    def _ramp_command(self, t: float, msg: MergePlan, vid: str, x: float, v: float, leader: tuple[float, float]
+                      ) -> tuple[float, int]:
+        """Speed and speed mode of connected ramp vehicle ``vid`` (projected ``x`` [m], speed ``v`` [m/s],
+        its physical leader's gap [m] and speed [m/s]): its arrival plan, the safety layer against its
+        virtual leader and its physical leader; a reserved crossing once the go / no-go holds."""
+        p = self.gp
+        dist = max(self.merge_x - x, 0.0)  # [m] to the junction along the ramp
         slot = msg.slots.get(vid)
         age = t - msg.t_sent_s
         if vid in self.committed:  # crossing: on at the crossing speed (the safety layer still bounds it)
@@ -332,15 +454,15 @@ class GapMerging(WaveDamping):
         lead_ok = True
         if slot is not None and slot.lead is not None:
             x_l, v_l, len_l = slot.lead
-            gap = x_l + v_l * age - len_l - float(x[k])
+            gap = x_l + v_l * age - len_l - x
             if gap > 0.0:  # projected ahead: keep a safe gap behind it (behind: the slot waits for it)
                 a = safe_accel(gap, v, v_l, a, self.safety)
             lead_ok = gap > 0.0 and a > -p.b_comfort_mps2
-        gap, v_lead = self._ramp_leader(s, k)
+        gap, v_lead = leader
         if math.isfinite(gap):
             a = safe_accel(gap, v, v_lead, a, self.safety)
         v_next = max(0.0, v + a * self.period)
-        if vid not in self.committed and slot is not None and lead_ok and self._partner_ok(slot, age, x[k], v):
+        if vid not in self.committed and slot is not None and lead_ok and self._partner_ok(slot, age, x, v):
             if dist <= v * v / (2.0 * p.b_comfort_mps2) + p.commit_m:
                 self.committed.add(vid)
                 self.reserved_crossings += 1
@@ -355,8 +477,26 @@ class GapMerging(WaveDamping):
         gap = x_r - slot.ramp[2] - (x_c + v_c * age)
         return gap > 0.0 and safe_accel(gap, v_c, v_r, 0.0, self.safety) > -self.gp.b_comfort_mps2
 
+    def _ramp_leaders(self, s: dict[str, Any], front: list[float], speed: list[float]
+                      ) -> Callable[[int], tuple[float, float]]:
+        """``_ramp_leader`` for any row of this tick (``front``, ``speed``: the rows' as floats), from one
+        stable sort of the vehicles on the ramp by front (ties by row: argmin's pick; finite fronts), the
+        first whose front is greater."""
+        order = sorted(np.flatnonzero(s["on_ramp"]).tolist(), key=front.__getitem__)
+        keys = [front[j] for j in order]
+        length, cos_ramp = s["length"], self.cos_ramp
+
+        def leader(k: int) -> tuple[float, float]:
+            i = bisect.bisect_right(keys, front[k] + 1e-6)
+            if i == len(order):
+                return math.inf, 0.0
+            j = order[i]
+            return (front[j] - front[k]) / cos_ramp - float(length[j]), speed[j]
+        return leader
+
     def _ramp_leader(self, s: dict[str, Any], k: int) -> tuple[float, float]:
-        """The physical leader on the ramp (gap [m], its speed [m/s]); (inf, 0) when none."""
+        """The physical leader on the ramp (gap [m], its speed [m/s]); (inf, 0) when none (the reference
+        of ``_ramp_leaders``)."""
         on = np.flatnonzero(s["on_ramp"] & (s["front"] > s["front"][k] + 1e-6))
         if not len(on):
             return math.inf, 0.0
@@ -367,7 +507,15 @@ class GapMerging(WaveDamping):
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
         """The wave-damping speed; for a partner capped to reach the junction no earlier than its slot
         and bounded by the safety layer behind the projected ramp vehicle."""
-        v_cmd = super()._speed(t, msg, x, v, gap, v_lead, vid)
+        return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
+
+    def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        msg = self._latest_of(vid)
+        assert msg is not None  # commanded: a fresh message
+        return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+
+    def _partner_cap(self, t: float, msg: RoadAhead, x: float, v: float, vid: str, v_cmd: float) -> float:
+        """``v_cmd`` [m/s] of vehicle ``vid`` at ``x`` [m], ``v`` [m/s] capped for a partner (see ``_speed``)."""
         if not isinstance(msg, MergePlan) or vid not in msg.partners:
             return v_cmd
         slot = msg.slots[msg.partners[vid]]

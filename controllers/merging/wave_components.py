@@ -32,9 +32,10 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from corridor.channel import ChannelConfig
+from corridor.channel import ChannelConfig, ChannelStats
+from corridor.controllers.merging import wave_kernel as wk
 from corridor.controllers.merging.components import deliverable_safety
-from corridor.controllers.merging.rsu_broadcast import newest_per_receiver, rsu_broadcast
+from corridor.controllers.merging.rsu_broadcast import RsuBroadcast, newest_per_receiver, rsu_broadcast
 from corridor.controllers.merging.rsu_kernel import road_ahead
 from corridor.controllers.merging.safety_layer import SafetyParams, safe_accel
 from corridor.controllers.merging.wave_damping import (
@@ -42,12 +43,14 @@ from corridor.controllers.merging.wave_damping import (
     follower_stopper,
     gap_speed_cap,
 )
+from corridor.controllers.merging.wave_kernel import ACT_COMMAND, ACT_RELEASE, HAVE_C_POW, wave_tick
 from corridor.engine import Controller, Metric, Need, RunContext
 from corridor.snapshot import Role
 from corridor.traffic.sumo.commands import Release, SetSpeed
 from corridor.traffic.sumo.trips import NEEDS_ROAD, road_frame
 
 RSU = "rsu"
+_RAMP = int(Role.RAMP)  # a plain int: numpy compares an IntEnum member several times slower (~10 us)
 
 
 def downstream_speed_floats(x_m: float, known: list[tuple[float, float]], horizon_m: float, default_mps: float) -> float:
@@ -84,6 +87,8 @@ class WaveDamping(Controller):
     )
     needs: ClassVar[dict[str, Need]] = {"road": NEEDS_ROAD}
     period_source: ClassVar[str | None] = "peer:road"  # [s] every road step
+    compiled_tick: ClassVar[bool] = True  # the plain law may run as one compiled call (wave_kernel.wave_tick)
+    measure_compiled: ClassVar[bool] = True  # ... its measurement too (False: _measure's message, kept as an object)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -154,11 +159,31 @@ class WaveDamping(Controller):
         self.sensor_rng = ctx.rng(f"{self.name}.sensor")
         self._ramp_lane = np.zeros(0, dtype=bool)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
+        p = self.p
+        # the compiled tick covers the plain law (no courtesy stop, no gap creation, Bernoulli loss, fewer
+        # than 8 cells in a road ahead: summed in order); the rest runs _communicate and _decide
+        self.compiled = (HAVE_C_POW and self.compiled_tick and isinstance(self.channel, RsuBroadcast)
+                         and p.yield_stop_m == 0 and p.gap_headway_s == 0 and p.horizon_m < 6.0 * p.cell_m)
+        if self.compiled:
+            self._wave_cfg = wk.cfg_array(p, self.safety, self._cell_base, self.merge_x + p.release_after_m, self.period,
+                                      self.chan_cfg, ctx.duration if ctx.duration is not None else math.inf)
+            self._cnt = np.zeros(wk.N_CNT, dtype=np.int64)
+            self._cnt[wk.K_MAX_IN_FLIGHT] = self.chan_cfg.max_in_flight
+            self._latest_row = np.full(16, -1, dtype=np.int64)  # node -> its newest message (-1: none)
+            self._msg_t, self._msg_cells = np.empty(64), np.empty((64, len(self.cells)))  # by send order
+            self._pend_node, self._pend_t, self._pend_msg = np.empty(64, dtype=np.int64), np.empty(64), np.empty(
+                64, dtype=np.int64)  # the copies in flight, in send order
+            self._out = (np.empty(64, dtype=np.int64), np.empty(64, dtype=np.int64), np.empty(64))
+            self._none = np.empty(0)
+            self._msg_objs: list[RoadAhead] = []  # by send order, when measured in Python (measure_compiled False)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
         s = self._sense(ctx)
         if s is None:
+            return
+        if self.compiled:
+            ctx.commands.extend(self._tick_compiled(ctx.t, s))
             return
         self._communicate(ctx.t, s)
         ctx.commands.extend(self._decide(ctx.t, s))
@@ -173,7 +198,7 @@ class WaveDamping(Controller):
         pos, size = snap.position[sl], snap.size[sl]
         front = pos[:, 0] + 0.5 * size[:, 0] * np.cos(snap.heading[sl])
         return {"ids": list(snap.ids[sl]), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
-                "on_ramp": self._ramp_lane[r.lane], "ramp": tb.role[r.uid] == Role.RAMP,
+                "on_ramp": self._ramp_lane[r.lane], "ramp": tb.role[r.uid] == _RAMP,
                 "connected": tb.connected[r.uid], "pos": pos}
 
     def _communicate(self, t: float, s: dict[str, Any]) -> None:
@@ -198,6 +223,102 @@ class WaveDamping(Controller):
             if members or not self._unheard(s):
                 self.channel.send(t, self._measure(t, s), self._rsu_pos, members, s["pos"][rows])
         newest_per_receiver(self.channel.deliver(t), self.channel.names, self.latest)
+
+    def _tick_compiled(self, t: float, s: dict[str, Any]) -> list[Any]:
+        """``_communicate`` and ``_decide`` (the plain law) with one compiled call (``wave_kernel.wave_tick``):
+        the same draws, channel, messages, commands and events; Python keeps the names, the membership,
+        the draws, the commands and the events."""
+        ids, ch = s["ids"], self.channel
+        assert isinstance(ch, RsuBroadcast)
+        rows = np.flatnonzero(self._receivers(s))
+        members = [ids[k] for k in rows.tolist()]
+        member_set = set(members)
+        if member_set != self._members:  # attach in name order (see _communicate)
+            for vid in sorted(member_set - self._members):
+                ch.attach(vid)
+            for vid in sorted(self._members - member_set):
+                ch.detach(vid)
+                self._latest_row[ch.index[vid]] = -1
+            self._members = member_set
+            if len(self._latest_row) < len(ch._attached):
+                self._latest_row = np.concatenate([self._latest_row,
+                                                   np.full(len(ch._attached) - len(self._latest_row), -1)])
+        m, cnt = len(members), self._cnt
+        send, noise, u, cells_in = False, self._none, self._none, self._none
+        if t + 1e-9 >= self._next_rsu_s:
+            self._next_rsu_s += self.p.rsu_period_s
+            send = True
+            if self.measure_compiled:
+                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
+            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
+                msg = self._measure(t, s)
+                cells_in = msg.cell_speed_mps
+                if m:
+                    self._msg_objs.append(msg)  # its row: the send order
+            if m:
+                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
+        if m:
+            self._make_room(int(cnt[wk.K_SEQ]) + 1, int(cnt[wk.K_N_PEND]) + m)
+        out_row, out_act, out_v = self._out
+        if len(out_row) < len(ids):
+            self._out = out_row, out_act, out_v = (np.empty(2 * len(ids), dtype=np.int64),
+                                                   np.empty(2 * len(ids), dtype=np.int64), np.empty(2 * len(ids)))
+        nodes = np.array([ch.index[r] for r in members], dtype=np.int64)
+        k = wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
+                      s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, nodes, u, self._rsu_pos, ch._attached,
+                      self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t, self._pend_msg,
+                      cnt, out_row, out_act, out_v)
+        cmds: list[Any] = []
+        for j, act, v in zip(out_row[:k].tolist(), out_act[:k].tolist(), out_v[:k].tolist(), strict=True):
+            vid = ids[j]
+            if act == ACT_COMMAND:
+                cmds.append(SetSpeed(vid, self._capped(t, s, j, vid, v), self.p.command_speed_mode))
+                self.controlled.add(vid)
+                self.commands_sent += 1
+                continue
+            if act != ACT_RELEASE and vid in self.controlled:  # no fresh message
+                self.fallbacks += 1
+                self.events.emit(t, self.name, "fallback", f"{vid}: stale V2X information, own driver model")
+            self._release(vid, cmds)
+        self._decide_more(t, s, cmds)
+        return cmds
+
+    def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        """The compiled tick's command [m/s] for vehicle ``vid`` (row ``k``) whose law gives ``v_cmd``
+        (a subclass caps it as its ``_speed`` does)."""
+        return v_cmd
+
+    def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
+        """The commands a subclass's ``_decide`` adds after the law's (the compiled tick's hook)."""
+
+    def _latest_of(self, vid: str) -> RoadAhead | None:
+        """The newest message ``vid`` received (None: none), on either path (the compiled tick keeps the
+        messages by row, the objects when measured in Python)."""
+        if not self.compiled:
+            return self.latest.get(vid)
+        node = self.channel.index.get(vid)
+        q = -1 if node is None else int(self._latest_row[node])
+        return self._msg_objs[q] if q >= 0 else None
+
+    def _make_room(self, n_msg: int, n_pend: int) -> None:
+        """The compiled tick's arrays hold ``n_msg`` messages and ``n_pend`` copies in flight (doubled)."""
+        if len(self._msg_t) < n_msg:
+            n = max(n_msg, 2 * len(self._msg_t))
+            self._msg_t = np.concatenate([self._msg_t, np.empty(n - len(self._msg_t))])
+            self._msg_cells = np.concatenate([self._msg_cells, np.empty((n - len(self._msg_cells), len(self.cells)))])
+        if len(self._pend_node) < n_pend:
+            n, c = max(n_pend, 2 * len(self._pend_node)), len(self._pend_node)
+            self._pend_node = np.concatenate([self._pend_node, np.empty(n - c, dtype=np.int64)])
+            self._pend_t = np.concatenate([self._pend_t, np.empty(n - c)])
+            self._pend_msg = np.concatenate([self._pend_msg, np.empty(n - c, dtype=np.int64)])
+
+    def _channel_stats(self) -> ChannelStats:
+        """The channel's statistics (the compiled tick counts them itself)."""
+        if not self.compiled:
+            return self.channel.stats()
+        c = self._cnt.tolist()
+        return ChannelStats.counted(c[wk.K_SENT], c[wk.K_DELIVERED], c[wk.K_LOST], c[wk.K_OOR], c[wk.K_LATE],
+                                    c[wk.K_OVERFLOW])
 
     def _receivers(self, s: dict[str, Any]) -> np.ndarray:
         """Mask of the vehicles that listen to the RSU: the connected highway vehicles in the zone."""
@@ -334,6 +455,6 @@ class WaveDamping(Controller):
             cmds.append(Release(vid))
 
     def finish(self, ctx: RunContext) -> dict[str, Any]:
-        st = self.channel.stats()
+        st = self._channel_stats()
         return {"v2x_delivery_ratio": st.delivery_ratio, "v2x_fallbacks": self.fallbacks,
                 "v2x_commands": self.commands_sent}

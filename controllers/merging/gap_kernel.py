@@ -1,0 +1,309 @@
+"""The roadside unit's pairing and slot planning of ``v2x_merge_gaps`` in one compiled call (issue 27).
+
+``GapMerging._slots_py`` and ``_pair_py`` do it in Python on vehicle names, every step: the RSU's noisy
+view (projected positions, speeds), the arrival times at the junction, the earliest arrivals of the
+connected ramp vehicles (``trajectory.time_to_go``), the pairs kept, a partner for every other connected
+ramp vehicle, then every pair's slot.  :func:`plan_slots` does the same on row indices with the same
+values in the same order; the names, the draws and the event log stay in Python:
+
+- the noise arrays are drawn by the caller from the same generators in the same order;
+- Python's ``sorted`` (stable, by key) is ``np.argsort(kind="mergesort")`` (stable): the ramp vehicles
+  by distance, the highway candidates by arrival, their row order breaking ties (a NaN key, which the
+  RSU's finite readings never give, would sort otherwise);
+- the highway vehicle ahead (``GapMerging._lead_of``) is the first of the highway line, sorted stably
+  by front, whose front is greater than the vehicle's front + 0.1 m (``np.searchsorted``'s side right);
+- Python's ``max`` keeps the first of equal (or NaN) values; ``np.maximum(a, 0.0)``'s choice is the first
+  operand when it is not smaller or NaN;
+- ``x ** 2`` on floats (Python's and numpy's scalar power) is the C library's ``pow``, not ``x * x``:
+  called as glibc's ``powf64`` (``coord_kernel``), which LLVM does not turn into a multiplication.
+
+``tests/controllers/test_ctrl_gap_kernel.py`` checks the controller's compiled planning against the Python
+one on random ticks, bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from numba import njit, types
+
+from corridor.controllers.merging.coord_kernel import HAVE_C_POW, _c_pow, time_to_go_c
+
+# cfg: the parameters, in this order
+(C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
+ C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
+ C_U_MAX, N_CFG) = range(19)
+# out_pair columns: ramp row, partner row, status, lead row (-1: none)
+P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
+ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
+# out_slot columns: the slot's times, then the partner's (x, v, length) and the ramp vehicle's
+S_T_RAMP, S_T_PARTNER, S_LEAD_X, S_LEAD_V, S_LEAD_LEN, S_PX, S_PV, S_PLEN, S_RX, S_RV, S_RLEN = range(11)
+
+
+def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base: float = math.nan) -> np.ndarray:
+    """:func:`plan_slots`'s (and :func:`measure_plan`'s) parameters from ``GapMerging.Params`` ``p``, the
+    network's geometry and the first cell's start [m]."""
+    cfg = np.empty(N_CFG)
+    cfg[C_CELL_BASE], cfg[C_CELL_M], cfg[C_CROSS_SPEED], cfg[C_U_MAX] = cell_base, p.cell_m, p.cross_speed_mps, p.u_max_mps
+    cfg[C_MERGE_X], cfg[C_CROSS_X], cfg[C_COS_RAMP] = merge_x, cross_x, cos_ramp
+    cfg[C_OPEN_GAP], cfg[C_RAMP_GAP], cfg[C_PAIR_ZONE] = p.open_time_gap_s, p.ramp_time_gap_s, p.pair_zone_m
+    cfg[C_PARTNER_MIN], cfg[C_RESTART_PARTNER] = p.partner_min_speed_mps, p.restart_partner_speed_mps
+    cfg[C_HUMAN_MARGIN], cfg[C_RESTART_GAP], cfg[C_MIN_RUN] = p.human_margin_s, p.restart_gap_s, p.min_run_speed_mps
+    cfg[C_COMMIT], cfg[C_B_COMFORT], cfg[C_PLAN_ACCEL] = p.commit_m, p.b_comfort_mps2, p.plan_accel_mps2
+    return cfg
+
+
+@njit(cache=True)
+def _lead(order: np.ndarray, front_sorted: np.ndarray, x: float) -> int:
+    """The first of ``order`` whose front (``front_sorted``) is > ``x`` (-1: none): searchsorted right."""
+    lo, hi = 0, front_sorted.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if x < front_sorted[mid]:
+            hi = mid
+        else:
+            lo = mid + 1
+    return order[lo] if lo < order.shape[0] else -1
+
+
+@njit(cache=True)
+def _follow_gap(cfg: np.ndarray, v: float, dist: float) -> float:
+    """``GapMerging._follow_gap``."""
+    if v < cfg[C_MIN_RUN] and dist <= cfg[C_COMMIT]:
+        return cfg[C_RESTART_GAP]
+    return cfg[C_OPEN_GAP]
+
+
+@njit(cache=True)
+def _running(cfg: np.ndarray, v: float, dist: float, b2: float) -> bool:
+    """``GapMerging._slots``'s test of a ramp vehicle on its run to the junction (``v ** 2``: C's pow)."""
+    return v >= cfg[C_MIN_RUN] and dist <= _c_pow(v, 2.0) / b2 + cfg[C_COMMIT]
+
+
+@njit(cache=True)
+def _fits_at(cfg: np.ndarray, connected: bool, x_j: float, eta_j: float, t: float, t_ramp: float, h2: float) -> bool:
+    """``GapMerging._fits_at``."""
+    if connected:
+        v_min = cfg[C_PARTNER_MIN] if h2 <= cfg[C_OPEN_GAP] else cfg[C_RESTART_PARTNER]
+        return t + (cfg[C_MERGE_X] - x_j) / v_min >= t_ramp + h2
+    return h2 <= cfg[C_OPEN_GAP] and eta_j >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
+
+
+@njit(cache=True)
+def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+          x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+          pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+          out_pair: np.ndarray, out_slot: np.ndarray) -> int:
+    """``GapMerging._slots`` (with ``_pair``) on rows.  ``pairs`` (m, 2): the pairs (ramp row, partner row;
+    -1: gone from the road) in the controller's order, ``t_slot_of`` / ``has_slot`` their slots so far.
+    Writes the noisy view ``x``, ``v`` and per pair, the kept ones in order then the new ones in pairing
+    order, ``out_pair`` (ramp row, partner row, status, lead row) and ``out_slot`` (the slot's floats).
+    Returns the number of ``out_pair`` rows (the new pairs are those past the kept ones: status
+    ``ST_GONE`` rows included, ``m`` rows come first)."""
+    n = front.shape[0]
+    merge_x, cross_x, cos_ramp = cfg[C_MERGE_X], cfg[C_CROSS_X], cfg[C_COS_RAMP]
+    eta, earliest, dist = np.empty(n), np.full(n, np.nan), np.empty(n)
+    for i in range(n):
+        xi = front[i]
+        if on_ramp[i]:
+            xi = merge_x - (merge_x - xi) / cos_ramp
+        xi = xi + x_noise[i]
+        vi = speed[i] + v_noise[i]
+        vi = vi if (vi >= 0.0 or math.isnan(vi)) else 0.0
+        x[i], v[i] = xi, vi
+        d = merge_x - xi
+        d = d if (d >= 0.0 or math.isnan(d)) else 0.0
+        w = vi if (vi >= 1.0 or math.isnan(vi)) else 1.0
+        eta[i] = t + d / w
+        dist[i] = d
+    for i in range(n):
+        if connected[i] and ramp[i]:
+            d = merge_x - x[i]
+            d = 0.0 if 0.0 > d else d  # Python's max(d, 0.0)
+            earliest[i] = t + time_to_go_c(d, v[i], v_cross, cfg[C_PLAN_ACCEL])
+    # the highway line (not on the ramp, not a ramp vehicle) sorted by front, for the vehicle ahead
+    n_line = 0
+    for i in range(n):
+        if not on_ramp[i] and not ramp[i]:
+            n_line += 1
+    line = np.empty(n_line, dtype=np.int64)
+    n_line = 0
+    for i in range(n):
+        if not on_ramp[i] and not ramp[i]:
+            line[n_line] = i
+            n_line += 1
+    order = line[np.argsort(front[line], kind="mergesort")]
+    front_sorted = front[order]
+    # _pair: the pairs kept, the partners taken, the last slot
+    m = pairs.shape[0]
+    in_pair = np.zeros(n, dtype=np.bool_)
+    taken = np.zeros(n, dtype=np.bool_)
+    t_prev = -math.inf
+    first = True
+    for q in range(m):
+        r, c = pairs[q, 0], pairs[q, 1]
+        out_pair[q, P_RAMP], out_pair[q, P_PARTNER], out_pair[q, P_LEAD] = r, c, -1
+        if r >= 0 and c >= 0 and front[r] < cross_x and front[c] < merge_x:
+            out_pair[q, P_STATUS] = ST_SLOT
+            in_pair[r] = True
+            taken[c] = True
+            ts = t_slot_of[q] if has_slot[q] else -math.inf
+            if first:
+                t_prev, first = ts, False
+            elif ts > t_prev:
+                t_prev = ts
+        else:
+            out_pair[q, P_STATUS] = ST_GONE
+    n_out = m
+    n_ramp = 0
+    for i in range(n):
+        if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+            n_ramp += 1
+    if n_ramp:
+        cand = np.empty(n_ramp, dtype=np.int64)
+        n_ramp = 0
+        for i in range(n):
+            if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+                cand[n_ramp] = i
+                n_ramp += 1
+        cand = cand[np.argsort(dist[cand], kind="mergesort")]
+        lo_x, hi_x = merge_x - 10.0, merge_x - cfg[C_PAIR_ZONE]
+        n_hw = 0
+        for i in range(n):
+            if not ramp[i] and not on_ramp[i] and front[i] < lo_x and front[i] > hi_x:
+                n_hw += 1
+        hw = np.empty(n_hw, dtype=np.int64)
+        n_hw = 0
+        for i in range(n):
+            if not ramp[i] and not on_ramp[i] and front[i] < lo_x and front[i] > hi_x:
+                hw[n_hw] = i
+                n_hw += 1
+        hw = hw[np.argsort(eta[hw], kind="mergesort")]
+        for k in cand:
+            h2 = _follow_gap(cfg, speed[k], dist[k])
+            best, t_best = -1, 0.0
+            for j in hw:
+                if taken[j]:
+                    continue
+                lead = _lead(order, front_sorted, front[j] + 0.1)
+                t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, eta[lead] + ramp_gap or -inf)
+                b = t_prev + cfg[C_OPEN_GAP]
+                if b > t_ramp:
+                    t_ramp = b
+                b = eta[lead] + cfg[C_RAMP_GAP] if lead >= 0 else -math.inf
+                if b > t_ramp:
+                    t_ramp = b
+                if _fits_at(cfg, connected[j], front[j], eta[j], t, t_ramp, h2):
+                    best, t_best = j, t_ramp
+                    break
+            if best < 0:
+                continue
+            out_pair[n_out, P_RAMP], out_pair[n_out, P_PARTNER], out_pair[n_out, P_STATUS] = k, best, ST_SLOT
+            out_pair[n_out, P_LEAD] = -1
+            out_slot[n_out, S_T_RAMP] = t_best  # the new pair's slot so far
+            taken[best] = True
+            t_prev = t_best
+            n_out += 1
+    # _slots: every pair's slot (the kept ones in order, then the new ones)
+    b2 = 2.0 * cfg[C_B_COMFORT]  # as Python's 2.0 * b_comfort
+    for q in range(n_out):
+        if out_pair[q, P_STATUS] != ST_SLOT:
+            continue
+        kr, kc = out_pair[q, P_RAMP], out_pair[q, P_PARTNER]
+        if q < m:
+            t_slot = t_slot_of[q] if has_slot[q] else earliest[kr]
+        else:
+            t_slot = out_slot[q, S_T_RAMP]
+        running = _running(cfg, v[kr], dist[kr], b2)
+        if earliest[kr] > t_slot + cfg[C_RAMP_GAP] and not running:
+            out_pair[q, P_STATUS] = ST_DROPPED
+            continue
+        j = _lead(order, front_sorted, front[kc] + 0.1)
+        out_pair[q, P_LEAD] = j
+        if j >= 0:
+            b = eta[j] + cfg[C_RAMP_GAP]
+            if b > t_slot:  # Python's max(t_slot, eta + gap)
+                t_slot = b
+            out_slot[q, S_LEAD_X], out_slot[q, S_LEAD_V], out_slot[q, S_LEAD_LEN] = x[j], v[j], length[j]
+        h2 = _follow_gap(cfg, v[kr], dist[kr])
+        if not running and not _fits_at(cfg, connected[kc], x[kc], eta[kc], t, t_slot, h2):
+            out_pair[q, P_STATUS] = ST_DROPPED
+            continue
+        out_slot[q, S_T_RAMP], out_slot[q, S_T_PARTNER] = t_slot, t_slot + h2
+        out_slot[q, S_PX], out_slot[q, S_PV], out_slot[q, S_PLEN] = x[kc], v[kc], length[kc]
+        out_slot[q, S_RX], out_slot[q, S_RV], out_slot[q, S_RLEN] = x[kr], v[kr], length[kr]
+    return n_out
+
+
+
+# the state's columns may be read-only views (the snapshot's): read-only array types (writable ones convert)
+_RF, _RB = types.Array(types.float64, 1, "A", readonly=True), types.Array(types.bool_, 1, "A", readonly=True)
+_RI = types.Array(types.int64, 1, "A", readonly=True)
+_SIG = types.int64(types.float64, types.float64, _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, types.int64[:, :],
+                   types.float64[:], types.bool_[:], types.float64[:], types.float64[:], types.int64[:, :],
+                   types.float64[:, :])
+
+
+@(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def plan_slots(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+               x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+               pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+               out_pair: np.ndarray, out_slot: np.ndarray) -> int:
+    """``GapMerging._slots`` (see :func:`_plan`)."""
+    return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
+                 has_slot, x, v, out_pair, out_slot)
+
+
+_MEASURE_SIG = types.int64(types.float64, types.float64[:], _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB,
+                           types.int64[:, :], types.float64[:], types.bool_[:], types.float64[:], types.float64[:],
+                           types.int64[:, :], types.float64[:, :], _RI, types.float64[:], types.float64[:],
+                           types.float64[:])
+
+
+@(njit(_MEASURE_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray, noise: np.ndarray,
+                 x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+                 pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+                 out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray, eta_ramp: np.ndarray,
+                 v_cross_out: np.ndarray) -> int:
+    """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``
+    on ``speed`` + ``noise``, into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
+    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at most ``cross_speed``: into
+    ``v_cross_out[0]``), then :func:`plan_slots`."""
+    n, n_cells = front.shape[0], cell_speed.shape[0]
+    merge_x, cos_ramp, base, cell_m = cfg[C_MERGE_X], cfg[C_COS_RAMP], cfg[C_CELL_BASE], cfg[C_CELL_M]
+    total = np.zeros(n_cells)
+    count = np.zeros(n_cells, dtype=np.int64)
+    r = 0
+    for i in range(n):
+        vi = speed[i] + noise[i]
+        vi = vi if (vi >= 0.0 or math.isnan(vi)) else 0.0  # np.maximum(v, 0.0)
+        if on_ramp[i]:
+            dist = (merge_x - front[i]) / cos_ramp
+            d = dist if (dist >= 0.0 or math.isnan(dist)) else 0.0
+            w = vi if (vi >= 1.0 or math.isnan(vi)) else 1.0
+            eta_ramp[r] = t + d / w
+            r += 1
+        else:
+            k = np.int64(math.floor((front[i] - base) / cell_m))
+            if k >= 0 and k < n_cells:
+                total[k] += vi
+                count[k] += 1
+    for c in range(n_cells):
+        cell_speed[c] = total[c] / count[c] if count[c] > 0 else np.nan
+    acc, m = 0.0, 0
+    for c in near:
+        cv = cell_speed[c]
+        if math.isfinite(cv):
+            acc = cv if m == 0 else acc + cv
+            m += 1
+    v_merge = acc / m if m else cfg[C_U_MAX]
+    v_cross = cfg[C_CROSS_SPEED] if cfg[C_CROSS_SPEED] < v_merge else v_merge  # Python's min(v_merge, cross)
+    v_cross_out[0] = v_cross
+    return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
+                 has_slot, x, v, out_pair, out_slot)
+
+
+__all__ = ["HAVE_C_POW", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]
