@@ -128,6 +128,8 @@ class SumoBackend(Backend):
         self.pre_step: list[Callable[[RunContext], None]] = []
         self._part = WorldSnapshot(road=RoadFrame(name, self.tables))
         self._rows = _NO_ROWS
+        # the last role array with controlled rows, the rows and the controlled ids it was made for
+        self._roles: tuple[_Rows, set[str], np.ndarray] = (_NO_ROWS, set(), _NO_ROWS.role)
         self._blank = False  # a vehicle was off-lane (lane id "") in the last step
         self._lanes: tuple[list[str], np.ndarray] = ([], np.zeros(0, dtype=np.int64))  # the last step's lane codes
         self._started = False
@@ -352,13 +354,7 @@ class SumoBackend(Backend):
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
-        role = same.role
-        if self.controlled:  # the rows of the controlled vehicles, by uid (one per id): no pass over the ids
-            uid_of = self.tables.uid_of
-            by_uid = np.zeros(len(self.tables.vehicle_ids), dtype=bool)
-            by_uid[[uid_of[v] for v in self.controlled if v in uid_of]] = True
-            role = role.copy()
-            role[by_uid[same.uid]] = _CONTROLLED
+        role = self._role(same) if self.controlled else same.role
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
                          distance=distance, events=events, detectors=detectors,
                          posed=frozenset(self.posed) if self.posed else frozenset())
@@ -370,6 +366,23 @@ class SumoBackend(Backend):
         # ENU yaw are derived when a consumer first reads them (corridor.poses)
         self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, size=same.size, road=road,
                                    poses=PlanarPoses(front, angle, speed, same.half_length))
+
+    def _role(self, same: _Rows) -> np.ndarray:
+        """The rows' roles with the controlled vehicles' rows ``CONTROLLED`` (read-only): the previous
+        step's array while the rows and the set of controlled ids stay the same (a set comparison in C,
+        against a list, an index and a copy a step).  A vehicle enters the tables only by departing,
+        which changes the rows, so the ids of the set that have a uid cannot change either."""
+        rows, ids, role = self._roles
+        if rows is same and ids == self.controlled:
+            return role
+        uid_of = self.tables.uid_of  # the rows of the controlled vehicles, by uid (one per id): no pass over the ids
+        by_uid = np.zeros(len(self.tables.vehicle_ids), dtype=bool)
+        by_uid[[uid_of[v] for v in self.controlled if v in uid_of]] = True
+        role = same.role.copy()
+        role[by_uid[same.uid]] = _CONTROLLED
+        role.flags.writeable = False
+        self._roles = (same, set(self.controlled), role)
+        return role
 
     def _lane_codes(self, lanes: list[str]) -> np.ndarray:
         """Lane code per row (read-only; the previous step's array when no vehicle changed lanes)."""
