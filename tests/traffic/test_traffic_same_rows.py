@@ -61,3 +61,22 @@ def test_the_cached_roles_are_those_of_the_controlled_ids(tmp_path: Path, monkey
     s = expand(sc, raw, str(SCENARIO), 1, variants=["v2x_cps"])[0]
     build(validate(apply_overrides(s.base, s.overrides), s.run_id), 1, tmp_path).run()
     assert seen["kept"] > 100 and seen["made"] > 100
+
+
+def test_the_kept_set_of_live_ids_is_that_of_the_steps_ids(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``apply`` keeps the set of the step's ids while the rows stay the same: it must be ``set(ids)``."""
+    seen = {"kept": 0, "made": 0}
+    apply = SumoBackend.apply
+
+    def checked(self: SumoBackend, commands, ctx):  # noqa: ANN001, ANN202
+        before = self._live[1]
+        apply(self, commands, ctx)
+        if self._ids_rows is not None:
+            assert self._live[0] is self._ids_rows and self._live[1] == set(self._ids)
+            seen["kept" if self._live[1] is before else "made"] += 1
+
+    monkeypatch.setattr(SumoBackend, "apply", checked)
+    sc, raw = load(str(SCENARIO), ["duration=120", "warmup=0"])
+    s = expand(sc, raw, str(SCENARIO), 1, variants=["v2x_cps"])[0]
+    build(validate(apply_overrides(s.base, s.overrides), s.run_id), 1, tmp_path).run()
+    assert seen["kept"] > 100 and seen["made"] > 50

@@ -33,6 +33,8 @@ _RAMP, _MAINLINE = int(Role.RAMP), int(Role.MAINLINE)
 _OFF_NETWORK = -1e9  # [m] positions below this are SUMO's INVALID_DOUBLE_VALUE (-2**30)
 _NO_UIDS = np.zeros(0, dtype=np.int64)
 _NO_UIDS.flags.writeable = False
+# the commands this backend executes itself (a tuple: ``A | B`` would build a union on every command)
+_ROAD_COMMANDS = (cmd.SetSpeed, cmd.SetAccel, cmd.ChangeLane, cmd.MoveToXY, cmd.Release, cmd.SetLaneChangeMode)
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,9 @@ class SumoBackend(Backend):
         # (SUMO's setSpeedMode only sets the influencer's flags, so setting the same mode again changes nothing)
         self._speed_mode_set: dict[str, int] = {}
         self._ids: list[str] = []  # ids of the vehicles in the network after the last step
+        # the rows whose id list is ``_ids`` (None: no vehicle), and the last set of those ids made (apply)
+        self._ids_rows: _Rows | None = None
+        self._live: tuple[_Rows | None, set[str]] = (None, set())
         self.commands_ignored = 0
         # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
         # place themselves here, so SUMO moves everyone to the same time instant
@@ -340,6 +345,7 @@ class SumoBackend(Backend):
         self._ids = ids
         detectors = self._read_detectors()
         if n == 0:
+            self._ids_rows = None
             self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
         front = np.fromiter(chain.from_iterable(map(g_pos, rows)), dtype=float, count=2 * n).reshape(n, 2)
@@ -351,6 +357,7 @@ class SumoBackend(Backend):
         # a vehicle was off-lane (teleporting, parked) in either step: then the id lists are compared
         quiet = not (blank or blank_before or len(events.departed) or len(events.arrived) or len(events.teleported))
         same = self._same_rows(ids, quiet)
+        self._ids_rows = same  # its id_list is ids, the same list or an equal one
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
@@ -444,14 +451,20 @@ class SumoBackend(Backend):
     # ------------------------------------------------------------------ commands
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
         v = self._ls.vehicle
-        live = set(self._ids)
+        rows = self._ids_rows  # the ids as a set, made again when the rows change
+        if rows is None:
+            live = set(self._ids)
+        elif rows is self._live[0]:
+            live = self._live[1]
+        else:
+            live = set(rows.id_list)
+            self._live = (rows, live)
         for c in commands:
             if hasattr(c, "apply_to_sumo"):  # commands of other SUMO-side modules (ramp meters, ...)
                 c.apply_to_sumo(self._ls)
                 continue
             vid = getattr(c, "vid", None)
-            if vid is None or not isinstance(c, cmd.SetSpeed | cmd.SetAccel | cmd.ChangeLane |
-                                                 cmd.MoveToXY | cmd.Release | cmd.SetLaneChangeMode):
+            if vid is None or not isinstance(c, _ROAD_COMMANDS):
                 continue
             if vid not in live:
                 self.commands_ignored += 1
