@@ -206,29 +206,9 @@ class HybridAutomaton:
         self._path_inv: dict[str, tuple[tuple[str, Guard | Boundary], ...]] = {
             m: tuple((pm, inv) for pm in self._paths[m] for inv in (self._tree[pm][0].invariant,) if inv is not None)
             for m in self.modes}
-        # quiet_update's plan per mode: the boundaries' (name, fn, theta), then per transition leaving the
-        # path (in order) its boundary's (name, strict) and ``when``, or its guard function; None where a
-        # boundary is of a subclass (its own ``value`` / ``holds``: the general path)
-        self._quiet_plan = {m: self._plan_quiet(m) for m in self.modes}
         # asked first at every boundary guard whose discrete ``when`` holds (None: the automaton decides)
         self.decider: Decider | None = None
         self.reset(0.0)
-
-    def _plan_quiet(self, mode: str) -> tuple[tuple[tuple[str, BoundaryFn, Mapping[str, float]], ...],
-                                              tuple[tuple[str | None, bool, Guard | None, Guard | None], ...]] | None:
-        bounds = self._path_bounds[mode]
-        if any(type(b) is not Boundary for b in bounds):
-            return None
-        trs: list[tuple[str | None, bool, Guard | None, Guard | None]] = []
-        for tr in self._path_out[mode]:
-            g = tr.guard
-            if isinstance(g, Boundary):
-                if type(g) is not Boundary:
-                    return None
-                trs.append((g.name, g.strict, tr.when, None))
-            else:
-                trs.append((None, False, None, g))
-        return tuple((b.name, b.fn, b.theta) for b in bounds), tuple(trs)
 
     # ---- the tree ----------------------------------------------------------------------------------
     def path(self, mode: str | None = None) -> tuple[str, ...]:
@@ -416,26 +396,14 @@ class HybridAutomaton:
         mode = self.mode
         if self.switching is not None or self.decider is not None or self.decided or self._path_inv[mode]:
             return False
-        plan = self._quiet_plan[mode]
-        if plan is None:
-            g_now = {b.name: b.value(x) for b in self._path_bounds[mode]}
-            for tr in self._path_out[mode]:
-                guard = tr.guard
-                if isinstance(guard, Boundary):
-                    if guard.holds(g_now[guard.name]) and (tr.when is None or bool(tr.when(x))):
-                        return False
-                elif bool(guard(x)):
+        g_now = {b.name: b.value(x) for b in self._path_bounds[mode]}
+        for tr in self._path_out[mode]:
+            guard = tr.guard
+            if isinstance(guard, Boundary):
+                if guard.holds(g_now[guard.name]) and (tr.when is None or bool(tr.when(x))):
                     return False
-        else:  # the same, without a method call per boundary and guard (Boundary.value and .holds inlined)
-            bounds, trs = plan
-            g_now = {name: float(fn(x, theta)) for name, fn, theta in bounds}
-            for name, strict, when, fn_guard in trs:
-                if name is not None:
-                    g = g_now[name]
-                    if (g > 0.0 if strict else g >= 0.0) and (when is None or bool(when(x))):
-                        return False
-                elif bool(fn_guard(x)):  # type: ignore[misc]
-                    return False
+            elif bool(guard(x)):
+                return False
         self._keep(t, g_now)
         self.pending_draws = []
         return True

@@ -72,31 +72,3 @@ def test_quiet_update_declines_for_stochastic_switching_and_decided_outcomes() -
     ha = merge_automaton("m", "v", "ramp", theta)
     assert not ha.quiet_update(0.1, MergeState("ramp", 50.0, False))  # merge_enter holds: a jump
     assert ha.mode == "approach" and ha.g_now == {}  # nothing changed
-
-
-def test_the_merge_automata_take_the_inlined_plan_and_a_boundary_subclass_the_general_path() -> None:
-    """``quiet_update`` inlines ``Boundary.value`` / ``.holds`` (the tenth pass): the merge automata above
-    run on that plan; an automaton with a boundary of a subclass (its own ``value``) keeps the method calls."""
-    from dataclasses import dataclass
-
-    from corridor.modes import Boundary, HybridAutomaton, Mode, Transition
-
-    theta = resolved(MergeBoundaries(), 100.0)
-    ha = merge_automaton("m", "v", "ramp", theta)
-    assert all(p is not None for p in ha._quiet_plan.values())
-
-    @dataclass(frozen=True)
-    class Shifted(Boundary):
-        def value(self, x: float) -> float:
-            return float(self.fn(x, self.theta)) + 0.5
-
-    for cls, fires_at in ((Boundary, 1.0), (Shifted, 0.5)):
-        b = cls("near", lambda x, th: x - th["at"], {"at": 1.0})
-        ha = HybridAutomaton("h", [Mode("far"), Mode("near")], "far", [Transition("far", "near", b)])
-        assert (ha._quiet_plan["far"] is None) == (cls is Shifted)
-        assert ha.quiet_update(0.1, 0.5 * fires_at - 0.1) and ha.g_now == {"near": b.value(0.5 * fires_at - 0.1)}
-        assert not ha.quiet_update(0.2, fires_at + 0.01)
-    for strict in (False, True):  # g = 0 exactly: a strict boundary does not hold
-        b = Boundary("near", lambda x, th: x - th["at"], {"at": 1.0}, strict=strict)
-        ha = HybridAutomaton("h", [Mode("far"), Mode("near")], "far", [Transition("far", "near", b)])
-        assert ha.quiet_update(0.1, 1.0) is strict
