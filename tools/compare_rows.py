@@ -91,6 +91,7 @@ def diff(a_path: Path, b_path: Path, renames: dict[str, str]) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="action", required=True)
     r = sub.add_parser("record")
@@ -102,7 +103,14 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("before", type=Path)
     d.add_argument("after", type=Path)
     d.add_argument("--rename", action="append", default=[], metavar="OLD=NEW")
-    args = ap.parse_args(argv)
+    # options and positionals in any order (``record OUT --seeds 3 a.yaml b.yaml``): argparse cannot
+    # intermix with subparsers, so the action's own parser reads the rest
+    actions = {"record": r, "diff": d}
+    if argv and argv[0] in actions:
+        args = actions[argv[0]].parse_intermixed_args(argv[1:])
+        args.action = argv[0]
+    else:
+        args = ap.parse_args(argv)  # no or an unknown action, or --help: argparse's message
     if args.action == "record":
         record(args.out, args.seeds, args.duration, args.scenarios or sorted((ROOT / "scenarios").glob("*.yaml")))
         return 0

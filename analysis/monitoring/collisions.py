@@ -59,6 +59,10 @@ class CollisionMonitor(Component):
         # role and kind arrays of the last tick with only backend-driven road rows (a road backend
         # publishes the same read-only arrays while its vehicles stay the same): no check needed
         self._plain: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        # role and kind arrays (read-only) of the last tick with a controlled row or an entity that is
+        # not a car or truck, and whether every row was a car or a truck: a road backend publishes the
+        # same arrays while its vehicles and the controlled ones stay the same
+        self._codes: tuple[np.ndarray | None, np.ndarray | None, bool] = (None, None, False)
         self._strips: Strips | None = None  # a sharded run's regions (corridor.shards)
         self._how: dict[tuple[str, str], str] = {}  # a sharded run: how each pair was found
         self._prev_ids: np.ndarray | None = None  # a sharded run: the previous snapshot's ids array
@@ -76,10 +80,15 @@ class CollisionMonitor(Component):
                     self._add(ctx, t, a, v, f"{s.road.source} ({kind})")
         if len(s) < 2 or (s.role is self._plain[0] and s.kind is self._plain[1]):
             return  # the same (read-only) role and kind arrays as a tick that had no special row
-        cars = np.maximum.reduce(s.kind) <= _TRUCK  # every row a car or a truck (codes 0 and 1)
-        if cars and np.maximum.reduce(s.role) < _CONTROLLED:
-            self._plain = (s.role, s.kind)
-            return  # only backend-driven road vehicles: their backend reports collisions
+        if s.role is self._codes[0] and s.kind is self._codes[1]:
+            cars = self._codes[2]  # the same (read-only) arrays as the last tick with controlled rows
+        else:
+            cars = bool(np.maximum.reduce(s.kind) <= _TRUCK)  # every row a car or a truck (codes 0 and 1)
+            if cars and np.maximum.reduce(s.role) < _CONTROLLED:
+                self._plain = (s.role, s.kind)
+                return  # only backend-driven road vehicles: their backend reports collisions
+            if not (s.role.flags.writeable or s.kind.flags.writeable):
+                self._codes = (s.role, s.kind, cars)
         road = s.road
         if cars and road is not None and road.posed == frozenset() and road.offset == 0 and len(road) == len(s):
             return  # every row a lane-driven road vehicle, none posed (a V2X run's speed-commanded ones, the

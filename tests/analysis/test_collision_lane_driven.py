@@ -108,3 +108,30 @@ def test_merging_sweep_cell_has_no_collision() -> None:
     assert row["status"] == "ok", row["error"]
     assert row["v2x_fallbacks"] >= 1 and row["v2x_commands"] > 0  # the commanded run of the report
     assert row["collisions"] == 0  # was 1 (main_car.2.10 x ramp_car.2.4, box overlap at 188.6 s)
+
+
+class SameArrays(SumoLike):
+    """SUMO's part publishing the same read-only role and kind arrays every tick (a road backend's
+    rows and controlled vehicles unchanged); the car is posed from ``posed_from`` [s] on."""
+
+    def __init__(self, posed_from: float) -> None:
+        super().__init__(posed=frozenset())
+        self.posed_from = posed_from
+        self.kind = np.full(2, Kind.CAR, dtype=np.int8)
+        self.role = np.array([Role.CONTROLLED, Role.MAINLINE], dtype=np.int8)
+        self.kind.flags.writeable = self.role.flags.writeable = False
+
+    def snapshot_part(self) -> WorldSnapshot:
+        self.posed = frozenset({"ramp_car.2.4"}) if self.t >= self.posed_from - 1e-9 else frozenset()
+        part = super().snapshot_part()
+        part.kind, part.role = self.kind, self.role
+        return part
+
+
+def test_the_kept_role_and_kind_codes_do_not_skip_a_posed_row() -> None:
+    """The monitor keeps what it found of the last arrays with a controlled row (no reduction again on
+    the same arrays): the row's being posed is still read every tick."""
+    m, _ = run(SameArrays(posed_from=2 * DT))
+    assert m["collisions"] == 1 and m["first_collision_s"] > 1.5 * DT  # not before the car is posed
+    m, _ = run(SameArrays(posed_from=10.0))
+    assert m["collisions"] == 0

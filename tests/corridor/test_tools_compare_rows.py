@@ -50,3 +50,19 @@ def test_a_simulated_column_that_changes_is_a_difference(tmp_path: Path, column:
     after.to_parquet(tmp_path / "b.parquet", index=False)
     assert compare_rows.diff(before, tmp_path / "b.parquet", {}) == 1
     assert f"column {column!r} differs in 1 runs" in capsys.readouterr().out
+
+
+def test_options_and_scenarios_in_any_order(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``record OUT --seeds 3 a.yaml b.yaml`` (options before the scenario files) was refused with
+    "unrecognized arguments"."""
+    calls = []
+    monkeypatch.setattr(compare_rows, "record", lambda *a: calls.append(a))
+    out = tmp_path / "rows.parquet"
+    assert compare_rows.main(["record", str(out), "--seeds", "3", "a.yaml", "--duration", "300", "b.yaml"]) == 0
+    assert compare_rows.main(["record", str(out), "a.yaml", "b.yaml", "--seeds", "3", "--duration", "300"]) == 0
+    assert calls == [(out, 3, 300.0, [Path("a.yaml"), Path("b.yaml")])] * 2
+    before = _rows(tmp_path / "a.parquet", SIMULATION, 1.0)
+    assert compare_rows.main(["diff", str(before), "--rename", "x=y", str(before)]) == 0
+    with pytest.raises(SystemExit) as e:
+        compare_rows.main(["record", str(out), "--seeds", "three"])
+    assert e.value.code == 2

@@ -33,6 +33,8 @@ _RAMP, _MAINLINE = int(Role.RAMP), int(Role.MAINLINE)
 _OFF_NETWORK = -1e9  # [m] positions below this are SUMO's INVALID_DOUBLE_VALUE (-2**30)
 _NO_UIDS = np.zeros(0, dtype=np.int64)
 _NO_UIDS.flags.writeable = False
+# the commands this backend executes itself (a tuple: ``A | B`` would build a union on every command)
+_ROAD_COMMANDS = (cmd.SetSpeed, cmd.SetAccel, cmd.ChangeLane, cmd.MoveToXY, cmd.Release, cmd.SetLaneChangeMode)
 
 
 @dataclass(frozen=True)
@@ -122,12 +124,17 @@ class SumoBackend(Backend):
         # (SUMO's setSpeedMode only sets the influencer's flags, so setting the same mode again changes nothing)
         self._speed_mode_set: dict[str, int] = {}
         self._ids: list[str] = []  # ids of the vehicles in the network after the last step
+        # the rows whose id list is ``_ids`` (None: no vehicle), and the last set of those ids made (apply)
+        self._ids_rows: _Rows | None = None
+        self._live: tuple[_Rows | None, set[str]] = (None, set())
         self.commands_ignored = 0
         # called right before each simulationStep: externally integrated vehicles (the ego bicycle)
         # place themselves here, so SUMO moves everyone to the same time instant
         self.pre_step: list[Callable[[RunContext], None]] = []
         self._part = WorldSnapshot(road=RoadFrame(name, self.tables))
         self._rows = _NO_ROWS
+        # the last role array with controlled rows, the rows and the controlled ids it was made for
+        self._roles: tuple[_Rows, set[str], np.ndarray] = (_NO_ROWS, set(), _NO_ROWS.role)
         self._blank = False  # a vehicle was off-lane (lane id "") in the last step
         self._lanes: tuple[list[str], np.ndarray] = ([], np.zeros(0, dtype=np.int64))  # the last step's lane codes
         self._started = False
@@ -338,6 +345,7 @@ class SumoBackend(Backend):
         self._ids = ids
         detectors = self._read_detectors()
         if n == 0:
+            self._ids_rows = None
             self._part = WorldSnapshot(road=RoadFrame(self.name, self.tables, t=t, events=events, detectors=detectors))
             return
         front = np.fromiter(chain.from_iterable(map(g_pos, rows)), dtype=float, count=2 * n).reshape(n, 2)
@@ -349,16 +357,11 @@ class SumoBackend(Backend):
         # a vehicle was off-lane (teleporting, parked) in either step: then the id lists are compared
         quiet = not (blank or blank_before or len(events.departed) or len(events.arrived) or len(events.teleported))
         same = self._same_rows(ids, quiet)
+        self._ids_rows = same  # its id_list is ids, the same list or an equal one
         # odometers only on the run's last step (for the unfinished vehicles' delay so far): one more
         # subscribed variable every step would cost ~2 % of the kernel's throughput
         distance = np.array([self._ls.vehicle.getDistance(v) for v in ids]) if final else same.no_distance
-        role = same.role
-        if self.controlled:  # the rows of the controlled vehicles, by uid (one per id): no pass over the ids
-            uid_of = self.tables.uid_of
-            by_uid = np.zeros(len(self.tables.vehicle_ids), dtype=bool)
-            by_uid[[uid_of[v] for v in self.controlled if v in uid_of]] = True
-            role = role.copy()
-            role[by_uid[same.uid]] = _CONTROLLED
+        role = self._role(same) if self.controlled else same.role
         road = RoadFrame(self.name, self.tables, t=t, uid=same.uid, lane=self._lane_codes(lanes), lane_pos=lane_pos, accel=accel,
                          distance=distance, events=events, detectors=detectors,
                          posed=frozenset(self.posed) if self.posed else frozenset())
@@ -370,6 +373,23 @@ class SumoBackend(Backend):
         # ENU yaw are derived when a consumer first reads them (corridor.poses)
         self._part = WorldSnapshot(t=0.0, ids=same.ids, kind=same.kind, role=role, size=same.size, road=road,
                                    poses=PlanarPoses(front, angle, speed, same.half_length))
+
+    def _role(self, same: _Rows) -> np.ndarray:
+        """The rows' roles with the controlled vehicles' rows ``CONTROLLED`` (read-only): the previous
+        step's array while the rows and the set of controlled ids stay the same (a set comparison in C,
+        against a list, an index and a copy a step).  A vehicle enters the tables only by departing,
+        which changes the rows, so the ids of the set that have a uid cannot change either."""
+        rows, ids, role = self._roles
+        if rows is same and ids == self.controlled:
+            return role
+        uid_of = self.tables.uid_of  # the rows of the controlled vehicles, by uid (one per id): no pass over the ids
+        by_uid = np.zeros(len(self.tables.vehicle_ids), dtype=bool)
+        by_uid[[uid_of[v] for v in self.controlled if v in uid_of]] = True
+        role = same.role.copy()
+        role[by_uid[same.uid]] = _CONTROLLED
+        role.flags.writeable = False
+        self._roles = (same, set(self.controlled), role)
+        return role
 
     def _lane_codes(self, lanes: list[str]) -> np.ndarray:
         """Lane code per row (read-only; the previous step's array when no vehicle changed lanes)."""
@@ -431,14 +451,20 @@ class SumoBackend(Backend):
     # ------------------------------------------------------------------ commands
     def apply(self, commands: list[Any], ctx: RunContext) -> None:
         v = self._ls.vehicle
-        live = set(self._ids)
+        rows = self._ids_rows  # the ids as a set, made again when the rows change
+        if rows is None:
+            live = set(self._ids)
+        elif rows is self._live[0]:
+            live = self._live[1]
+        else:
+            live = set(rows.id_list)
+            self._live = (rows, live)
         for c in commands:
             if hasattr(c, "apply_to_sumo"):  # commands of other SUMO-side modules (ramp meters, ...)
                 c.apply_to_sumo(self._ls)
                 continue
             vid = getattr(c, "vid", None)
-            if vid is None or not isinstance(c, cmd.SetSpeed | cmd.SetAccel | cmd.ChangeLane |
-                                                 cmd.MoveToXY | cmd.Release | cmd.SetLaneChangeMode):
+            if vid is None or not isinstance(c, _ROAD_COMMANDS):
                 continue
             if vid not in live:
                 self.commands_ignored += 1
