@@ -45,7 +45,13 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, measure_plan, plan_slots
+from corridor.controllers.merging.gap_kernel import (
+    HAVE_C_POW,
+    MIN_CROSS_SPEED_MPS,
+    ST_SLOT,
+    measure_plan,
+    plan_slots,
+)
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
@@ -177,7 +183,8 @@ class GapMerging(WaveDamping):
         if self.compiled and self._fused:
             return self._measure_fused(t, s)
         base = super()._measure(t, s)
-        v_cross = min(self._merge_speed(base.cell_speed_mps), self.gp.cross_speed_mps)
+        # a standstill before the merge measures 0 m/s: the plan's arrival times divide by the crossing speed
+        v_cross = min(max(self._merge_speed(base.cell_speed_mps), MIN_CROSS_SPEED_MPS), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
         row, connected = self._rows(s), s["connected"]
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,

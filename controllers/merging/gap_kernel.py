@@ -40,6 +40,9 @@ P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
 # out_slot columns: the slot's times, then the partner's (x, v, length) and the ramp vehicle's
 S_T_RAMP, S_T_PARTNER, S_LEAD_X, S_LEAD_V, S_LEAD_LEN, S_PX, S_PV, S_PLEN, S_RX, S_RV, S_RLEN = range(11)
+# [m/s] the least crossing speed planned: every cell before the merge at 0 m/s (a standstill) would give 0, and
+# the arrival times (``time_to_go``'s cruise at it) would divide by it; as the RSU's arrival times' 1 m/s floor
+MIN_CROSS_SPEED_MPS = 1.0
 
 
 def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base: float = math.nan) -> np.ndarray:
@@ -270,8 +273,8 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
                  v_cross_out: np.ndarray) -> int:
     """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``
     on ``speed`` + ``noise``, into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
-    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at most ``cross_speed``: into
-    ``v_cross_out[0]``), then :func:`plan_slots`."""
+    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at least ``MIN_CROSS_SPEED_MPS``,
+    at most ``cross_speed``: into ``v_cross_out[0]``), then :func:`plan_slots`."""
     n, n_cells = front.shape[0], cell_speed.shape[0]
     merge_x, cos_ramp, base, cell_m = cfg[C_MERGE_X], cfg[C_COS_RAMP], cfg[C_CELL_BASE], cfg[C_CELL_M]
     total = np.zeros(n_cells)
@@ -300,10 +303,12 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
             acc = cv if m == 0 else acc + cv
             m += 1
     v_merge = acc / m if m else cfg[C_U_MAX]
+    if MIN_CROSS_SPEED_MPS > v_merge:  # Python's max(v_merge, MIN_CROSS_SPEED_MPS)
+        v_merge = MIN_CROSS_SPEED_MPS
     v_cross = cfg[C_CROSS_SPEED] if cfg[C_CROSS_SPEED] < v_merge else v_merge  # Python's min(v_merge, cross)
     v_cross_out[0] = v_cross
     return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
                  has_slot, x, v, out_pair, out_slot)
 
 
-__all__ = ["HAVE_C_POW", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]

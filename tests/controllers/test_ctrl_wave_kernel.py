@@ -284,3 +284,37 @@ def test_compiled_tick_of_merge_gaps_is_its_python_tick(case: int) -> None:
             n_pairs += len(ref.pairs)
             drive.step()
     assert n_cmd > 100 and n_partner > 20 and n_pairs > 100, (n_cmd, n_partner, n_pairs)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_merge_gaps_plans_through_a_standstill_before_the_merge(compiled: bool) -> None:
+    """Every cell in the 100 m before the merge at 0 m/s (a standstill, measured without noise): the crossing
+    speed is ``MIN_CROSS_SPEED_MPS``, not 0 (its arrival times divided by it), on both paths, which agree."""
+    from corridor.controllers.merging.gap_components import GapMerging
+    from corridor.controllers.merging.gap_kernel import MIN_CROSS_SPEED_MPS
+
+    params = GapMerging.Params(sensor_noise_mps=0.0, ramp_sensor_noise_m=0.0, partner_min_speed_mps=0.5)
+    ref, got = (_gap_controller(params, CHANNELS[2], 60.0, 0, False),
+                _gap_controller(params, CHANNELS[2], 60.0, 0, compiled))
+    # id: front, speed, length, connected, ramp role, on ramp (stopped at the merge; a partner upstream; a
+    # connected ramp vehicle on its run)
+    veh = {"h0": (MERGE_X - 60.0, 0.0, 5.0, False, False, False), "h1": (MERGE_X - 20.0, 0.0, 5.0, True, False, False),
+           "h2": (MERGE_X - 300.0, 25.0, 5.0, True, False, False), "r0": (MERGE_X - 150.0, 10.0, 5.0, True, True, True)}
+    n_cmd = 0
+    for tick in range(6):
+        t = 0.5 * tick
+        a = np.array([v[:3] for v in veh.values()], dtype=float)
+        b = np.array([v[3:] for v in veh.values()], dtype=bool)
+        s_ref = {"ids": list(veh), "front": a[:, 0] + (tick * 0.5 * a[:, 1]), "speed": a[:, 1].copy(),
+                 "length": a[:, 2].copy(), "on_ramp": b[:, 2].copy(), "ramp": b[:, 1].copy(),
+                 "connected": b[:, 0].copy(), "pos": np.column_stack([a[:, 0] - 2.0, np.zeros((len(veh), 2))])}
+        s_got = {k: v.copy() for k, v in s_ref.items()}
+        cmds_got = got._tick_compiled(t, s_got) if compiled else (got._communicate(t, s_got), got._decide(t, s_got))[1]
+        ref._communicate(t, s_ref)
+        cmds_ref = ref._decide(t, s_ref)
+        assert cmds_got == cmds_ref
+        msg = got._latest_of("r0")
+        assert msg is not None and msg.cross_speed_mps == MIN_CROSS_SPEED_MPS
+        assert np.all(msg.cell_speed_mps[got._near_cells][np.isfinite(msg.cell_speed_mps[got._near_cells])] == 0.0)
+        n_cmd += any(c.vid == "r0" for c in cmds_got if type(c).__name__ == "SetSpeed")
+    assert n_cmd == 6 and "r0" in got.pairs
