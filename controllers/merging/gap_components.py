@@ -51,6 +51,7 @@ from corridor.controllers.merging.gap_kernel import (
     ST_SLOT,
     measure_plan,
     plan_slots,
+    tick_rows,
 )
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
@@ -146,6 +147,9 @@ class GapMerging(WaveDamping):
         self.reserved_crossings = 0
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
+        self._no_rows = np.empty(0, dtype=np.int64)
+        self._partnered: set[str] = set()  # every vehicle named a partner in a message (_capped's shortcut)
+        self._row_work = (self._no_rows, self._no_rows, self._no_rows)  # _receiver_rows' (grown by doubling)
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -155,6 +159,7 @@ class GapMerging(WaveDamping):
         self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
         # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
         self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
+        self._zone = (self.merge_x - self.p.zone_before_m, self.merge_x + self.p.release_after_m)  # _receivers' bounds
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -176,6 +181,25 @@ class GapMerging(WaveDamping):
             out[[row[c] for c in self.pairs.values() if c in row]] = True
         return out
 
+    def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
+        """``_receivers``' rows in one compiled pass (``gap_kernel.tick_rows``), which also keeps this tick's
+        connected ramp vehicles (``s["_cramp"]``) and vehicles on the ramp (``s["_onramp"]``), as rows."""
+        n = len(s["ids"])
+        w = self._row_work
+        if len(w[0]) < n:
+            w = self._row_work = (np.empty(2 * n, dtype=np.int64), np.empty(2 * n, dtype=np.int64),
+                                  np.empty(2 * n, dtype=np.int64))
+        recv, cramp, onramp = w
+        if self.pairs:
+            row = self._rows(s)
+            partners = np.array([row[c] for c in self.pairs.values() if c in row], dtype=np.int64)
+        else:
+            partners = self._no_rows
+        n_recv, n_cramp, n_on = tick_rows(s["connected"], s["ramp"], s["on_ramp"], s["front"], self._zone[0],
+                                          self._zone[1], self.cross_x, partners, recv, cramp, onramp)
+        s["_cramp"], s["_onramp"] = cramp[:n_cramp].tolist(), onramp[:n_on].tolist()
+        return recv[:n_recv].copy()
+
     def _unheard(self, s: dict[str, Any]) -> bool:
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
@@ -187,8 +211,10 @@ class GapMerging(WaveDamping):
         v_cross = min(max(self._merge_speed(base.cell_speed_mps), MIN_CROSS_SPEED_MPS), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
         row, connected = self._rows(s), s["connected"]
+        partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        self._partnered.update(partners)
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
-                         slots, {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, v_cross)
+                         slots, partners, v_cross)
 
     def _merge_speed(self, cell_speed: np.ndarray) -> float:
         """[m/s] the mean measured speed of the cells in the 100 m before the merge (u_max: none known):
@@ -229,15 +255,18 @@ class GapMerging(WaveDamping):
         x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
         pairs, t_slot, has_slot = self._pair_arrays(s)
         x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
-        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))  # the message's
+        on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
+        n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
+        cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
         n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
                              s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
                              self._near_cells, cell_speed, eta, v_cross)
         yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
         slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
         row, connected = self._rows(s), s["connected"]
-        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots,
-                         {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, float(v_cross[0]))
+        partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        self._partnered.update(partners)
+        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots, partners, float(v_cross[0]))
 
     def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``measure_plan``'s work arrays (noisy x, v; pairs and slots out; the crossing speed) for ``n`` rows,
@@ -414,7 +443,9 @@ class GapMerging(WaveDamping):
 
     def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
         """The connected ramp vehicles' commands."""
-        rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
+        rows = s.get("_cramp")  # this tick's (_receiver_rows) or found here
+        if rows is None:
+            rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
         if not rows:
             return
         ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
@@ -489,7 +520,8 @@ class GapMerging(WaveDamping):
         """``_ramp_leader`` for any row of this tick (``front``, ``speed``: the rows' as floats), from one
         stable sort of the vehicles on the ramp by front (ties by row: argmin's pick; finite fronts), the
         first whose front is greater."""
-        order = sorted(np.flatnonzero(s["on_ramp"]).tolist(), key=front.__getitem__)
+        on = s.get("_onramp")  # this tick's (_receiver_rows) or found here
+        order = sorted(np.flatnonzero(s["on_ramp"]).tolist() if on is None else on, key=front.__getitem__)
         keys = [front[j] for j in order]
         length, cos_ramp = s["length"], self.cos_ramp
 
@@ -517,6 +549,8 @@ class GapMerging(WaveDamping):
         return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        if vid not in self._partnered:  # a partner in no message: its message names it in none
+            return v_cmd
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
         return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)

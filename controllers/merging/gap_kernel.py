@@ -311,4 +311,35 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
                  has_slot, x, v, out_pair, out_slot)
 
 
-__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]
+_ROWS_SIG = types.UniTuple(types.int64, 3)(_RB, _RB, _RB, _RF, types.float64, types.float64, types.float64, types.int64[:],
+                        types.int64[:], types.int64[:], types.int64[:])
+
+
+@(njit(_ROWS_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def tick_rows(connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray, front: np.ndarray, lo: float, hi: float,
+              cross_x: float, partner_rows: np.ndarray, recv: np.ndarray, cramp: np.ndarray, onramp: np.ndarray
+              ) -> tuple[int, int, int]:
+    """A tick's rows in one pass (``GapMerging._receivers``' and ``_decide_more``'s numpy masks): into ``recv``
+    the receivers (connected highway vehicles with ``lo`` < front < ``hi``, connected ramp vehicles with front
+    < ``cross_x``, the rows in ``partner_rows``), into ``cramp`` the connected ramp vehicles, into ``onramp``
+    the vehicles on the ramp, each in row order (``np.flatnonzero``'s).  Returns the three counts."""
+    n = front.shape[0]
+    mark = np.zeros(n, dtype=np.bool_)
+    for q in range(partner_rows.shape[0]):
+        mark[partner_rows[q]] = True
+    n_recv = n_cramp = n_on = 0
+    for i in range(n):
+        c, r, f = connected[i], ramp[i], front[i]
+        if (c and not r and f > lo and f < hi) or (c and r and f < cross_x) or mark[i]:
+            recv[n_recv] = i
+            n_recv += 1
+        if c and r:
+            cramp[n_cramp] = i
+            n_cramp += 1
+        if on_ramp[i]:
+            onramp[n_on] = i
+            n_on += 1
+    return n_recv, n_cramp, n_on
+
+
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots", "tick_rows"]
