@@ -51,6 +51,8 @@ from corridor.controllers.merging.gap_kernel import (
     ST_SLOT,
     measure_plan,
     plan_slots,
+    ramp_cfg_array,
+    ramp_command,
     tick_rows,
 )
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
@@ -160,6 +162,7 @@ class GapMerging(WaveDamping):
         # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
         self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
         self._zone = (self.merge_x - self.p.zone_before_m, self.merge_x + self.p.release_after_m)  # _receivers' bounds
+        self._ramp_cfg = ramp_cfg_array(self.gp, self.safety, self.merge_x, self.period, K_SPEED)  # ramp_command's
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -452,6 +455,7 @@ class GapMerging(WaveDamping):
         speed = s["speed"].tolist()  # Python floats: the same values
         leaders = self._ramp_leaders(s, front, speed)
         merge_x, cos_ramp = self.merge_x, self.cos_ramp
+        command = self._ramp_command_c if self.compiled and HAVE_C_POW else self._ramp_command
         for k in rows:
             vid = ids[k]
             if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
@@ -466,7 +470,7 @@ class GapMerging(WaveDamping):
                 self._release(vid, cmds)
                 continue
             x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value
-            v_cmd, mode = self._ramp_command(t, msg, vid, x, speed[k], leaders(k))
+            v_cmd, mode = command(t, msg, vid, x, speed[k], leaders(k))
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
@@ -508,6 +512,33 @@ class GapMerging(WaveDamping):
         if vid in self.committed and not lead_ok:  # the gap closed: back to the yield sign
             self.committed.discard(vid)
         return v_next, (p.reserved_speed_mode if vid in self.committed else self.p.command_speed_mode)
+
+    def _ramp_command_c(self, t: float, msg: MergePlan, vid: str, x: float, v: float, leader: tuple[float, float]
+                        ) -> tuple[float, int]:
+        """``_ramp_command`` with its values from one compiled call (``gap_kernel.ramp_command``); the
+        committed set, the counter and the event here, as there."""
+        slot = msg.slots.get(vid)
+        committed = vid in self.committed
+        gap, v_lead = leader
+        if slot is None:
+            v_next, commit, lead_ok = ramp_command(self._ramp_cfg, t, msg.t_sent_s, msg.cross_speed_mps, committed,
+                                                   False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, gap, v_lead)
+        else:
+            lead, partner = slot.lead, slot.partner
+            has_lead = lead is not None
+            lx, lv, ll = lead if lead is not None else (0.0, 0.0, 0.0)
+            v_next, commit, lead_ok = ramp_command(self._ramp_cfg, t, msg.t_sent_s, msg.cross_speed_mps, committed,
+                                                   True, slot.t_ramp_s, has_lead, lx, lv, ll, partner[0], partner[1],
+                                                   slot.ramp[2], x, v, gap, v_lead)
+        if commit:
+            self.committed.add(vid)
+            self.reserved_crossings += 1
+            self.events.emit(t, self.name, "reserved_crossing", f"{vid}: crosses on its reservation", vehicle=vid)
+            committed = True
+        if committed and not lead_ok:  # the gap closed: back to the yield sign
+            self.committed.discard(vid)
+            committed = False
+        return v_next, (self.gp.reserved_speed_mode if committed else self.p.command_speed_mode)
 
     def _partner_ok(self, slot: Slot, age: float, x_r: float, v_r: float) -> bool:
         """The partner can stay behind the ramp vehicle braking at most comfortably (RSU's measurement)."""

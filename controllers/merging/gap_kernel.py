@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, types
 
 from corridor.controllers.merging.coord_kernel import HAVE_C_POW, _c_pow, time_to_go_c
+from corridor.controllers.merging.wave_kernel import safe_accel_c
 
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
@@ -342,4 +343,98 @@ def tick_rows(connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray, fron
     return n_recv, n_cramp, n_on
 
 
-__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots", "tick_rows"]
+# ramp_cfg: ramp_command's parameters, in this order
+(R_MERGE_X, R_B_COMFORT, R_A_MAX, R_PLAN_ACCEL, R_WAIT_SPEED, R_COMMIT, R_PERIOD, R_REACTION, R_B_EGO, R_B_LEAD, R_S0,
+ R_K_SPEED, N_RAMP_CFG) = range(13)
+
+
+def ramp_cfg_array(p: Any, safety: Any, merge_x: float, period: float, k_speed: float) -> np.ndarray:
+    """:func:`ramp_command`'s parameters from ``GapMerging.Params`` ``p``, the safety layer's, the junction's
+    x [m], the step [s] and the speed hold's gain [1/s]."""
+    cfg = np.empty(N_RAMP_CFG)
+    cfg[R_MERGE_X], cfg[R_B_COMFORT], cfg[R_A_MAX], cfg[R_PLAN_ACCEL] = merge_x, p.b_comfort_mps2, p.a_max_mps2, \
+        p.plan_accel_mps2
+    cfg[R_WAIT_SPEED], cfg[R_COMMIT], cfg[R_PERIOD], cfg[R_K_SPEED] = p.wait_speed_mps, p.commit_m, period, k_speed
+    cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0] = (safety.reaction_s, safety.b_ego_mps2, safety.b_lead_mps2,
+                                                               safety.s0_m)
+    return cfg
+
+
+@njit(cache=True)
+def _arrival_accel(k: float, dist_m: float, v_mps: float, time_s: float, v_cross: float, accel: float,
+                   brake: float) -> float:
+    """``gap_components.arrival_accel`` (gain ``k``), the same bits."""
+    if time_s <= 0.5 or dist_m <= 0:
+        return k * (v_cross - v_mps)
+    if time_to_go_c(dist_m, v_mps, v_cross, accel) >= time_s:
+        return accel
+    a_, b_, c_ = 1.0 / (2.0 * accel), time_s - v_cross / accel, v_cross * v_cross / (2.0 * accel) - dist_m
+    disc = b_ * b_ - 4.0 * a_ * c_
+    if disc < 0:
+        return -brake
+    v_c = (-b_ + math.sqrt(disc)) / (2.0 * a_)
+    lo = v_cross - accel * time_s
+    lo = 0.0 if 0.0 > lo else lo  # Python's max(lo, 0.0)
+    if v_c < lo or v_c > v_cross:
+        return -brake
+    return k * (v_c - v_mps)
+
+
+_RAMP_SIG = types.UniTuple(types.float64, 3)(
+    types.float64[:], types.float64, types.float64, types.float64, types.boolean, types.boolean, types.float64,
+    types.boolean, types.float64, types.float64, types.float64, types.float64, types.float64, types.float64,
+    types.float64, types.float64, types.float64, types.float64)
+
+
+@(njit(_RAMP_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def ramp_command(cfg: np.ndarray, t: float, t_sent: float, v_cross: float, committed: bool, has_slot: bool,
+                 t_ramp: float, has_lead: bool, lead_x: float, lead_v: float, lead_len: float, partner_x: float,
+                 partner_v: float, ramp_len: float, x: float, v: float, gap: float, v_lead: float
+                 ) -> tuple[float, float, float]:
+    """``GapMerging._ramp_command``'s values for a ramp vehicle at projected ``x`` [m], ``v`` [m/s] (physical
+    leader ``gap`` [m], ``v_lead`` [m/s]) on a message sent at ``t_sent`` with crossing speed ``v_cross``
+    and, ``has_slot``, its slot (``t_ramp``; the virtual leader ``lead_*`` when ``has_lead``, the partner's
+    x and v, its own length as measured), ``committed`` or not: (the next speed [m/s], 1.0 when it commits
+    now else 0.0, 1.0 when its virtual leader is fine else 0.0).  The caller keeps the committed set, the
+    counters and the events."""
+    b_comfort, reaction, b_ego, b_lead, s0 = cfg[R_B_COMFORT], cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0]
+    k = cfg[R_K_SPEED]
+    dist = cfg[R_MERGE_X] - x
+    dist = 0.0 if 0.0 > dist else dist  # Python's max(dist, 0.0)
+    age = t - t_sent
+    if committed:
+        a = k * (v_cross - v)
+    elif not has_slot:
+        run_up = _c_pow(v_cross, 2.0) / (2.0 * cfg[R_PLAN_ACCEL]) + cfg[R_COMMIT]
+        room = dist - run_up
+        room = 0.0 if 0.0 > room else room
+        w = math.sqrt(2.0 * b_comfort * room)
+        ws = cfg[R_WAIT_SPEED]
+        ws = w if w < ws else ws  # Python's min(wait_speed, w)
+        a = k * (ws - v)
+    else:
+        a = _arrival_accel(k, dist, v, t_ramp - t, v_cross, cfg[R_PLAN_ACCEL], b_comfort)
+    lo = -b_comfort
+    a = lo if lo > a else a  # Python's max(a, -b_comfort)
+    a = cfg[R_A_MAX] if cfg[R_A_MAX] < a else a  # Python's min(a, a_max)
+    lead_ok = True
+    if has_slot and has_lead:
+        g = lead_x + lead_v * age - lead_len - x
+        if g > 0.0:
+            a = safe_accel_c(g, v, lead_v, a, reaction, b_ego, b_lead, s0)
+        lead_ok = g > 0.0 and a > -b_comfort
+    if math.isfinite(gap):
+        a = safe_accel_c(gap, v, v_lead, a, reaction, b_ego, b_lead, s0)
+    v_next = v + a * cfg[R_PERIOD]
+    v_next = v_next if v_next > 0.0 else 0.0  # Python's max(0.0, v_next)
+    commit = 0.0
+    if not committed and has_slot and lead_ok:
+        g = x - ramp_len - (partner_x + partner_v * age)  # _partner_ok
+        if g > 0.0 and safe_accel_c(g, partner_v, v, 0.0, reaction, b_ego, b_lead, s0) > -b_comfort:
+            if dist <= v * v / (2.0 * b_comfort) + cfg[R_COMMIT]:
+                commit = 1.0
+    return v_next, commit, 1.0 if lead_ok else 0.0
+
+
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots", "ramp_cfg_array", "ramp_command",
+           "tick_rows"]

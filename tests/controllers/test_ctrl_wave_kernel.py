@@ -318,3 +318,45 @@ def test_merge_gaps_plans_through_a_standstill_before_the_merge(compiled: bool) 
         assert np.all(msg.cell_speed_mps[got._near_cells][np.isfinite(msg.cell_speed_mps[got._near_cells])] == 0.0)
         n_cmd += any(c.vid == "r0" for c in cmds_got if type(c).__name__ == "SetSpeed")
     assert n_cmd == 6 and "r0" in got.pairs
+
+
+def test_ramp_command_is_the_python_ramp_command() -> None:
+    """``GapMerging._ramp_command_c`` (``gap_kernel.ramp_command``) against ``_ramp_command``, bit for bit, on
+    random vehicles and messages: the speed, the mode, the committed set, the counter and the events (with a
+    slot and without, committed or not, with and without a virtual and a physical leader, at speeds where
+    ``v ** 2`` and ``v * v`` differ)."""
+    from corridor.controllers.merging.gap_components import GapMerging, MergePlan, Slot
+
+    rng = np.random.default_rng(15)
+    n_commit = n_uncommit = n_wait = n_slot = 0
+    for params in (GapMerging.Params(), GapMerging.Params(commit_m=10.0, wait_speed_mps=2.0, plan_accel_mps2=0.4,
+                                                          b_comfort_mps2=3.0, a_max_mps2=2.5)):
+        ref, got = (_gap_controller(params, CHANNELS[2], 60.0, 0, False),
+                    _gap_controller(params, CHANNELS[2], 60.0, 0, True))
+        for i in range(40000):
+            t = float(rng.uniform(0.0, 50.0))
+            x = float(rng.uniform(MERGE_X - 300.0, MERGE_X + 5.0))
+            v = float(rng.choice([0.0, rng.uniform(0.0, 20.0), 11.300000000000001]))
+            lead = None if rng.random() < 0.3 else (x + float(rng.uniform(-20.0, 60.0)), float(rng.uniform(0.0, 25.0)),
+                                                    float(rng.choice([4.5, 5.0])))
+            slot = Slot(t + float(rng.uniform(-2.0, 40.0)), 0.0, lead,
+                        (x - float(rng.uniform(-10.0, 80.0)), float(rng.uniform(0.0, 25.0)), 5.0),
+                        (x, v, float(rng.choice([4.5, 5.0]))))
+            vid = f"r{i % 7}"
+            msg = MergePlan(t - float(rng.uniform(0.0, 1.0)), np.zeros(0), np.zeros(0), np.zeros(0), None,
+                            {vid: slot} if rng.random() < 0.7 else {}, {}, float(rng.uniform(1.0, 15.0)))
+            leader = (math.inf, 0.0) if rng.random() < 0.4 else (float(rng.uniform(-2.0, 60.0)), float(rng.uniform(0.0, 20.0)))
+            if rng.random() < 0.3:
+                ref.committed.add(vid)
+                got.committed.add(vid)
+            before = vid in ref.committed
+            out_ref = ref._ramp_command(t, msg, vid, x, v, leader)
+            out_got = got._ramp_command_c(t, msg, vid, x, v, leader)
+            assert out_got == out_ref, (i, t, x, v, slot, msg.cross_speed_mps, leader, before)
+            assert got.committed == ref.committed and got.reserved_crossings == ref.reserved_crossings
+            n_commit += (not before) and vid in ref.committed
+            n_uncommit += before and vid not in ref.committed
+            n_wait += vid not in msg.slots and not before
+            n_slot += vid in msg.slots and not before
+        assert got.events.events == ref.events.events
+    assert min(n_commit, n_uncommit) > 500 and min(n_wait, n_slot) > 5000, (n_commit, n_uncommit, n_wait, n_slot)
