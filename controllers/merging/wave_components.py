@@ -197,7 +197,7 @@ class WaveDamping(Controller):
             self._ramp_lane = np.array([self.lm.is_ramp_lane(n) for n in tb.lane_names], dtype=bool)
         pos, size = snap.position[sl], snap.size[sl]
         front = pos[:, 0] + 0.5 * size[:, 0] * np.cos(snap.heading[sl])
-        return {"ids": list(snap.ids[sl]), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
+        return {"ids": snap.ids[sl].tolist(), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
                 "on_ramp": self._ramp_lane[r.lane], "ramp": tb.role[r.uid] == _RAMP,
                 "connected": tb.connected[r.uid], "pos": pos}
 
