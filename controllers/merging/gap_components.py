@@ -50,6 +50,7 @@ from corridor.controllers.merging.gap_kernel import (
     MIN_CROSS_SPEED_MPS,
     ST_SLOT,
     measure_plan,
+    partner_cap,
     plan_slots,
     ramp_cfg_array,
     ramp_command,
@@ -584,7 +585,14 @@ class GapMerging(WaveDamping):
             return v_cmd
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
-        return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+        if not HAVE_C_POW:
+            return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+        if not isinstance(msg, MergePlan) or vid not in msg.partners:
+            return v_cmd
+        slot = msg.slots[msg.partners[vid]]  # _partner_cap's value in one compiled call
+        x_r, v_r, len_r = slot.ramp
+        return partner_cap(self._ramp_cfg, t, msg.t_sent_s, slot.t_partner_s, slot.t_ramp_s, x_r, v_r, len_r,
+                           float(s["front"][k]), float(s["speed"][k]), v_cmd)
 
     def _partner_cap(self, t: float, msg: RoadAhead, x: float, v: float, vid: str, v_cmd: float) -> float:
         """``v_cmd`` [m/s] of vehicle ``vid`` at ``x`` [m], ``v`` [m/s] capped for a partner (see ``_speed``)."""

@@ -345,7 +345,7 @@ def tick_rows(connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray, fron
 
 # ramp_cfg: ramp_command's parameters, in this order
 (R_MERGE_X, R_B_COMFORT, R_A_MAX, R_PLAN_ACCEL, R_WAIT_SPEED, R_COMMIT, R_PERIOD, R_REACTION, R_B_EGO, R_B_LEAD, R_S0,
- R_K_SPEED, N_RAMP_CFG) = range(13)
+ R_K_SPEED, R_PARTNER_MIN, R_RESTART_PARTNER, R_OPEN_GAP, N_RAMP_CFG) = range(16)
 
 
 def ramp_cfg_array(p: Any, safety: Any, merge_x: float, period: float, k_speed: float) -> np.ndarray:
@@ -357,6 +357,8 @@ def ramp_cfg_array(p: Any, safety: Any, merge_x: float, period: float, k_speed: 
     cfg[R_WAIT_SPEED], cfg[R_COMMIT], cfg[R_PERIOD], cfg[R_K_SPEED] = p.wait_speed_mps, p.commit_m, period, k_speed
     cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0] = (safety.reaction_s, safety.b_ego_mps2, safety.b_lead_mps2,
                                                                safety.s0_m)
+    cfg[R_PARTNER_MIN], cfg[R_RESTART_PARTNER], cfg[R_OPEN_GAP] = (p.partner_min_speed_mps, p.restart_partner_speed_mps,
+                                                                   p.open_time_gap_s)
     return cfg
 
 
@@ -436,5 +438,31 @@ def ramp_command(cfg: np.ndarray, t: float, t_sent: float, v_cross: float, commi
     return v_next, commit, 1.0 if lead_ok else 0.0
 
 
-__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots", "ramp_cfg_array", "ramp_command",
+_CAP_SIG = types.float64(types.float64[:], types.float64, types.float64, types.float64, types.float64, types.float64,
+                         types.float64, types.float64, types.float64, types.float64, types.float64)
+
+
+@(njit(_CAP_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def partner_cap(cfg: np.ndarray, t: float, t_sent: float, t_partner: float, t_ramp: float, ramp_x: float,
+                ramp_v: float, ramp_len: float, x: float, v: float, v_cmd: float) -> float:
+    """``GapMerging._partner_cap``'s value for a partner at ``x`` [m], ``v`` [m/s] whose law gives ``v_cmd``
+    [m/s], on its slot (``t_partner``, ``t_ramp``; the ramp vehicle as measured) in a message sent at ``t_sent``."""
+    v_floor = cfg[R_PARTNER_MIN] if t_partner - t_ramp <= cfg[R_OPEN_GAP] else cfg[R_RESTART_PARTNER]
+    d = t_partner - t
+    d = 1e-3 if 1e-3 > d else d  # Python's max(d, 1e-3)
+    q = (cfg[R_MERGE_X] - x) / d
+    m = v if v < v_floor else v_floor  # Python's min(v_floor, v)
+    v_cap = m if m > q else q  # Python's max(q, m)
+    a = (v_cap - v) / cfg[R_PERIOD]
+    lo = -cfg[R_B_COMFORT]
+    a = lo if lo > a else a  # Python's max(a, -b_comfort)
+    g = ramp_x + ramp_v * (t - t_sent) - ramp_len - x
+    if g > 0 and ramp_v > cfg[R_WAIT_SPEED]:
+        a = safe_accel_c(g, v, ramp_v, a, cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0])
+    y = v + a * cfg[R_PERIOD]
+    y = y if y < v_cmd else v_cmd  # Python's min(v_cmd, y)
+    return y if y > 0.0 else 0.0  # Python's max(0.0, y)
+
+
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "partner_cap", "plan_slots", "ramp_cfg_array", "ramp_command",
            "tick_rows"]

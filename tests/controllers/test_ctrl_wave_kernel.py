@@ -360,3 +360,33 @@ def test_ramp_command_is_the_python_ramp_command() -> None:
             n_slot += vid in msg.slots and not before
         assert got.events.events == ref.events.events
     assert min(n_commit, n_uncommit) > 500 and min(n_wait, n_slot) > 5000, (n_commit, n_uncommit, n_wait, n_slot)
+
+
+def test_partner_cap_is_the_python_partner_cap() -> None:
+    """``gap_kernel.partner_cap`` (the compiled tick's ``_capped``) against ``GapMerging._partner_cap``, bit for
+    bit, on random partners and slots (restart gaps, slots due or past, ramp vehicles behind, slow or on their run)."""
+    from corridor.controllers.merging.gap_components import GapMerging, MergePlan, Slot
+    from corridor.controllers.merging.gap_kernel import partner_cap
+
+    rng = np.random.default_rng(16)
+    n_safe = n_floor = 0
+    for params in (GapMerging.Params(), GapMerging.Params(partner_min_speed_mps=8.0, restart_partner_speed_mps=3.0,
+                                                          open_time_gap_s=1.0, wait_speed_mps=2.0)):
+        c = _gap_controller(params, CHANNELS[2], 60.0, 0, True)
+        for _ in range(60000):
+            t = float(rng.uniform(0.0, 50.0))
+            x, v = float(rng.uniform(MERGE_X - 400.0, MERGE_X + 5.0)), float(rng.uniform(0.0, 30.0))
+            t_ramp = t + float(rng.uniform(-3.0, 30.0))
+            ramp = (x + float(rng.uniform(-20.0, 80.0)), float(rng.choice([rng.uniform(0.0, 20.0), params.wait_speed_mps])),
+                    float(rng.choice([4.5, 5.0])))
+            slot = Slot(t_ramp, t_ramp + float(rng.choice([params.open_time_gap_s, 5.0, rng.uniform(0.0, 6.0)])), None,
+                        (x, v, 5.0), ramp)
+            msg = MergePlan(t - float(rng.uniform(0.0, 1.0)), np.zeros(0), np.zeros(0), np.zeros(0), None,
+                            {"r": slot}, {"p": "r"}, 15.0)
+            v_cmd = float(rng.uniform(0.0, 32.0))
+            ref = c._partner_cap(t, msg, x, v, "p", v_cmd)
+            got = partner_cap(c._ramp_cfg, t, msg.t_sent_s, slot.t_partner_s, slot.t_ramp_s, *ramp, x, v, v_cmd)
+            assert got == ref, (t, x, v, slot, v_cmd)
+            n_safe += ref < v_cmd
+            n_floor += ref == 0.0
+    assert n_safe > 20000 and n_floor > 0, (n_safe, n_floor)
