@@ -45,7 +45,17 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import Field
 
-from corridor.controllers.merging.gap_kernel import HAVE_C_POW, ST_SLOT, measure_plan, plan_slots
+from corridor.controllers.merging.gap_kernel import (
+    HAVE_C_POW,
+    MIN_CROSS_SPEED_MPS,
+    ST_SLOT,
+    measure_plan,
+    partner_cap,
+    plan_slots,
+    ramp_cfg_array,
+    ramp_command,
+    tick_rows,
+)
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
@@ -140,6 +150,9 @@ class GapMerging(WaveDamping):
         self.reserved_crossings = 0
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
+        self._no_rows = np.empty(0, dtype=np.int64)
+        self._partnered: set[str] = set()  # every vehicle named a partner in a message (_capped's shortcut)
+        self._row_work = (self._no_rows, self._no_rows, self._no_rows)  # _receiver_rows' (grown by doubling)
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -149,6 +162,8 @@ class GapMerging(WaveDamping):
         self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
         # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
         self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
+        self._zone = (self.merge_x - self.p.zone_before_m, self.merge_x + self.p.release_after_m)  # _receivers' bounds
+        self._ramp_cfg = ramp_cfg_array(self.gp, self.safety, self.merge_x, self.period, K_SPEED)  # ramp_command's
 
     # ------------------------------------------------------------------ geometry
     def _projected(self, s: dict[str, Any]) -> np.ndarray:
@@ -170,6 +185,25 @@ class GapMerging(WaveDamping):
             out[[row[c] for c in self.pairs.values() if c in row]] = True
         return out
 
+    def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
+        """``_receivers``' rows in one compiled pass (``gap_kernel.tick_rows``), which also keeps this tick's
+        connected ramp vehicles (``s["_cramp"]``) and vehicles on the ramp (``s["_onramp"]``), as rows."""
+        n = len(s["ids"])
+        w = self._row_work
+        if len(w[0]) < n:
+            w = self._row_work = (np.empty(2 * n, dtype=np.int64), np.empty(2 * n, dtype=np.int64),
+                                  np.empty(2 * n, dtype=np.int64))
+        recv, cramp, onramp = w
+        if self.pairs:
+            row = self._rows(s)
+            partners = np.array([row[c] for c in self.pairs.values() if c in row], dtype=np.int64)
+        else:
+            partners = self._no_rows
+        n_recv, n_cramp, n_on = tick_rows(s["connected"], s["ramp"], s["on_ramp"], s["front"], self._zone[0],
+                                          self._zone[1], self.cross_x, partners, recv, cramp, onramp)
+        s["_cramp"], s["_onramp"] = cramp[:n_cramp].tolist(), onramp[:n_on].tolist()
+        return recv[:n_recv].copy()
+
     def _unheard(self, s: dict[str, Any]) -> bool:
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
@@ -177,11 +211,14 @@ class GapMerging(WaveDamping):
         if self.compiled and self._fused:
             return self._measure_fused(t, s)
         base = super()._measure(t, s)
-        v_cross = min(self._merge_speed(base.cell_speed_mps), self.gp.cross_speed_mps)
+        # a standstill before the merge measures 0 m/s: the plan's arrival times divide by the crossing speed
+        v_cross = min(max(self._merge_speed(base.cell_speed_mps), MIN_CROSS_SPEED_MPS), self.gp.cross_speed_mps)
         slots = self._slots(t, s, v_cross)
         row, connected = self._rows(s), s["connected"]
+        partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        self._partnered.update(partners)
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
-                         slots, {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, v_cross)
+                         slots, partners, v_cross)
 
     def _merge_speed(self, cell_speed: np.ndarray) -> float:
         """[m/s] the mean measured speed of the cells in the 100 m before the merge (u_max: none known):
@@ -222,15 +259,18 @@ class GapMerging(WaveDamping):
         x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
         pairs, t_slot, has_slot = self._pair_arrays(s)
         x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
-        cell_speed, eta = np.empty(len(self.cells)), np.empty(int(np.count_nonzero(s["on_ramp"])))  # the message's
+        on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
+        n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
+        cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
         n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
                              s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
                              self._near_cells, cell_speed, eta, v_cross)
         yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
         slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
         row, connected = self._rows(s), s["connected"]
-        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots,
-                         {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}, float(v_cross[0]))
+        partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        self._partnered.update(partners)
+        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots, partners, float(v_cross[0]))
 
     def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``measure_plan``'s work arrays (noisy x, v; pairs and slots out; the crossing speed) for ``n`` rows,
@@ -407,13 +447,16 @@ class GapMerging(WaveDamping):
 
     def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:
         """The connected ramp vehicles' commands."""
-        rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
+        rows = s.get("_cramp")  # this tick's (_receiver_rows) or found here
+        if rows is None:
+            rows = np.flatnonzero(s["connected"] & s["ramp"]).tolist()
         if not rows:
             return
         ids, front, on_ramp = s["ids"], s["front"].tolist(), s["on_ramp"].tolist()
         speed = s["speed"].tolist()  # Python floats: the same values
         leaders = self._ramp_leaders(s, front, speed)
         merge_x, cos_ramp = self.merge_x, self.cos_ramp
+        command = self._ramp_command_c if self.compiled and HAVE_C_POW else self._ramp_command
         for k in rows:
             vid = ids[k]
             if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
@@ -428,7 +471,7 @@ class GapMerging(WaveDamping):
                 self._release(vid, cmds)
                 continue
             x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value
-            v_cmd, mode = self._ramp_command(t, msg, vid, x, speed[k], leaders(k))
+            v_cmd, mode = command(t, msg, vid, x, speed[k], leaders(k))
             cmds.append(SetSpeed(vid, v_cmd, mode))
             self.controlled.add(vid)
             self.commands_sent += 1
@@ -471,6 +514,33 @@ class GapMerging(WaveDamping):
             self.committed.discard(vid)
         return v_next, (p.reserved_speed_mode if vid in self.committed else self.p.command_speed_mode)
 
+    def _ramp_command_c(self, t: float, msg: MergePlan, vid: str, x: float, v: float, leader: tuple[float, float]
+                        ) -> tuple[float, int]:
+        """``_ramp_command`` with its values from one compiled call (``gap_kernel.ramp_command``); the
+        committed set, the counter and the event here, as there."""
+        slot = msg.slots.get(vid)
+        committed = vid in self.committed
+        gap, v_lead = leader
+        if slot is None:
+            v_next, commit, lead_ok = ramp_command(self._ramp_cfg, t, msg.t_sent_s, msg.cross_speed_mps, committed,
+                                                   False, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, x, v, gap, v_lead)
+        else:
+            lead, partner = slot.lead, slot.partner
+            has_lead = lead is not None
+            lx, lv, ll = lead if lead is not None else (0.0, 0.0, 0.0)
+            v_next, commit, lead_ok = ramp_command(self._ramp_cfg, t, msg.t_sent_s, msg.cross_speed_mps, committed,
+                                                   True, slot.t_ramp_s, has_lead, lx, lv, ll, partner[0], partner[1],
+                                                   slot.ramp[2], x, v, gap, v_lead)
+        if commit:
+            self.committed.add(vid)
+            self.reserved_crossings += 1
+            self.events.emit(t, self.name, "reserved_crossing", f"{vid}: crosses on its reservation", vehicle=vid)
+            committed = True
+        if committed and not lead_ok:  # the gap closed: back to the yield sign
+            self.committed.discard(vid)
+            committed = False
+        return v_next, (self.gp.reserved_speed_mode if committed else self.p.command_speed_mode)
+
     def _partner_ok(self, slot: Slot, age: float, x_r: float, v_r: float) -> bool:
         """The partner can stay behind the ramp vehicle braking at most comfortably (RSU's measurement)."""
         x_c, v_c, _ = slot.partner
@@ -482,7 +552,8 @@ class GapMerging(WaveDamping):
         """``_ramp_leader`` for any row of this tick (``front``, ``speed``: the rows' as floats), from one
         stable sort of the vehicles on the ramp by front (ties by row: argmin's pick; finite fronts), the
         first whose front is greater."""
-        order = sorted(np.flatnonzero(s["on_ramp"]).tolist(), key=front.__getitem__)
+        on = s.get("_onramp")  # this tick's (_receiver_rows) or found here
+        order = sorted(np.flatnonzero(s["on_ramp"]).tolist() if on is None else on, key=front.__getitem__)
         keys = [front[j] for j in order]
         length, cos_ramp = s["length"], self.cos_ramp
 
@@ -510,9 +581,18 @@ class GapMerging(WaveDamping):
         return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
+        if vid not in self._partnered:  # a partner in no message: its message names it in none
+            return v_cmd
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
-        return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+        if not HAVE_C_POW:
+            return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
+        if not isinstance(msg, MergePlan) or vid not in msg.partners:
+            return v_cmd
+        slot = msg.slots[msg.partners[vid]]  # _partner_cap's value in one compiled call
+        x_r, v_r, len_r = slot.ramp
+        return partner_cap(self._ramp_cfg, t, msg.t_sent_s, slot.t_partner_s, slot.t_ramp_s, x_r, v_r, len_r,
+                           float(s["front"][k]), float(s["speed"][k]), v_cmd)
 
     def _partner_cap(self, t: float, msg: RoadAhead, x: float, v: float, vid: str, v_cmd: float) -> float:
         """``v_cmd`` [m/s] of vehicle ``vid`` at ``x`` [m], ``v`` [m/s] capped for a partner (see ``_speed``)."""

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit, types
 
 from corridor.controllers.merging.coord_kernel import HAVE_C_POW, _c_pow, time_to_go_c
+from corridor.controllers.merging.wave_kernel import safe_accel_c
 
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
@@ -40,6 +41,9 @@ P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
 # out_slot columns: the slot's times, then the partner's (x, v, length) and the ramp vehicle's
 S_T_RAMP, S_T_PARTNER, S_LEAD_X, S_LEAD_V, S_LEAD_LEN, S_PX, S_PV, S_PLEN, S_RX, S_RV, S_RLEN = range(11)
+# [m/s] the least crossing speed planned: every cell before the merge at 0 m/s (a standstill) would give 0, and
+# the arrival times (``time_to_go``'s cruise at it) would divide by it; as the RSU's arrival times' 1 m/s floor
+MIN_CROSS_SPEED_MPS = 1.0
 
 
 def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base: float = math.nan) -> np.ndarray:
@@ -270,8 +274,8 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
                  v_cross_out: np.ndarray) -> int:
     """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``
     on ``speed`` + ``noise``, into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
-    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at most ``cross_speed``: into
-    ``v_cross_out[0]``), then :func:`plan_slots`."""
+    finite ``near`` cells, fewer than 8: summed in order; u_max when none; at least ``MIN_CROSS_SPEED_MPS``,
+    at most ``cross_speed``: into ``v_cross_out[0]``), then :func:`plan_slots`."""
     n, n_cells = front.shape[0], cell_speed.shape[0]
     merge_x, cos_ramp, base, cell_m = cfg[C_MERGE_X], cfg[C_COS_RAMP], cfg[C_CELL_BASE], cfg[C_CELL_M]
     total = np.zeros(n_cells)
@@ -300,10 +304,165 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
             acc = cv if m == 0 else acc + cv
             m += 1
     v_merge = acc / m if m else cfg[C_U_MAX]
+    if MIN_CROSS_SPEED_MPS > v_merge:  # Python's max(v_merge, MIN_CROSS_SPEED_MPS)
+        v_merge = MIN_CROSS_SPEED_MPS
     v_cross = cfg[C_CROSS_SPEED] if cfg[C_CROSS_SPEED] < v_merge else v_merge  # Python's min(v_merge, cross)
     v_cross_out[0] = v_cross
     return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
                  has_slot, x, v, out_pair, out_slot)
 
 
-__all__ = ["HAVE_C_POW", "ST_SLOT", "cfg_array", "measure_plan", "plan_slots"]
+_ROWS_SIG = types.UniTuple(types.int64, 3)(_RB, _RB, _RB, _RF, types.float64, types.float64, types.float64, types.int64[:],
+                        types.int64[:], types.int64[:], types.int64[:])
+
+
+@(njit(_ROWS_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def tick_rows(connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray, front: np.ndarray, lo: float, hi: float,
+              cross_x: float, partner_rows: np.ndarray, recv: np.ndarray, cramp: np.ndarray, onramp: np.ndarray
+              ) -> tuple[int, int, int]:
+    """A tick's rows in one pass (``GapMerging._receivers``' and ``_decide_more``'s numpy masks): into ``recv``
+    the receivers (connected highway vehicles with ``lo`` < front < ``hi``, connected ramp vehicles with front
+    < ``cross_x``, the rows in ``partner_rows``), into ``cramp`` the connected ramp vehicles, into ``onramp``
+    the vehicles on the ramp, each in row order (``np.flatnonzero``'s).  Returns the three counts."""
+    n = front.shape[0]
+    mark = np.zeros(n, dtype=np.bool_)
+    for q in range(partner_rows.shape[0]):
+        mark[partner_rows[q]] = True
+    n_recv = n_cramp = n_on = 0
+    for i in range(n):
+        c, r, f = connected[i], ramp[i], front[i]
+        if (c and not r and f > lo and f < hi) or (c and r and f < cross_x) or mark[i]:
+            recv[n_recv] = i
+            n_recv += 1
+        if c and r:
+            cramp[n_cramp] = i
+            n_cramp += 1
+        if on_ramp[i]:
+            onramp[n_on] = i
+            n_on += 1
+    return n_recv, n_cramp, n_on
+
+
+# ramp_cfg: ramp_command's parameters, in this order
+(R_MERGE_X, R_B_COMFORT, R_A_MAX, R_PLAN_ACCEL, R_WAIT_SPEED, R_COMMIT, R_PERIOD, R_REACTION, R_B_EGO, R_B_LEAD, R_S0,
+ R_K_SPEED, R_PARTNER_MIN, R_RESTART_PARTNER, R_OPEN_GAP, N_RAMP_CFG) = range(16)
+
+
+def ramp_cfg_array(p: Any, safety: Any, merge_x: float, period: float, k_speed: float) -> np.ndarray:
+    """:func:`ramp_command`'s parameters from ``GapMerging.Params`` ``p``, the safety layer's, the junction's
+    x [m], the step [s] and the speed hold's gain [1/s]."""
+    cfg = np.empty(N_RAMP_CFG)
+    cfg[R_MERGE_X], cfg[R_B_COMFORT], cfg[R_A_MAX], cfg[R_PLAN_ACCEL] = merge_x, p.b_comfort_mps2, p.a_max_mps2, \
+        p.plan_accel_mps2
+    cfg[R_WAIT_SPEED], cfg[R_COMMIT], cfg[R_PERIOD], cfg[R_K_SPEED] = p.wait_speed_mps, p.commit_m, period, k_speed
+    cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0] = (safety.reaction_s, safety.b_ego_mps2, safety.b_lead_mps2,
+                                                               safety.s0_m)
+    cfg[R_PARTNER_MIN], cfg[R_RESTART_PARTNER], cfg[R_OPEN_GAP] = (p.partner_min_speed_mps, p.restart_partner_speed_mps,
+                                                                   p.open_time_gap_s)
+    return cfg
+
+
+@njit(cache=True)
+def _arrival_accel(k: float, dist_m: float, v_mps: float, time_s: float, v_cross: float, accel: float,
+                   brake: float) -> float:
+    """``gap_components.arrival_accel`` (gain ``k``), the same bits."""
+    if time_s <= 0.5 or dist_m <= 0:
+        return k * (v_cross - v_mps)
+    if time_to_go_c(dist_m, v_mps, v_cross, accel) >= time_s:
+        return accel
+    a_, b_, c_ = 1.0 / (2.0 * accel), time_s - v_cross / accel, v_cross * v_cross / (2.0 * accel) - dist_m
+    disc = b_ * b_ - 4.0 * a_ * c_
+    if disc < 0:
+        return -brake
+    v_c = (-b_ + math.sqrt(disc)) / (2.0 * a_)
+    lo = v_cross - accel * time_s
+    lo = 0.0 if 0.0 > lo else lo  # Python's max(lo, 0.0)
+    if v_c < lo or v_c > v_cross:
+        return -brake
+    return k * (v_c - v_mps)
+
+
+_RAMP_SIG = types.UniTuple(types.float64, 3)(
+    types.float64[:], types.float64, types.float64, types.float64, types.boolean, types.boolean, types.float64,
+    types.boolean, types.float64, types.float64, types.float64, types.float64, types.float64, types.float64,
+    types.float64, types.float64, types.float64, types.float64)
+
+
+@(njit(_RAMP_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def ramp_command(cfg: np.ndarray, t: float, t_sent: float, v_cross: float, committed: bool, has_slot: bool,
+                 t_ramp: float, has_lead: bool, lead_x: float, lead_v: float, lead_len: float, partner_x: float,
+                 partner_v: float, ramp_len: float, x: float, v: float, gap: float, v_lead: float
+                 ) -> tuple[float, float, float]:
+    """``GapMerging._ramp_command``'s values for a ramp vehicle at projected ``x`` [m], ``v`` [m/s] (physical
+    leader ``gap`` [m], ``v_lead`` [m/s]) on a message sent at ``t_sent`` with crossing speed ``v_cross``
+    and, ``has_slot``, its slot (``t_ramp``; the virtual leader ``lead_*`` when ``has_lead``, the partner's
+    x and v, its own length as measured), ``committed`` or not: (the next speed [m/s], 1.0 when it commits
+    now else 0.0, 1.0 when its virtual leader is fine else 0.0).  The caller keeps the committed set, the
+    counters and the events."""
+    b_comfort, reaction, b_ego, b_lead, s0 = cfg[R_B_COMFORT], cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0]
+    k = cfg[R_K_SPEED]
+    dist = cfg[R_MERGE_X] - x
+    dist = 0.0 if 0.0 > dist else dist  # Python's max(dist, 0.0)
+    age = t - t_sent
+    if committed:
+        a = k * (v_cross - v)
+    elif not has_slot:
+        run_up = _c_pow(v_cross, 2.0) / (2.0 * cfg[R_PLAN_ACCEL]) + cfg[R_COMMIT]
+        room = dist - run_up
+        room = 0.0 if 0.0 > room else room
+        w = math.sqrt(2.0 * b_comfort * room)
+        ws = cfg[R_WAIT_SPEED]
+        ws = w if w < ws else ws  # Python's min(wait_speed, w)
+        a = k * (ws - v)
+    else:
+        a = _arrival_accel(k, dist, v, t_ramp - t, v_cross, cfg[R_PLAN_ACCEL], b_comfort)
+    lo = -b_comfort
+    a = lo if lo > a else a  # Python's max(a, -b_comfort)
+    a = cfg[R_A_MAX] if cfg[R_A_MAX] < a else a  # Python's min(a, a_max)
+    lead_ok = True
+    if has_slot and has_lead:
+        g = lead_x + lead_v * age - lead_len - x
+        if g > 0.0:
+            a = safe_accel_c(g, v, lead_v, a, reaction, b_ego, b_lead, s0)
+        lead_ok = g > 0.0 and a > -b_comfort
+    if math.isfinite(gap):
+        a = safe_accel_c(gap, v, v_lead, a, reaction, b_ego, b_lead, s0)
+    v_next = v + a * cfg[R_PERIOD]
+    v_next = v_next if v_next > 0.0 else 0.0  # Python's max(0.0, v_next)
+    commit = 0.0
+    if not committed and has_slot and lead_ok:
+        g = x - ramp_len - (partner_x + partner_v * age)  # _partner_ok
+        if g > 0.0 and safe_accel_c(g, partner_v, v, 0.0, reaction, b_ego, b_lead, s0) > -b_comfort:
+            if dist <= v * v / (2.0 * b_comfort) + cfg[R_COMMIT]:
+                commit = 1.0
+    return v_next, commit, 1.0 if lead_ok else 0.0
+
+
+_CAP_SIG = types.float64(types.float64[:], types.float64, types.float64, types.float64, types.float64, types.float64,
+                         types.float64, types.float64, types.float64, types.float64, types.float64)
+
+
+@(njit(_CAP_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def partner_cap(cfg: np.ndarray, t: float, t_sent: float, t_partner: float, t_ramp: float, ramp_x: float,
+                ramp_v: float, ramp_len: float, x: float, v: float, v_cmd: float) -> float:
+    """``GapMerging._partner_cap``'s value for a partner at ``x`` [m], ``v`` [m/s] whose law gives ``v_cmd``
+    [m/s], on its slot (``t_partner``, ``t_ramp``; the ramp vehicle as measured) in a message sent at ``t_sent``."""
+    v_floor = cfg[R_PARTNER_MIN] if t_partner - t_ramp <= cfg[R_OPEN_GAP] else cfg[R_RESTART_PARTNER]
+    d = t_partner - t
+    d = 1e-3 if 1e-3 > d else d  # Python's max(d, 1e-3)
+    q = (cfg[R_MERGE_X] - x) / d
+    m = v if v < v_floor else v_floor  # Python's min(v_floor, v)
+    v_cap = m if m > q else q  # Python's max(q, m)
+    a = (v_cap - v) / cfg[R_PERIOD]
+    lo = -cfg[R_B_COMFORT]
+    a = lo if lo > a else a  # Python's max(a, -b_comfort)
+    g = ramp_x + ramp_v * (t - t_sent) - ramp_len - x
+    if g > 0 and ramp_v > cfg[R_WAIT_SPEED]:
+        a = safe_accel_c(g, v, ramp_v, a, cfg[R_REACTION], cfg[R_B_EGO], cfg[R_B_LEAD], cfg[R_S0])
+    y = v + a * cfg[R_PERIOD]
+    y = y if y < v_cmd else v_cmd  # Python's min(v_cmd, y)
+    return y if y > 0.0 else 0.0  # Python's max(0.0, y)
+
+
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "partner_cap", "plan_slots", "ramp_cfg_array", "ramp_command",
+           "tick_rows"]

@@ -197,7 +197,7 @@ class WaveDamping(Controller):
             self._ramp_lane = np.array([self.lm.is_ramp_lane(n) for n in tb.lane_names], dtype=bool)
         pos, size = snap.position[sl], snap.size[sl]
         front = pos[:, 0] + 0.5 * size[:, 0] * np.cos(snap.heading[sl])
-        return {"ids": list(snap.ids[sl]), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
+        return {"ids": snap.ids[sl].tolist(), "front": front, "length": size[:, 0], "speed": snap.speed[sl],
                 "on_ramp": self._ramp_lane[r.lane], "ramp": tb.role[r.uid] == _RAMP,
                 "connected": tb.connected[r.uid], "pos": pos}
 
@@ -230,7 +230,7 @@ class WaveDamping(Controller):
         the draws, the commands and the events."""
         ids, ch = s["ids"], self.channel
         assert isinstance(ch, RsuBroadcast)
-        rows = np.flatnonzero(self._receivers(s))
+        rows = self._receiver_rows(s)
         members = [ids[k] for k in rows.tolist()]
         member_set = set(members)
         if member_set != self._members:  # attach in name order (see _communicate)
@@ -282,6 +282,10 @@ class WaveDamping(Controller):
             self._release(vid, cmds)
         self._decide_more(t, s, cmds)
         return cmds
+
+    def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
+        """The compiled tick's receivers: the rows of ``_receivers``' mask (a subclass may find them otherwise)."""
+        return np.flatnonzero(self._receivers(s))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
         """The compiled tick's command [m/s] for vehicle ``vid`` (row ``k``) whose law gives ``v_cmd``

@@ -181,3 +181,32 @@ def test_projected_position_on_floats_is_projected() -> None:
     ref = c._projected({"front": front, "on_ramp": on}).tolist()
     got = [c.merge_x - (c.merge_x - f) / c.cos_ramp if o else f for f, o in zip(front.tolist(), on.tolist(), strict=True)]
     assert got == ref
+
+
+def test_tick_rows_are_the_numpy_masks() -> None:
+    """``_receiver_rows`` (``gap_kernel.tick_rows``: one pass) against ``_receivers``' mask (numpy) with the
+    partners, and the connected ramp vehicles' and the ramp's rows against ``np.flatnonzero``: on the zone's
+    edges, NaN fronts, partners gone from the road."""
+    rng = np.random.default_rng(14)
+    n_recv = n_partner = 0
+    for params in (GapMerging.Params(), GapMerging.Params(zone_before_m=150.0, release_after_m=0.0)):
+        c = _controller(params, 0)
+        lo, hi = MERGE_X - params.zone_before_m, MERGE_X + params.release_after_m
+        c._zone = (lo, hi)
+        for _ in range(3000):
+            drive = _Drive(rng)
+            s = drive.state()
+            n = len(s["ids"])
+            edges = np.array([lo, hi, CROSS_X, np.nan, np.nextafter(lo, 0.0), np.nextafter(hi, 1e9)])
+            pick = rng.random(n) < 0.2
+            s["front"][pick] = rng.choice(edges, int(pick.sum()))
+            c.pairs = {f"r{q}": (s["ids"][int(rng.integers(0, n))] if n and rng.random() < 0.8 else "gone")
+                       for q in range(int(rng.integers(0, 4)))}
+            ref = {k: v.copy() for k, v in s.items() if k != "ids"} | {"ids": s["ids"]}
+            got = c._receiver_rows(s)
+            assert got.tolist() == np.flatnonzero(c._receivers(ref)).tolist()
+            assert s["_cramp"] == np.flatnonzero(ref["connected"] & ref["ramp"]).tolist()
+            assert s["_onramp"] == np.flatnonzero(ref["on_ramp"]).tolist()
+            n_recv += len(got)
+            n_partner += len(c.pairs)
+    assert n_recv > 10000 and n_partner > 3000

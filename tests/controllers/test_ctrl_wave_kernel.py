@@ -284,3 +284,109 @@ def test_compiled_tick_of_merge_gaps_is_its_python_tick(case: int) -> None:
             n_pairs += len(ref.pairs)
             drive.step()
     assert n_cmd > 100 and n_partner > 20 and n_pairs > 100, (n_cmd, n_partner, n_pairs)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_merge_gaps_plans_through_a_standstill_before_the_merge(compiled: bool) -> None:
+    """Every cell in the 100 m before the merge at 0 m/s (a standstill, measured without noise): the crossing
+    speed is ``MIN_CROSS_SPEED_MPS``, not 0 (its arrival times divided by it), on both paths, which agree."""
+    from corridor.controllers.merging.gap_components import GapMerging
+    from corridor.controllers.merging.gap_kernel import MIN_CROSS_SPEED_MPS
+
+    params = GapMerging.Params(sensor_noise_mps=0.0, ramp_sensor_noise_m=0.0, partner_min_speed_mps=0.5)
+    ref, got = (_gap_controller(params, CHANNELS[2], 60.0, 0, False),
+                _gap_controller(params, CHANNELS[2], 60.0, 0, compiled))
+    # id: front, speed, length, connected, ramp role, on ramp (stopped at the merge; a partner upstream; a
+    # connected ramp vehicle on its run)
+    veh = {"h0": (MERGE_X - 60.0, 0.0, 5.0, False, False, False), "h1": (MERGE_X - 20.0, 0.0, 5.0, True, False, False),
+           "h2": (MERGE_X - 300.0, 25.0, 5.0, True, False, False), "r0": (MERGE_X - 150.0, 10.0, 5.0, True, True, True)}
+    n_cmd = 0
+    for tick in range(6):
+        t = 0.5 * tick
+        a = np.array([v[:3] for v in veh.values()], dtype=float)
+        b = np.array([v[3:] for v in veh.values()], dtype=bool)
+        s_ref = {"ids": list(veh), "front": a[:, 0] + (tick * 0.5 * a[:, 1]), "speed": a[:, 1].copy(),
+                 "length": a[:, 2].copy(), "on_ramp": b[:, 2].copy(), "ramp": b[:, 1].copy(),
+                 "connected": b[:, 0].copy(), "pos": np.column_stack([a[:, 0] - 2.0, np.zeros((len(veh), 2))])}
+        s_got = {k: v.copy() for k, v in s_ref.items()}
+        cmds_got = got._tick_compiled(t, s_got) if compiled else (got._communicate(t, s_got), got._decide(t, s_got))[1]
+        ref._communicate(t, s_ref)
+        cmds_ref = ref._decide(t, s_ref)
+        assert cmds_got == cmds_ref
+        msg = got._latest_of("r0")
+        assert msg is not None and msg.cross_speed_mps == MIN_CROSS_SPEED_MPS
+        assert np.all(msg.cell_speed_mps[got._near_cells][np.isfinite(msg.cell_speed_mps[got._near_cells])] == 0.0)
+        n_cmd += any(c.vid == "r0" for c in cmds_got if type(c).__name__ == "SetSpeed")
+    assert n_cmd == 6 and "r0" in got.pairs
+
+
+def test_ramp_command_is_the_python_ramp_command() -> None:
+    """``GapMerging._ramp_command_c`` (``gap_kernel.ramp_command``) against ``_ramp_command``, bit for bit, on
+    random vehicles and messages: the speed, the mode, the committed set, the counter and the events (with a
+    slot and without, committed or not, with and without a virtual and a physical leader, at speeds where
+    ``v ** 2`` and ``v * v`` differ)."""
+    from corridor.controllers.merging.gap_components import GapMerging, MergePlan, Slot
+
+    rng = np.random.default_rng(15)
+    n_commit = n_uncommit = n_wait = n_slot = 0
+    for params in (GapMerging.Params(), GapMerging.Params(commit_m=10.0, wait_speed_mps=2.0, plan_accel_mps2=0.4,
+                                                          b_comfort_mps2=3.0, a_max_mps2=2.5)):
+        ref, got = (_gap_controller(params, CHANNELS[2], 60.0, 0, False),
+                    _gap_controller(params, CHANNELS[2], 60.0, 0, True))
+        for i in range(40000):
+            t = float(rng.uniform(0.0, 50.0))
+            x = float(rng.uniform(MERGE_X - 300.0, MERGE_X + 5.0))
+            v = float(rng.choice([0.0, rng.uniform(0.0, 20.0), 11.300000000000001]))
+            lead = None if rng.random() < 0.3 else (x + float(rng.uniform(-20.0, 60.0)), float(rng.uniform(0.0, 25.0)),
+                                                    float(rng.choice([4.5, 5.0])))
+            slot = Slot(t + float(rng.uniform(-2.0, 40.0)), 0.0, lead,
+                        (x - float(rng.uniform(-10.0, 80.0)), float(rng.uniform(0.0, 25.0)), 5.0),
+                        (x, v, float(rng.choice([4.5, 5.0]))))
+            vid = f"r{i % 7}"
+            msg = MergePlan(t - float(rng.uniform(0.0, 1.0)), np.zeros(0), np.zeros(0), np.zeros(0), None,
+                            {vid: slot} if rng.random() < 0.7 else {}, {}, float(rng.uniform(1.0, 15.0)))
+            leader = (math.inf, 0.0) if rng.random() < 0.4 else (float(rng.uniform(-2.0, 60.0)), float(rng.uniform(0.0, 20.0)))
+            if rng.random() < 0.3:
+                ref.committed.add(vid)
+                got.committed.add(vid)
+            before = vid in ref.committed
+            out_ref = ref._ramp_command(t, msg, vid, x, v, leader)
+            out_got = got._ramp_command_c(t, msg, vid, x, v, leader)
+            assert out_got == out_ref, (i, t, x, v, slot, msg.cross_speed_mps, leader, before)
+            assert got.committed == ref.committed and got.reserved_crossings == ref.reserved_crossings
+            n_commit += (not before) and vid in ref.committed
+            n_uncommit += before and vid not in ref.committed
+            n_wait += vid not in msg.slots and not before
+            n_slot += vid in msg.slots and not before
+        assert got.events.events == ref.events.events
+    assert min(n_commit, n_uncommit) > 500 and min(n_wait, n_slot) > 5000, (n_commit, n_uncommit, n_wait, n_slot)
+
+
+def test_partner_cap_is_the_python_partner_cap() -> None:
+    """``gap_kernel.partner_cap`` (the compiled tick's ``_capped``) against ``GapMerging._partner_cap``, bit for
+    bit, on random partners and slots (restart gaps, slots due or past, ramp vehicles behind, slow or on their run)."""
+    from corridor.controllers.merging.gap_components import GapMerging, MergePlan, Slot
+    from corridor.controllers.merging.gap_kernel import partner_cap
+
+    rng = np.random.default_rng(16)
+    n_safe = n_floor = 0
+    for params in (GapMerging.Params(), GapMerging.Params(partner_min_speed_mps=8.0, restart_partner_speed_mps=3.0,
+                                                          open_time_gap_s=1.0, wait_speed_mps=2.0)):
+        c = _gap_controller(params, CHANNELS[2], 60.0, 0, True)
+        for _ in range(60000):
+            t = float(rng.uniform(0.0, 50.0))
+            x, v = float(rng.uniform(MERGE_X - 400.0, MERGE_X + 5.0)), float(rng.uniform(0.0, 30.0))
+            t_ramp = t + float(rng.uniform(-3.0, 30.0))
+            ramp = (x + float(rng.uniform(-20.0, 80.0)), float(rng.choice([rng.uniform(0.0, 20.0), params.wait_speed_mps])),
+                    float(rng.choice([4.5, 5.0])))
+            slot = Slot(t_ramp, t_ramp + float(rng.choice([params.open_time_gap_s, 5.0, rng.uniform(0.0, 6.0)])), None,
+                        (x, v, 5.0), ramp)
+            msg = MergePlan(t - float(rng.uniform(0.0, 1.0)), np.zeros(0), np.zeros(0), np.zeros(0), None,
+                            {"r": slot}, {"p": "r"}, 15.0)
+            v_cmd = float(rng.uniform(0.0, 32.0))
+            ref = c._partner_cap(t, msg, x, v, "p", v_cmd)
+            got = partner_cap(c._ramp_cfg, t, msg.t_sent_s, slot.t_partner_s, slot.t_ramp_s, *ramp, x, v, v_cmd)
+            assert got == ref, (t, x, v, slot, v_cmd)
+            n_safe += ref < v_cmd
+            n_floor += ref == 0.0
+    assert n_safe > 20000 and n_floor > 0, (n_safe, n_floor)
