@@ -6,8 +6,9 @@ compare two recordings column by column.
     python tools/compare_rows.py diff before.parquet after.parquet [--rename old=new ...]
 
 Columns that measure the machine, not the simulation (wall time, real-time factor, solver times)
-are left out of the comparison; every other column must be equal (floats to 1e-9 relative), and a
-column present on one side only is reported (renames are given with ``--rename``).
+are left out of the comparison; every other column must be equal (floats to 1e-9 relative, or bit for
+bit with ``diff --exact``), and a column present on one side only is reported (renames are given with
+``--rename``).  The summary line says how many compared columns were equal only within the tolerance.
 """
 
 from __future__ import annotations
@@ -50,17 +51,17 @@ def record(out: Path, seeds: int, duration_s: float, scenarios: list[Path]) -> N
     pd.concat(frames, ignore_index=True).to_parquet(out, index=False)
 
 
-def _equal(a: pd.Series, b: pd.Series) -> bool:
+def _equal(a: pd.Series, b: pd.Series, rel: float = 1e-9) -> bool:
     x, y = pd.to_numeric(a, errors="coerce"), pd.to_numeric(b, errors="coerce")
     if x.notna().equals(a.notna()) and y.notna().equals(b.notna()):
         xa, ya = x.to_numpy(dtype=float), y.to_numpy(dtype=float)
         with np.errstate(invalid="ignore"):  # inf - inf: equal infinities are caught by xa == ya
             return bool(np.all((xa == ya) | (np.isnan(xa) & np.isnan(ya)) |
-                               (np.abs(xa - ya) <= 1e-9 * np.maximum(np.abs(xa), np.abs(ya)))))
+                               (np.abs(xa - ya) <= rel * np.maximum(np.abs(xa), np.abs(ya)))))
     return a.astype(str).tolist() == b.astype(str).tolist()
 
 
-def diff(a_path: Path, b_path: Path, renames: dict[str, str]) -> int:
+def diff(a_path: Path, b_path: Path, renames: dict[str, str], exact: bool = False) -> int:
     a = pd.read_parquet(a_path).rename(columns=renames).set_index(["scenario_file", "run_id"]).sort_index()
     b = pd.read_parquet(b_path).set_index(["scenario_file", "run_id"]).sort_index()
     problems = []
@@ -76,17 +77,22 @@ def diff(a_path: Path, b_path: Path, renames: dict[str, str]) -> int:
         col = (a if side == "before" else b)[c]
         if col.notna().any():
             problems.append(f"column {c!r} only {side}")
-    compared = 0
+    compared, inexact = 0, []
+    rel = 0.0 if exact else 1e-9
     for c in sorted(cols_a & cols_b):
         x, y = a.loc[common, c], b.loc[common, c]
         compared += 1
-        if not _equal(x, y):
-            bad = [i for i in common if not _equal(x.loc[[i]], y.loc[[i]])]
+        if _equal(x, y, rel) and not _equal(x, y, 0.0):
+            inexact.append(c)
+        if not _equal(x, y, rel):
+            bad = [i for i in common if not _equal(x.loc[[i]], y.loc[[i]], rel)]
             problems.append(f"column {c!r} differs in {len(bad)} runs, e.g. {bad[0]}: "
                             f"{x.loc[bad[0]]!r} -> {y.loc[bad[0]]!r}")
     for p in problems:
         print(p)
-    print(f"{len(common)} runs, {compared} columns compared, {len(problems)} differences")
+    print(f"{len(common)} runs, {compared} columns compared, {len(problems)} differences"
+          + (f"; {len(inexact)} equal only within 1e-9 relative: {', '.join(inexact)}" if inexact
+             else "; every compared column equal bit for bit" if not problems else ""))
     return 1 if problems else 0
 
 
@@ -103,6 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     d.add_argument("before", type=Path)
     d.add_argument("after", type=Path)
     d.add_argument("--rename", action="append", default=[], metavar="OLD=NEW")
+    d.add_argument("--exact", action="store_true", help="floats equal bit for bit (default: to 1e-9 relative)")
     # options and positionals in any order (``record OUT --seeds 3 a.yaml b.yaml``): argparse cannot
     # intermix with subparsers, so the action's own parser reads the rest
     actions = {"record": r, "diff": d}
@@ -114,7 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.action == "record":
         record(args.out, args.seeds, args.duration, args.scenarios or sorted((ROOT / "scenarios").glob("*.yaml")))
         return 0
-    return diff(args.before, args.after, dict(r.split("=", 1) for r in args.rename))
+    return diff(args.before, args.after, dict(r.split("=", 1) for r in args.rename), args.exact)
 
 
 if __name__ == "__main__":

@@ -66,3 +66,19 @@ def test_options_and_scenarios_in_any_order(tmp_path: Path, monkeypatch: pytest.
     with pytest.raises(SystemExit) as e:
         compare_rows.main(["record", str(out), "--seeds", "three"])
     assert e.value.code == 2
+
+
+def test_a_last_bit_difference_is_named_and_fails_with_exact(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """Within 1e-9 relative is "no difference" by default, but the summary names the column, and
+    ``--exact`` (bit for bit) reports it: a refactor claimed row-identical must pass with ``--exact``."""
+    before = _rows(tmp_path / "a.parquet", SIMULATION, 1.0)
+    after = pd.read_parquet(before)
+    after["min_ttc_s"] = 1.0 + 2.0**-52  # the next float after 1.0
+    after.to_parquet(tmp_path / "b.parquet", index=False)
+    assert compare_rows.diff(before, tmp_path / "b.parquet", {}) == 0
+    assert "1 equal only within 1e-9 relative: min_ttc_s" in capsys.readouterr().out
+    assert compare_rows.main(["diff", str(before), str(tmp_path / "b.parquet"), "--exact"]) == 1
+    assert "column 'min_ttc_s' differs in 1 runs" in capsys.readouterr().out
+    assert compare_rows.main(["diff", str(before), str(before), "--exact"]) == 0
+    assert "every compared column equal bit for bit" in capsys.readouterr().out
