@@ -272,8 +272,9 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
                  pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
                  out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray, eta_ramp: np.ndarray,
                  v_cross_out: np.ndarray) -> int:
-    """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``
-    on ``speed`` + ``noise``, into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
+    """``GapMerging._measure`` in one call: the RSU's cells and ramp arrival times (``rsu_kernel.road_ahead``'s
+    loop, inline on ``max(speed + noise, 0)``: its signature takes writable arrays and a separate call would
+    cost a buffer and 10-16 us inside a run; into ``cell_speed`` and ``eta_ramp``), the crossing speed (the mean of the
     finite ``near`` cells, fewer than 8: summed in order; u_max when none; at least ``MIN_CROSS_SPEED_MPS``,
     at most ``cross_speed``: into ``v_cross_out[0]``), then :func:`plan_slots`."""
     n, n_cells = front.shape[0], cell_speed.shape[0]

@@ -92,8 +92,8 @@ def _controller(params: WaveDamping.Params, chan: ChannelConfig, duration: float
 class _Drive:
     """Vehicles on a highway line and a ramp lane (fronts in [0, 760] m), moving, entering and leaving."""
 
-    def __init__(self, rng: np.random.Generator, min_speed: float = 0.0) -> None:
-        self.rng, self.serial, self.min_speed = rng, 0, min_speed
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng, self.serial = rng, 0
         self.veh: dict[str, list[Any]] = {}  # id -> [front, speed, length, connected, ramp role, on ramp, y]
         for _ in range(int(rng.integers(0, 40))):
             self._add(float(rng.uniform(0.0, END_X)))
@@ -103,7 +103,7 @@ class _Drive:
         if rng.random() < 0.15:  # on a 5 m grid: cell edges, centres and centres - horizon (the law's edges)
             front = 5.0 * float(rng.integers(0, 152))
         ramp = bool(rng.random() < 0.2)
-        speed = self.min_speed if rng.random() < 0.1 else float(rng.uniform(self.min_speed, 32.0))
+        speed = 0.0 if rng.random() < 0.1 else float(rng.uniform(0.0, 32.0))
         self.veh[f"v{self.serial}"] = [front, speed, float(rng.choice([4.5, 5.0, 7.5])), bool(rng.random() < 0.5), ramp,
                                        ramp and front < MERGE_X, float(rng.choice([0.0, 0.0, 40.0, 400.0]))]
         self.serial += 1
@@ -112,7 +112,7 @@ class _Drive:
         rng = self.rng
         for vid, v in list(self.veh.items()):
             v[0] += v[1] * 0.5 * float(rng.uniform(0.0, 1.5))
-            v[1] = max(self.min_speed, v[1] + float(rng.normal(0.0, 2.0)))
+            v[1] = max(0.0, v[1] + float(rng.normal(0.0, 2.0)))
             if v[5] and v[0] >= MERGE_X:
                 v[5] = False
             if v[0] > END_X or rng.random() < 0.02:
@@ -250,9 +250,8 @@ def test_compiled_tick_of_merge_gaps_is_its_python_tick(case: int) -> None:
     n_cmd = n_partner = n_pairs = 0
     for drive_no in range(12):
         duration = 60.0 if drive_no % 3 else 20.0
-        # moving: a standstill before the merge (all its cells at 0 m/s) makes the planned crossing speed 0,
-        # and time_to_go divides by it (on both paths)
-        drive = _Drive(rng, min_speed=4.0)
+        # standstills included: the planned crossing speed has a floor (MIN_CROSS_SPEED_MPS) on both paths
+        drive = _Drive(rng)
         ref, got = (_gap_controller(params, chan, duration, drive_no, False),
                     _gap_controller(params, chan, duration, drive_no, True))
         for tick in range(120):
