@@ -31,6 +31,22 @@ def _state(rng: np.random.Generator, n: int) -> dict:
             "dist": rng.uniform(-100.0, 800.0, n), "ramp": rng.random(n) < 0.3}
 
 
+def _run_v2x_cps(tmp_path) -> None:
+    """merging's ``v2x_cps``, seed 0, 60 s without warm-up, in this process (so monkeypatches apply)."""
+    from corridor.run import build
+
+    sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
+    sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
+    try:
+        for c in sim.setup_order:
+            c.setup(sim.ctx)
+        for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
+            sim.step()
+    finally:
+        for c in sim.ctx.components.values():
+            c.close()
+
+
 def test_the_lane_leaders_are_found_once_a_tick_and_only_when_a_vehicle_is_capped() -> None:
     comp = _controller()
     rng = np.random.default_rng(27)
@@ -53,7 +69,6 @@ def test_every_tick_has_the_lane_leaders_of_the_compiled_stage(monkeypatch: pyte
     commanding tick (the sixth pass); they are ``safety_layer.lane_leaders``' in every tick, and the
     controller's own search never runs."""
     from corridor.controllers.merging import components
-    from corridor.run import build
     from corridor.traffic.sumo.commands import SetSpeed
 
     calls, checked, commanding = [0], [0], [0]
@@ -72,16 +87,7 @@ def test_every_tick_has_the_lane_leaders_of_the_compiled_stage(monkeypatch: pyte
 
     monkeypatch.setattr(components, "lane_leaders", counted_search)
     monkeypatch.setattr(V2XMerging, "_decide", checked_decide)
-    sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
-    sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
-    try:
-        for c in sim.setup_order:
-            c.setup(sim.ctx)
-        for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
-            sim.step()
-    finally:
-        for c in sim.ctx.components.values():
-            c.close()
+    _run_v2x_cps(tmp_path)
     assert checked[0] > 400 and commanding[0] > 100  # the run commands vehicles
     assert calls[0] == 0
 
@@ -104,7 +110,6 @@ def test_a_run_senses_from_the_raw_poses_with_the_geometrys_bits(monkeypatch: py
     yet is sensed from SUMO's raw poses without deriving it, and its speeds, front x and centres are the
     geometry's (a tick whose geometry a monitor derived before takes the geometry's path)."""
     from corridor.controllers.merging.cam_kernel import front_and_centre
-    from corridor.run import build
 
     sense, seen = V2XMerging._sense, [0]
 
@@ -127,14 +132,5 @@ def test_a_run_senses_from_the_raw_poses_with_the_geometrys_bits(monkeypatch: py
         return s
 
     monkeypatch.setattr(V2XMerging, "_sense", checked_sense)
-    sc, _ = load(scenario_file("merging"), ["duration=60", "warmup=0", "outputs.signals=false"])
-    sim = build(variant_scenarios(sc)["v2x_cps"], 0, tmp_path)
-    try:
-        for c in sim.setup_order:
-            c.setup(sim.ctx)
-        for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
-            sim.step()
-    finally:
-        for c in sim.ctx.components.values():
-            c.close()
+    _run_v2x_cps(tmp_path)
     assert seen[0] > 400
