@@ -242,6 +242,18 @@ def test_the_compiled_lane_leaders_are_the_lexsorts() -> None:
     assert ties > 1000
 
 
+def _row_tables(rng: np.random.Generator, n: int) -> tuple[np.ndarray, ...]:
+    """Random tables behind ``n`` rows: role and connectivity by uid, the rows' uids and lanes, and per
+    lane whether it is on the ramp, joins the mainline, or lies past the merge."""
+    n_uid, n_lanes = n + int(rng.integers(1, 20)), int(rng.integers(1, 8))
+    role = rng.integers(0, 3, n_uid).astype(np.int8)
+    uid = rng.permutation(n_uid)[:n].astype(np.int64)
+    conn_of = rng.random(n_uid) < 0.8
+    lane = rng.integers(0, n_lanes, n)
+    on_ramp, joins, past = (rng.random(n_lanes) < 0.4 for _ in range(3))
+    return role, uid, conn_of, lane, on_ramp, joins, past
+
+
 def test_the_compiled_row_facts_are_the_former_sense_lines() -> None:
     """``derive_rows`` (in the same call as the stage, ``CamStage.tick``) gives what ``V2XMerging._sense``'s
     numpy lines gave: the distance to the conflict point (along the ramp on a ramp lane), ramp, merged,
@@ -253,12 +265,7 @@ def test_the_compiled_row_facts_are_the_former_sense_lines() -> None:
     for _ in range(300):
         c = _case(rng, bool(rng.random() < 0.5))
         n = len(c["names"])
-        n_uid, n_lanes = n + int(rng.integers(1, 20)), int(rng.integers(1, 8))
-        role = rng.integers(0, 3, n_uid).astype(np.int8)
-        uid = rng.permutation(n_uid)[:n].astype(np.int64)
-        conn_of = rng.random(n_uid) < 0.8
-        lane = rng.integers(0, n_lanes, n)
-        on_ramp, joins, past = (rng.random(n_lanes) < 0.4 for _ in range(3))
+        role, uid, conn_of, lane, on_ramp, joins, past = _row_tables(rng, n)
         front_x = rng.uniform(900.0, 1700.0, n)
         x_merge, cos_ramp = 1521.022, np.cos(np.radians(float(rng.uniform(2.0, 20.0))))
         # the former _sense lines
@@ -300,12 +307,7 @@ def test_the_stage_from_raw_poses_is_the_stage_on_the_snapshots_geometry() -> No
     for _ in range(300):
         c = _case(rng, bool(rng.random() < 0.5))
         n = len(c["names"])
-        n_uid, n_lanes = n + int(rng.integers(1, 20)), int(rng.integers(1, 8))
-        role = rng.integers(0, 3, n_uid).astype(np.int8)
-        uid = rng.permutation(n_uid)[:n].astype(np.int64)
-        conn_of = rng.random(n_uid) < 0.8
-        lane = rng.integers(0, n_lanes, n)
-        on_ramp, joins, past = (rng.random(n_lanes) < 0.4 for _ in range(3))
+        role, uid, conn_of, lane, on_ramp, joins, past = _row_tables(rng, n)
         # SUMO's columns: the front bumper, the bearing (often due east, else any), the speed, half lengths
         ref_xy = np.column_stack([rng.uniform(900.0, 1700.0, n), rng.uniform(-60.0, 5.0, n)])
         bearing = np.where(rng.random(n) < 0.5, 90.0, rng.uniform(-180.0, 360.0, n))
