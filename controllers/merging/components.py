@@ -71,6 +71,7 @@ from corridor.controllers.merging.switching import (
     DIST_BOUNDARIES,
     MergeBoundaries,
     MergeState,
+    QuietMerge,
     VirtualGap,
     merge_automaton,
     resolved,
@@ -235,6 +236,8 @@ class V2XMerging(Controller):
         self.commands_sent = 0
         self.min_virtual_gap = math.inf
         self.theta = resolved(params.boundaries, params.virtual_leader_m)
+        self._quiet = QuietMerge(self.theta)  # quiet_update written out for the merge automata (see _decide)
+        self._mode_flags: dict[str, tuple[bool, bool, bool]] = {}  # leaf mode -> what _decide reads of its path
         self.automata: dict[str, HybridAutomaton] = {}  # vid -> its automaton while it holds an assignment
         self._ids_key: tuple[np.ndarray, slice, list[str], dict[str, int]] | None = None  # see _id_rows
 
@@ -756,6 +759,12 @@ class V2XMerging(Controller):
                     cmds.append(Release(vid))
         if assigned:
             ramp_l, right_l, merged_l = s["ramp"].tolist(), s["right"].tolist(), s["merged"].tolist()
+        quiet, mode_flags, safety = self._quiet, self._mode_flags, self.safety
+        cap_inline = "_physical_leader_cap" not in self.__dict__
+        leader = s.get("leader")
+        if leader is None and cap_inline and assigned:  # a state without the CAM stage's (_physical_leader_cap)
+            leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
+        cols: tuple[list[float], list[float], list[float]] | None = None
         for vid, (_t_recv, a) in list(assigned.items()):
             k = live.get(vid)
             if k is None:
@@ -782,15 +791,20 @@ class V2XMerging(Controller):
                            probe=lambda vid=vid, pred=pred, d_k=d_k: self._virtual_gap(t, vid, pred, d_k, live, length),
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
             ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
-            if not ha.quiet_update(t, x):  # most ticks no guard fires (then the general update)
+            # most ticks no guard fires (then the general update); quiet_update written out when it applies
+            if not (quiet(ha, t, x) if quiet.usable(ha) else ha.quiet_update(t, x)):
                 ha.update(t, x, self.events, settle=3)
-            path = ha.path()
-            near_merge = "merge" in path or "yield" in path
+            flags = mode_flags.get(ha.mode)
+            if flags is None:
+                path = ha.path()
+                flags = mode_flags[ha.mode] = ("merge" in path or "yield" in path, "early" in path,
+                                               "behind" in path or "open" in path)
+            near_merge, early, keeps_gap = flags
             v_k = speed[k]
             # before virtual following starts: open the gap to a predecessor from the other road early,
             # comfortably (None: no braking needed, or no track of it)
             pre_open = self._pre_opening_accel(x, v_k) if cross_pred and not near_merge else None
-            if "early" in path:  # open early to the ramp vehicle ahead of the mainline predecessor
+            if early:  # open early to the ramp vehicle ahead of the mainline predecessor
                 ahead = self._virtual_gap(t, vid, a.cross_ahead, d_k, live, length)
                 pre_open = self._pre_opening_accel(MergeState(road_k, d_k, True, _gap=ahead), v_k)
             if road_k == "main" and not near_merge and pre_open is None:
@@ -813,7 +827,7 @@ class V2XMerging(Controller):
                 if not vg.known:
                     self._fallback(t, vid, cmds)
                     continue
-                if "behind" in path or "open" in path:  # keep the gap behind the predecessor
+                if keeps_gap:  # keep the gap behind the predecessor
                     gap, v_lead = vg.gap_m, max(vg.v_lead_mps, 0.0)
                     self.min_virtual_gap = min(self.min_virtual_gap, gap)
                     if vg.age_s > self.period:  # unheard since: assume it braked as hard as it can
@@ -821,7 +835,17 @@ class V2XMerging(Controller):
                         gap, v_lead = worst_case_leader(x_last, v_lead, vg.age_s, self.safety.b_lead_mps2)
                         v_lead = max(v_lead, 0.0)
                     acc = self._gap_opening_accel(acc, gap, v_k, v_lead)
-            acc = self._physical_leader_cap(s, k, acc)
+            if cap_inline:  # _physical_leader_cap's steps (unless wrapped, e.g. by tools/trace_hard_brakes)
+                j = int(leader[k])
+                if j >= 0:
+                    if cols is None:
+                        cols = s.get("cols")
+                        if cols is None:
+                            cols = s["cols"] = (s["lane_pos"].tolist(), length.tolist(), speed)
+                    gap_j = cols[0][j] - cols[1][j] - cols[0][k]
+                    acc = safe_accel(gap_j, speed[k], speed[j], acc, safety)
+            else:
+                acc = self._physical_leader_cap(s, k, acc)
             v_next = self._command_speed(v_k, acc)
             if self.p.hold_lane_change and ramp_k and vid not in controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))

@@ -10,6 +10,7 @@ import pytest
 from corridor.controllers.merging.switching import (
     MergeBoundaries,
     MergeState,
+    QuietMerge,
     VirtualGap,
     merge_automaton,
     resolved,
@@ -72,3 +73,68 @@ def test_quiet_update_declines_for_stochastic_switching_and_decided_outcomes() -
     ha = merge_automaton("m", "v", "ramp", theta)
     assert not ha.quiet_update(0.1, MergeState("ramp", 50.0, False))  # merge_enter holds: a jump
     assert ha.mode == "approach" and ha.g_now == {}  # nothing changed
+
+
+def _edgy_states(seed: int, n: int) -> list[MergeState]:
+    """``_states`` with a distance or a gap put exactly on a boundary now and then (g = 0: strict or not)."""
+    rng = np.random.default_rng(seed)
+    out = _states(rng, n)
+    for x in out:
+        u = rng.random()
+        if u < 0.1:
+            x.dist_m = float(rng.choice([100.0, 120.0, 150.0]))
+        elif u < 0.2 and x._gap is not None and x._gap.known:
+            x._gap.gap_m = float(rng.choice([-5.0, -2.5]))
+    return out
+
+
+@pytest.mark.parametrize("road", ["ramp", "main"])
+@pytest.mark.parametrize("open_m", [0.0, 150.0])
+def test_quiet_merge_is_quiet_update_written_out(road: str, open_m: float) -> None:
+    """``QuietMerge`` (the eleventh CPU pass) against ``quiet_update``: the same answer on every state of
+    drifting vehicles through every mode, the same g values (bits, keys, order) and times kept, the same
+    jumps and log when both fall back to ``update``; each call reads the virtual gap only as the other does."""
+    theta = resolved(MergeBoundaries(open_ahead={"dist_m": open_m}, gap_accept={"lag_lengths": 0.5},
+                                     yield_exit={"dist_m": 120.0}), 100.0)
+    quiet = QuietMerge(theta)
+    seen: dict[str, int] = {}
+    answers = {True: 0, False: 0}
+    for case in range(40):
+        a, b = merge_automaton("m", "v", road, theta), merge_automaton("m", "v", road, theta)
+        ev_a, ev_b = EventLog(), EventLog()
+        for j, (xa, xb) in enumerate(zip(_edgy_states(case, 300), _edgy_states(case, 300), strict=True)):
+            t = round(0.1 * (j + 1), 1)
+            xa.road = xb.road = road
+            seen[a.mode] = seen.get(a.mode, 0) + 1
+            assert quiet.usable(b)
+            got_a, got_b = a.quiet_update(t, xa), quiet(b, t, xb)
+            assert got_a == got_b, (case, j, a.mode)
+            answers[got_a] += 1
+            if not got_a:
+                a.update(t, xa, ev_a, settle=3)
+                b.update(t, xb, ev_b, settle=3)
+            assert (b.mode, b._t_prev, b._t_last) == (a.mode, a._t_prev, a._t_last), (case, j)
+            assert _same(b.g_now, a.g_now) and _same(b._g_prev, a._g_prev), (case, j)
+            assert (xa._gap is None) == (xb._gap is None), (case, j)
+        assert b.history == a.history
+        assert [(e.t, e.kind, e.message, e.data) for e in ev_b.events] == [(e.t, e.kind, e.message, e.data)
+                                                                           for e in ev_a.events]
+    modes = {"ramp": {"approach", "behind", "ahead"}, "main": {"free", "open", "pass"} | ({"early"} if open_m else set())}
+    assert modes[road] <= set(seen) and min(answers.values()) > 500, (seen, answers)
+
+
+def test_quiet_merge_declines_as_quiet_update_does() -> None:
+    theta = resolved(MergeBoundaries(), 100.0)
+    quiet = QuietMerge(theta)
+    ha = merge_automaton("m", "v", "ramp", theta, SwitchingParams(temperature=0.1), np.random.default_rng(0))
+    assert not quiet.usable(ha)
+    ha = merge_automaton("m", "v", "ramp", theta)
+    ha.decided["merge_enter"] = False
+    assert not quiet.usable(ha)
+    ha = merge_automaton("m", "v", "ramp", theta)
+    ha.decider = lambda *a: None
+    assert not quiet.usable(ha)
+    ha = merge_automaton("m", "v", "ramp", theta)
+    assert not quiet(ha, 0.1, MergeState("ramp", 50.0, False))  # merge_enter holds: a jump
+    assert ha.mode == "approach" and ha.g_now == {}  # nothing changed
+    assert quiet(ha, 0.1, MergeState("ramp", 150.0, False)) and ha.g_now == {"merge_enter": -50.0}
