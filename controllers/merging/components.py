@@ -742,39 +742,42 @@ class V2XMerging(Controller):
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
         """Per vehicle holding an assignment: its automaton, then its command (or its release). The rows'
-        columns are read as Python lists (one ``tolist`` each a tick: the same floats, without a numpy
-        scalar per read)."""
+        columns are read per vehicle as Python scalars (``item``: the same floats; a ``tolist`` of every
+        column cost more for the ~4 vehicles of a tick)."""
         cmds: list[Any] = []
         length = s["length"]
-        dist, speed = s["dist"].tolist(), s["speed"].tolist()
+        dist, speed = s["dist"].item, s["speed"].item
         lim = self.p.limits
         a_min, a_max = lim.a_min_mps2, lim.a_max_mps2
         live = s["row"]
         controlled, assigned, automata = self.controlled, self.assigned, self.automata
         for vid in list(controlled):  # release vehicles past the merge or gone
             k = live.get(vid)
-            if k is None or dist[k] < 0:  # past the nose: SUMO's lane-change model completes the merge
+            if k is None or dist(k) < 0:  # past the nose: SUMO's lane-change model completes the merge
                 controlled.discard(vid)
                 if k is not None:
                     cmds.append(Release(vid))
         if assigned:
-            ramp_l, right_l, merged_l = s["ramp"].tolist(), s["right"].tolist(), s["merged"].tolist()
+            ramp_l, right_l, merged_l = s["ramp"].item, s["right"].item, s["merged"].item
         quiet, mode_flags, safety = self._quiet, self._mode_flags, self.safety
+        # _physical_leader_cap's and _command_speed's steps inline, unless the cap is wrapped on the instance
+        # (tools/trace_hard_brakes; the tests' reference)
         cap_inline = "_physical_leader_cap" not in self.__dict__
         leader = s.get("leader")
         if leader is None and cap_inline and assigned:  # a state without the CAM stage's (_physical_leader_cap)
             leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
-        cols: tuple[list[float], list[float], list[float]] | None = None
+        lane_pos, len_at = s["lane_pos"].item, length.item
+        v_max, a_down, period = lim.v_max_mps, lim.a_min_mps2 * self.period, self.period
         for vid, (_t_recv, a) in list(assigned.items()):
             k = live.get(vid)
             if k is None:
                 continue
-            d_k = dist[k]
+            d_k = dist(k)
             if d_k < 0:
                 continue
-            ramp_k = ramp_l[k]
+            ramp_k = ramp_l(k)
             # changed to the left lane, or a ramp vehicle that moved over: out of the conflict
-            if not (ramp_k or right_l[k]) or merged_l[k]:
+            if not (ramp_k or right_l(k)) or merged_l(k):
                 if vid in controlled:
                     controlled.discard(vid)
                     cmds.append(Release(vid))
@@ -792,7 +795,8 @@ class V2XMerging(Controller):
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
             ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
             # most ticks no guard fires (then the general update); quiet_update written out when it applies
-            if not (quiet(ha, t, x) if quiet.usable(ha) else ha.quiet_update(t, x)):
+            usable = ha.switching is None and ha.decider is None and not ha.decided  # QuietMerge.usable
+            if not (quiet(ha, t, x) if usable else ha.quiet_update(t, x)):
                 ha.update(t, x, self.events, settle=3)
             flags = mode_flags.get(ha.mode)
             if flags is None:
@@ -800,7 +804,7 @@ class V2XMerging(Controller):
                 flags = mode_flags[ha.mode] = ("merge" in path or "yield" in path, "early" in path,
                                                "behind" in path or "open" in path)
             near_merge, early, keeps_gap = flags
-            v_k = speed[k]
+            v_k = speed(k)
             # before virtual following starts: open the gap to a predecessor from the other road early,
             # comfortably (None: no braking needed, or no track of it)
             pre_open = self._pre_opening_accel(x, v_k) if cross_pred and not near_merge else None
@@ -836,24 +840,20 @@ class V2XMerging(Controller):
                         v_lead = max(v_lead, 0.0)
                     acc = self._gap_opening_accel(acc, gap, v_k, v_lead)
             if cap_inline:  # _physical_leader_cap's steps (unless wrapped, e.g. by tools/trace_hard_brakes)
-                j = int(leader[k])
+                j = leader.item(k)
                 if j >= 0:
-                    if cols is None:
-                        cols = s.get("cols")
-                        if cols is None:
-                            cols = s["cols"] = (s["lane_pos"].tolist(), length.tolist(), speed)
-                    gap_j = cols[0][j] - cols[1][j] - cols[0][k]
-                    acc = safe_accel(gap_j, speed[k], speed[j], acc, safety)
+                    acc = safe_accel(lane_pos(j) - len_at(j) - lane_pos(k), v_k, speed(j), acc, safety)
             else:
                 acc = self._physical_leader_cap(s, k, acc)
-            v_next = self._command_speed(v_k, acc)
+            v_next = (min(max(v_k + acc * period, 0.0), max(v_max, v_k + a_down)) if cap_inline  # _command_speed's
+                      else self._command_speed(v_k, acc))
             if self.p.hold_lane_change and ramp_k and vid not in controlled:
                 cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
             controlled.add(vid)
             self.commands_sent += 1
         if automata:  # past the conflict point, gone, or no longer coordinated
-            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist[live[v]] < 0]:
+            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist(live[v]) < 0]:
                 del automata[vid]
         return cmds
 

@@ -1,0 +1,90 @@
+"""V2X merging's decisions (issue 27, the eleventh CPU pass): ``_decide`` with the merge automata's quiet
+updates written out (``switching.QuietMerge``), the physical leader's cap and the commanded speed inline and
+the rows read per vehicle gives what the general path gives (every automaton updated through
+``HybridAutomaton.update``, the cap and the speed through ``_physical_leader_cap`` and ``_command_speed``):
+two real runs side by side, the same commands, modes and g values every tick, the same event log and metrics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from corridor.controllers.merging.components import V2XMerging
+from corridor.controllers.merging.switching import QuietMerge
+from corridor.run import build
+from corridor.scenario import load
+from corridor.variants import variant_scenarios
+from tests.conftest import scenario_file
+
+
+def _run(variant: str, general: bool, tmp: Path, monkeypatch: pytest.MonkeyPatch) -> dict[str, Any]:
+    counts = {"quiet": 0, "cap": 0, "speed": 0}
+    decide, quiet = V2XMerging._decide, QuietMerge.__call__
+    cap, speed = V2XMerging._physical_leader_cap, V2XMerging._command_speed
+    automaton = V2XMerging._automaton
+    ticks: list[str] = []
+
+    def logged_decide(self, t, s, zone, target):  # type: ignore[no-untyped-def]
+        if general:  # the reference: the cap as a method
+            self.__dict__["_physical_leader_cap"] = self._physical_leader_cap  # the cap as a method
+        cmds = decide(self, t, s, zone, target)
+        modes = [(v, ha.mode, ha._t_prev, ha._t_last, {k: np.float64(g).tobytes() for k, g in ha.g_now.items()},
+                  {k: np.float64(g).tobytes() for k, g in ha._g_prev.items()}) for v, ha in self.automata.items()]
+        ticks.append(f"{cmds!r} {modes!r} {self.min_virtual_gap!r}")
+        return cmds
+
+    def general_automaton(self, vid, road):  # type: ignore[no-untyped-def]
+        ha = automaton(self, vid, road)
+        if general:  # the reference: every automaton through update (a decider that leaves it the decision)
+            ha.decider = lambda *a: None
+        return ha
+
+    def counted_quiet(self, ha, t, x):  # type: ignore[no-untyped-def]
+        counts["quiet"] += 1
+        return quiet(self, ha, t, x)
+
+    def counted_cap(self, s, k, acc):  # type: ignore[no-untyped-def]
+        counts["cap"] += 1
+        return cap(self, s, k, acc)
+
+    def counted_speed(self, v, acc):  # type: ignore[no-untyped-def]
+        counts["speed"] += 1
+        return speed(self, v, acc)
+
+    with monkeypatch.context() as m:
+        m.setattr(V2XMerging, "_decide", logged_decide)
+        m.setattr(V2XMerging, "_automaton", general_automaton)
+        m.setattr(QuietMerge, "__call__", counted_quiet)
+        m.setattr(V2XMerging, "_physical_leader_cap", counted_cap)
+        m.setattr(V2XMerging, "_command_speed", counted_speed)
+        sc, _ = load(scenario_file("merging"), ["duration=120", "warmup=0", "outputs.signals=false"])
+        sim = build(variant_scenarios(sc)[variant], 0, tmp)
+        ctl = sim.ctx.components["merge"]
+        try:
+            for c in sim.setup_order:
+                c.setup(sim.ctx)
+            for _ in range(round(sim.ctx.duration / sim.ctx.dt)):
+                sim.step()
+            metrics = ctl.finish(sim.ctx)
+        finally:
+            for c in sim.ctx.components.values():
+                c.close()
+    events = [(e.t, e.source, e.kind, e.message, sorted(e.data.items())) for e in sim.ctx.events.events]
+    return {"ticks": ticks, "metrics": metrics, "events": events, "counts": counts}
+
+
+@pytest.mark.parametrize("variant", ["v2x_cps", "v2x_fifo"])
+def test_decide_as_the_general_path(variant: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    fast = _run(variant, False, tmp_path / "fast", monkeypatch)
+    ref = _run(variant, True, tmp_path / "ref", monkeypatch)
+    assert fast["counts"]["quiet"] > 1000 and fast["counts"]["cap"] == fast["counts"]["speed"] == 0
+    assert ref["counts"]["quiet"] == 0 and ref["counts"]["cap"] > 500 and ref["counts"]["speed"] > 500
+    assert len(fast["ticks"]) == len(ref["ticks"]) > 1000
+    for j, (a, b) in enumerate(zip(fast["ticks"], ref["ticks"], strict=True)):
+        assert a == b, j
+    assert sum("mode" == e[2] for e in ref["events"]) > 20
+    assert fast["events"] == ref["events"]
+    assert repr(fast["metrics"]) == repr(ref["metrics"])
