@@ -76,7 +76,7 @@ from corridor.controllers.merging.switching import (
     merge_automaton,
     resolved,
 )
-from corridor.controllers.merging.tick_kernel import NOT_RUN, fused_tick_into
+from corridor.controllers.merging.tick_kernel import FUSED_TICK, NOT_RUN
 from corridor.controllers.merging.trajectory import MotionLimits, merge_accel, time_to_go
 from corridor.engine import Controller, Metric, RunContext
 from corridor.modes import HybridAutomaton, SwitchingParams
@@ -455,7 +455,7 @@ class V2XMerging(Controller):
         self._ref_bufs = (ref_t, ref_dr)
         z_int, z_flt = self._zbuf
         given = self.p.target_speed_mps
-        got = fused_tick_into(*cam_args, *dlv, self._row_key, self.tracks.slot_of_receiver(RSU), self._draws,
+        got = FUSED_TICK(*cam_args, *dlv, self._row_key, self.tracks.slot_of_receiver(RSU), self._draws,
                               self._entered_of, ac.s_int, ac.s_flt, ac.si, ac.sf, self._coord_cfg, ac.params_i, z_int,
                               z_flt, self._slot_out, ref_t, ref_dr, given if given else math.nan,
                               self.p.limits.v_max_mps, True, *snd[3:17])

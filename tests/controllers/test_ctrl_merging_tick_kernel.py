@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numba import types
 
 from corridor.controllers.merging.components import V2XMerging
 from corridor.run import build
@@ -101,3 +102,34 @@ def test_the_fused_call_gives_the_separate_calls_bit_for_bit(variant: str, extra
     if extra:  # the lossy channels lose copies; the small queue overflows
         assert st.lost_random > 100, st
         assert (st.dropped_overflow > 100) == any("max_in_flight" in e for e in extra), st
+
+
+def test_every_call_passes_the_types_the_entry_point_was_compiled_for(tmp_path: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    """The controller calls the compiled overload's entry point (``tick_kernel.FUSED_TICK``), which unboxes its
+    arguments for the one signature without checking them: on every call of real runs (the flagship's channel
+    and a lossy one) each argument's type is the signature's, or one the dispatcher converts to it (a writable
+    array for a read-only one)."""
+    from numba import typeof
+
+    from corridor.controllers.merging import components
+    from corridor.controllers.merging.tick_kernel import FUSED_TICK, fused_tick_into
+
+    assert FUSED_TICK is not fused_tick_into and len(fused_tick_into.signatures) == 1
+    declared = fused_tick_into.signatures[0]
+    conv = fused_tick_into.typingctx.can_convert
+    calls = [0]
+
+    def checked(*args):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        assert len(args) == len(declared)
+        for j, (a, ty) in enumerate(zip(args, declared, strict=True)):
+            got = typeof(a)
+            assert got == ty or conv(got, ty) is not None and (not isinstance(ty, types.Array) or (
+                got.dtype == ty.dtype and got.ndim == ty.ndim and (got.mutable or not ty.mutable))), (j, got, ty)
+        return FUSED_TICK(*args)
+
+    monkeypatch.setattr(components, "FUSED_TICK", checked)
+    _run("v2x_cps", True, tmp_path / "a", monkeypatch, [])
+    _run("v2x_fifo", True, tmp_path / "b", monkeypatch, ["channels.v2x.loss.p=0.2", "channels.v2x.max_in_flight=40"])
+    assert calls[0] > 1500
