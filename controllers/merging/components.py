@@ -544,7 +544,9 @@ class V2XMerging(Controller):
         for j in nodes:
             if math.isnan(self._next_cam[j]):
                 self._next_cam[j] = t + self._cam_rng.uniform(0.0, self._cam_period)
-        self._row_node_key = None  # nodes were registered
+        if self._row_node_key is ids:  # nodes were registered: only for rows listening or near (see _row_nodes)
+            index, rows = self.channel.index, np.flatnonzero(near | in_zone).tolist()
+            self._row_node[rows] = [index.get(ids[k], -1) for k in rows]
 
     def _send(self, t: float, cams: _Cams, assignments: list[tuple[str, Any, np.ndarray, str]]) -> None:
         """The tick's CAMs (multicasts) and then the RSU's assignments (unicasts) in one send: the same

@@ -133,3 +133,24 @@ def test_every_call_passes_the_types_the_entry_point_was_compiled_for(tmp_path: 
     _run("v2x_cps", True, tmp_path / "a", monkeypatch, [])
     _run("v2x_fifo", True, tmp_path / "b", monkeypatch, ["channels.v2x.loss.p=0.2", "channels.v2x.max_in_flight=40"])
     assert calls[0] > 1500
+
+
+def test_the_admission_updates_the_rows_nodes_as_a_rebuild_would(tmp_path: Path,
+                                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    """``_admit`` writes the nodes it registered into the rows' node array in place (the eleventh CPU pass; it
+    made the array again): after every admission of a real run the array is each row's node by name."""
+    admit = V2XMerging._admit
+    seen = {"in_place": 0, "checked": 0}
+
+    def checked_admit(self, t, s):  # type: ignore[no-untyped-def]
+        seen["in_place"] += self._row_node_key is s["ids"]
+        admit(self, t, s)
+        index = self.channel.index
+        got = self._row_nodes(s)
+        assert got.tolist() == [index.get(v, -1) for v in s["ids"]], t
+        seen["checked"] += 1
+
+    monkeypatch.setattr(V2XMerging, "_admit", checked_admit)
+    _run("v2x_cps", True, tmp_path / "a", monkeypatch, [])
+    _run("v2x_fifo", False, tmp_path / "b", monkeypatch, ["channels.v2x.latency_s=0", "channels.v2x.jitter_s=0"])
+    assert seen["in_place"] > 100 and seen["checked"] > 200, seen
