@@ -40,7 +40,7 @@ import bisect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -66,11 +66,11 @@ from corridor.traffic.sumo.commands import SetSpeed
 K_SPEED = 0.7  # [1/s] gain of the speed hold of an unpaired ramp vehicle
 
 
-@dataclass(frozen=True, slots=True)
-class Slot:
+class Slot(NamedTuple):
     """The RSU's plan for one pair: when the ramp vehicle is to reach the junction [s] and its partner no
     earlier than [s]; the ramp vehicle's virtual leader (the highway vehicle ahead of the partner) and
-    the partner, as the RSU measured them (x [m] on the highway, speed [m/s], length [m]; None: none)."""
+    the partner, as the RSU measured them (x [m] on the highway, speed [m/s], length [m]; None: none).
+    A named tuple: made for every pair at every broadcast (a frozen dataclass's ``__init__`` cost ~3x)."""
 
     t_ramp_s: float
     t_partner_s: float
@@ -151,7 +151,7 @@ class GapMerging(WaveDamping):
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
         self._no_rows = np.empty(0, dtype=np.int64)
-        self._partnered: set[str] = set()  # every vehicle named a partner in a message (_capped's shortcut)
+        # self._partnered (WaveDamping's): every vehicle named a partner in a message (the rest is not capped)
         self._row_work = (self._no_rows, self._no_rows, self._no_rows)  # _receiver_rows' (grown by doubling)
 
     def setup(self, ctx: RunContext) -> None:
@@ -299,15 +299,15 @@ class GapMerging(WaveDamping):
                     ) -> dict[str, Slot]:
         """The pairs, slots and events from ``plan_slots``' output (``m`` pairs before it)."""
         rows, vals = out_pair.tolist(), out_slot.tolist()
-        for kr, kc, _, _ in rows[m:]:  # the new pairs, in pairing order
+        for kr, kc, _, _ in (rows[m:] if len(rows) > m else ()):  # the new pairs (few steps), in pairing order
             self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
-        self.pairs, self._t_slot = {}, {}
+        self.pairs, self._t_slot = pairs, t_slot = {}, {}
         out: dict[str, Slot] = {}
         for (kr, kc, status, j), f in zip(rows, vals, strict=True):
             if status != ST_SLOT:
                 continue
             r = ids[kr]
-            self.pairs[r], self._t_slot[r] = ids[kc], f[0]
+            pairs[r], t_slot[r] = ids[kc], f[0]
             out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
         return out
 
@@ -581,8 +581,8 @@ class GapMerging(WaveDamping):
         return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
-        if vid not in self._partnered:  # a partner in no message: its message names it in none
-            return v_cmd
+        if vid not in self._partnered:  # a partner in no message: its message names it in none (the tick
+            return v_cmd  # calls it only for those)
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
         if not HAVE_C_POW:
