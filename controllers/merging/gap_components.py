@@ -49,7 +49,7 @@ from corridor.controllers.merging.gap_kernel import (
     HAVE_C_POW,
     MIN_CROSS_SPEED_MPS,
     ST_SLOT,
-    measure_plan,
+    gap_tick,
     partner_cap,
     plan_slots,
     ramp_cfg_array,
@@ -57,6 +57,7 @@ from corridor.controllers.merging.gap_kernel import (
     tick_rows,
 )
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
+from corridor.controllers.merging.rsu_broadcast import RsuBroadcast
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
 from corridor.controllers.merging.wave_components import RSU, RoadAhead, WaveDamping
@@ -153,6 +154,7 @@ class GapMerging(WaveDamping):
         self._no_rows = np.empty(0, dtype=np.int64)
         # self._partnered (WaveDamping's): every vehicle named a partner in a message (the rest is not capped)
         self._row_work = (self._no_rows, self._no_rows, self._no_rows)  # _receiver_rows' (grown by doubling)
+        self._n_plan = np.zeros(1, dtype=np.int64)  # gap_tick's count of plan rows
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -208,8 +210,6 @@ class GapMerging(WaveDamping):
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
-        if self.compiled and self._fused:
-            return self._measure_fused(t, s)
         base = super()._measure(t, s)
         # a standstill before the merge measures 0 m/s: the plan's arrival times divide by the crossing speed
         v_cross = min(max(self._merge_speed(base.cell_speed_mps), MIN_CROSS_SPEED_MPS), self.gp.cross_speed_mps)
@@ -249,24 +249,47 @@ class GapMerging(WaveDamping):
                            s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
         return self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
 
-    def _measure_fused(self, t: float, s: dict[str, Any]) -> MergePlan:
-        """``_measure`` (the plain law's measurement and the slots) in one compiled call
-        (``gap_kernel.measure_plan``): the same draws (the sensor's n for the cells then n for the slots,
-        one stream), values and events."""
-        p, ids = self.gp, s["ids"]
-        n = len(ids)
-        noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
-        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
-        pairs, t_slot, has_slot = self._pair_arrays(s)
+    def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
+        """``WaveDamping._compiled_step`` with ``_measure`` (the plain law's measurement and the slots) in the same
+        compiled call (``gap_kernel.gap_tick``: ``measure_plan`` then ``wave_kernel.tick``): the same draws (the
+        sensor's n for the cells then n for the slots, one stream; the positions'; the channel's), values and
+        events (the message's, ``_plan_message``, before the commands')."""
+        if not self._fused:
+            return super()._compiled_step(t, s, send, rows)
+        ch = self.channel
+        assert isinstance(ch, RsuBroadcast)
+        n, m, none = len(s["ids"]), len(rows), self._none
+        noise, x_noise, u, cell_speed, eta = none, none, none, none, none
+        pairs, t_slot, has_slot = self._no_pairs
+        if send:
+            noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
+            x_noise = self.pos_rng.normal(0.0, self.gp.ramp_sensor_noise_m, n)
+            pairs, t_slot, has_slot = self._pair_arrays(s)
+            if m:
+                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
+            on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
+            n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
+            cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
         x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
-        on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
-        n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
-        cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
-        n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
-                             s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
-                             self._near_cells, cell_speed, eta, v_cross)
+        out_row, out_act, out_v = self._out
+        k = gap_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
+                     s["on_ramp"], s["ramp"], s["connected"], s["pos"], send, rows, self._nodes, u, self._rsu_pos,
+                     ch._attached, self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t,
+                     self._pend_msg, self._cnt, out_row, out_act, out_v, self._plan_cfg, pairs, t_slot, has_slot, x, v,
+                     out_pair, out_slot, self._near_cells, cell_speed, eta, v_cross, self._n_plan)
+        if send:
+            msg = self._plan_message(t, s, len(pairs), int(self._n_plan[0]), cell_speed, eta)
+            if m:
+                self._msg_objs.append(msg)  # its row: the send order
+        return k
+
+    def _plan_message(self, t: float, s: dict[str, Any], m: int, n_out: int, cell_speed: np.ndarray, eta: np.ndarray
+                      ) -> MergePlan:
+        """The RSU's message from ``measure_plan``'s output (``m`` pairs before it, ``n_out`` rows out; the work
+        arrays ``_scratch``'s): the pairs, slots and events kept, the partners named."""
+        _, _, out_pair, out_slot, v_cross = self._scratch(0)
         yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
-        slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+        slots = self._slots_from(t, s["ids"], m, out_pair[:n_out], out_slot[:n_out])
         row, connected = self._rows(s), s["connected"]
         partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
         self._partnered.update(partners)

@@ -237,31 +237,17 @@ class WaveDamping(Controller):
         members = [ids[k] for k in rows.tolist()]
         if members != self._member_list:  # the same receivers in the same rows: the same set and nodes
             self._update_members(members)
-        nodes = self._nodes
         m, cnt = len(members), self._cnt
-        send, noise, u, cells_in = False, self._none, self._none, self._none
-        if t + 1e-9 >= self._next_rsu_s:
+        send = t + 1e-9 >= self._next_rsu_s
+        if send:
             self._next_rsu_s += self.p.rsu_period_s
-            send = True
-            if self.measure_compiled:
-                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
-            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
-                msg = self._measure(t, s)
-                cells_in = msg.cell_speed_mps
-                if m:
-                    self._msg_objs.append(msg)  # its row: the send order
-            if m:
-                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
         if m:
             self._make_room(int(cnt[wk.K_SEQ]) + 1, int(cnt[wk.K_N_PEND]) + m)
         out_row, out_act, out_v = self._out
         if len(out_row) < len(ids):
             self._out = out_row, out_act, out_v = (np.empty(2 * len(ids), dtype=np.int64),
                                                    np.empty(2 * len(ids), dtype=np.int64), np.empty(2 * len(ids)))
-        k = wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
-                      s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, nodes, u, self._rsu_pos, ch._attached,
-                      self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t, self._pend_msg,
-                      cnt, out_row, out_act, out_v)
+        k = self._compiled_step(t, s, send, rows)
         cmds: list[Any] = []
         capped, mode, controlled = self._partnered, self.p.command_speed_mode, self.controlled
         for j, act, v in zip(out_row[:k].tolist(), out_act[:k].tolist(), out_v[:k].tolist(), strict=True):
@@ -277,6 +263,29 @@ class WaveDamping(Controller):
             self._release(vid, cmds)
         self._decide_more(t, s, cmds)
         return cmds
+
+    def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
+        """The compiled tick's call (``wave_kernel.wave_tick``) with its draws, for the receivers at ``rows``
+        (``send``: a broadcast time); the commands' count in ``self._out``."""
+        ch = self.channel
+        assert isinstance(ch, RsuBroadcast)
+        m = len(rows)
+        noise, u, cells_in = self._none, self._none, self._none
+        if send:
+            if self.measure_compiled:
+                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
+            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
+                msg = self._measure(t, s)
+                cells_in = msg.cell_speed_mps
+                if m:
+                    self._msg_objs.append(msg)  # its row: the send order
+            if m:
+                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
+        out_row, out_act, out_v = self._out
+        return wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
+                         s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, self._nodes, u,
+                         self._rsu_pos, ch._attached, self._latest_row, self._msg_t, self._msg_cells, self._pend_node,
+                         self._pend_t, self._pend_msg, self._cnt, out_row, out_act, out_v)
 
     def _update_members(self, members: list[str]) -> None:
         """The compiled tick's receivers are now ``members`` (by row): attach and detach by the membership
