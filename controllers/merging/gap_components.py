@@ -12,8 +12,9 @@ time gaps: about 2 s after the highway vehicle ahead and 2 s before the one behi
 
 What (per road step, on top of the wave-damping law of ``v2x_wave_damping`` for connected highway
 vehicles):
-1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle, in its
-   order on the ramp, gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
+1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle with no
+   unconnected vehicle ahead of it on the ramp (``pair_queue_head_only``), in its order on the ramp,
+   gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
    the predicted arrival of the highway vehicle ahead of the follower and no earlier than it can make
    it.  The follower is the first highway vehicle that can arrive ``open_time_gap_s`` later: a
    connected *partner*, which then opens the gap (never slower than ``partner_min_speed_mps``), or a
@@ -140,6 +141,9 @@ class GapMerging(WaveDamping):
         #   and virtual leader) is the only speed bound; with SUMO's safe speed on (19: 27 without the
         #   right-of-way bit) the minor link's approach rule still slowed it to a stop at the line
         ramp_sensor_noise_m: float = Field(1.0, ge=0)  # [m] RSU position sensing
+        pair_queue_head_only: bool = True  # pair only connected ramp vehicles with no unconnected vehicle ahead
+        #   of them on the ramp: one behind a human driver waits with it at the yield line, and a partner
+        #   slowing down for it only costs the highway speed (False: every connected ramp vehicle, as before)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -400,6 +404,9 @@ class GapMerging(WaveDamping):
                       and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
         taken = set(self.pairs.values())
         ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]).tolist() if ids[k] not in self.pairs]
+        if self.gp.pair_queue_head_only:  # none behind an unconnected vehicle on the ramp (it waits for that one)
+            humans = front[s["on_ramp"] & ~s["connected"]].tolist()
+            ramp = [k for k in ramp if not any(h > float(front[k]) for h in humans)]
         # followers: connected highway vehicles (partners, they open the gap) and, with a natural gap
         # ahead of them, human ones
         hw = np.flatnonzero(~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x - 10.0)

@@ -38,7 +38,7 @@ from corridor.controllers.merging.wave_kernel import safe_accel_c, tick
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
  C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
- C_U_MAX, N_CFG) = range(19)
+ C_U_MAX, C_HEAD_ONLY, N_CFG) = range(20)
 # out_pair columns: ramp row, partner row, status, lead row (-1: none)
 P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
@@ -59,6 +59,7 @@ def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base
     cfg[C_PARTNER_MIN], cfg[C_RESTART_PARTNER] = p.partner_min_speed_mps, p.restart_partner_speed_mps
     cfg[C_HUMAN_MARGIN], cfg[C_RESTART_GAP], cfg[C_MIN_RUN] = p.human_margin_s, p.restart_gap_s, p.min_run_speed_mps
     cfg[C_COMMIT], cfg[C_B_COMFORT], cfg[C_PLAN_ACCEL] = p.commit_m, p.b_comfort_mps2, p.plan_accel_mps2
+    cfg[C_HEAD_ONLY] = 1.0 if p.pair_queue_head_only else 0.0
     return cfg
 
 
@@ -164,15 +165,23 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
         else:
             out_pair[q, P_STATUS] = ST_GONE
     n_out = m
+    # pair_queue_head_only: no connected ramp vehicle behind an unconnected vehicle on the ramp
+    behind = np.zeros(n, dtype=np.bool_)
+    if cfg[C_HEAD_ONLY] != 0.0:
+        for h in range(n):
+            if on_ramp[h] and not connected[h]:
+                for i in range(n):
+                    if front[h] > front[i]:
+                        behind[i] = True
     n_ramp = 0
     for i in range(n):
-        if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+        if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i] and not behind[i]:
             n_ramp += 1
     if n_ramp:
         cand = np.empty(n_ramp, dtype=np.int64)
         n_ramp = 0
         for i in range(n):
-            if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+            if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i] and not behind[i]:
                 cand[n_ramp] = i
                 n_ramp += 1
         cand = cand[np.argsort(dist[cand], kind="mergesort")]
