@@ -12,8 +12,9 @@ time gaps: about 2 s after the highway vehicle ahead and 2 s before the one behi
 
 What (per road step, on top of the wave-damping law of ``v2x_wave_damping`` for connected highway
 vehicles):
-1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle, in its
-   order on the ramp, gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
+1. *coordinate* (RSU, every ``rsu_period_s``, noisy sensing): every connected ramp vehicle with no
+   unconnected vehicle ahead of it on the ramp (``pair_queue_head_only``), in its order on the ramp,
+   gets a follower and a slot: its time at the junction, ``ramp_time_gap_s`` after
    the predicted arrival of the highway vehicle ahead of the follower and no earlier than it can make
    it.  The follower is the first highway vehicle that can arrive ``open_time_gap_s`` later: a
    connected *partner*, which then opens the gap (never slower than ``partner_min_speed_mps``), or a
@@ -40,7 +41,7 @@ import bisect
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -49,7 +50,7 @@ from corridor.controllers.merging.gap_kernel import (
     HAVE_C_POW,
     MIN_CROSS_SPEED_MPS,
     ST_SLOT,
-    measure_plan,
+    gap_tick,
     partner_cap,
     plan_slots,
     ramp_cfg_array,
@@ -57,6 +58,7 @@ from corridor.controllers.merging.gap_kernel import (
     tick_rows,
 )
 from corridor.controllers.merging.gap_kernel import cfg_array as plan_cfg
+from corridor.controllers.merging.rsu_broadcast import RsuBroadcast
 from corridor.controllers.merging.safety_layer import safe_accel
 from corridor.controllers.merging.trajectory import time_to_go
 from corridor.controllers.merging.wave_components import RSU, RoadAhead, WaveDamping
@@ -66,11 +68,11 @@ from corridor.traffic.sumo.commands import SetSpeed
 K_SPEED = 0.7  # [1/s] gain of the speed hold of an unpaired ramp vehicle
 
 
-@dataclass(frozen=True, slots=True)
-class Slot:
+class Slot(NamedTuple):
     """The RSU's plan for one pair: when the ramp vehicle is to reach the junction [s] and its partner no
     earlier than [s]; the ramp vehicle's virtual leader (the highway vehicle ahead of the partner) and
-    the partner, as the RSU measured them (x [m] on the highway, speed [m/s], length [m]; None: none)."""
+    the partner, as the RSU measured them (x [m] on the highway, speed [m/s], length [m]; None: none).
+    A named tuple: made for every pair at every broadcast (a frozen dataclass's ``__init__`` cost ~3x)."""
 
     t_ramp_s: float
     t_partner_s: float
@@ -139,6 +141,9 @@ class GapMerging(WaveDamping):
         #   and virtual leader) is the only speed bound; with SUMO's safe speed on (19: 27 without the
         #   right-of-way bit) the minor link's approach rule still slowed it to a stop at the line
         ramp_sensor_noise_m: float = Field(1.0, ge=0)  # [m] RSU position sensing
+        pair_queue_head_only: bool = True  # pair only connected ramp vehicles with no unconnected vehicle ahead
+        #   of them on the ramp: one behind a human driver waits with it at the yield line, and a partner
+        #   slowing down for it only costs the highway speed (False: every connected ramp vehicle, as before)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -151,8 +156,9 @@ class GapMerging(WaveDamping):
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
         self._no_rows = np.empty(0, dtype=np.int64)
-        self._partnered: set[str] = set()  # every vehicle named a partner in a message (_capped's shortcut)
+        # self._partnered (WaveDamping's): every vehicle named a partner in a message (the rest is not capped)
         self._row_work = (self._no_rows, self._no_rows, self._no_rows)  # _receiver_rows' (grown by doubling)
+        self._n_plan = np.zeros(1, dtype=np.int64)  # gap_tick's count of plan rows
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -208,8 +214,6 @@ class GapMerging(WaveDamping):
         return False  # the RSU pairs and plans slots (its state, its draws) whoever listens
 
     def _measure(self, t: float, s: dict[str, Any]) -> MergePlan:
-        if self.compiled and self._fused:
-            return self._measure_fused(t, s)
         base = super()._measure(t, s)
         # a standstill before the merge measures 0 m/s: the plan's arrival times divide by the crossing speed
         v_cross = min(max(self._merge_speed(base.cell_speed_mps), MIN_CROSS_SPEED_MPS), self.gp.cross_speed_mps)
@@ -249,24 +253,47 @@ class GapMerging(WaveDamping):
                            s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
         return self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
 
-    def _measure_fused(self, t: float, s: dict[str, Any]) -> MergePlan:
-        """``_measure`` (the plain law's measurement and the slots) in one compiled call
-        (``gap_kernel.measure_plan``): the same draws (the sensor's n for the cells then n for the slots,
-        one stream), values and events."""
-        p, ids = self.gp, s["ids"]
-        n = len(ids)
-        noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
-        x_noise = self.pos_rng.normal(0.0, p.ramp_sensor_noise_m, n)
-        pairs, t_slot, has_slot = self._pair_arrays(s)
+    def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
+        """``WaveDamping._compiled_step`` with ``_measure`` (the plain law's measurement and the slots) in the same
+        compiled call (``gap_kernel.gap_tick``: ``measure_plan`` then ``wave_kernel.tick``): the same draws (the
+        sensor's n for the cells then n for the slots, one stream; the positions'; the channel's), values and
+        events (the message's, ``_plan_message``, before the commands')."""
+        if not self._fused:
+            return super()._compiled_step(t, s, send, rows)
+        ch = self.channel
+        assert isinstance(ch, RsuBroadcast)
+        n, m, none = len(s["ids"]), len(rows), self._none
+        noise, x_noise, u, cell_speed, eta = none, none, none, none, none
+        pairs, t_slot, has_slot = self._no_pairs
+        if send:
+            noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, 2 * n)  # the cells' draws, then the slots'
+            x_noise = self.pos_rng.normal(0.0, self.gp.ramp_sensor_noise_m, n)
+            pairs, t_slot, has_slot = self._pair_arrays(s)
+            if m:
+                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
+            on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
+            n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
+            cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
         x, v, out_pair, out_slot, v_cross = self._scratch(len(pairs) + n)  # read before the next call
-        on = s.get("_onramp")  # this tick's rows on the ramp (_receiver_rows)
-        n_on = len(on) if on is not None else int(np.count_nonzero(s["on_ramp"]))
-        cell_speed, eta = np.empty(len(self.cells)), np.empty(n_on)  # the message's
-        n_out = measure_plan(t, self._plan_cfg, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
-                             s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
-                             self._near_cells, cell_speed, eta, v_cross)
+        out_row, out_act, out_v = self._out
+        k = gap_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], noise[:n], x_noise, noise[n:],
+                     s["on_ramp"], s["ramp"], s["connected"], s["pos"], send, rows, self._nodes, u, self._rsu_pos,
+                     ch._attached, self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t,
+                     self._pend_msg, self._cnt, out_row, out_act, out_v, self._plan_cfg, pairs, t_slot, has_slot, x, v,
+                     out_pair, out_slot, self._near_cells, cell_speed, eta, v_cross, self._n_plan)
+        if send:
+            msg = self._plan_message(t, s, len(pairs), int(self._n_plan[0]), cell_speed, eta)
+            if m:
+                self._msg_objs.append(msg)  # its row: the send order
+        return k
+
+    def _plan_message(self, t: float, s: dict[str, Any], m: int, n_out: int, cell_speed: np.ndarray, eta: np.ndarray
+                      ) -> MergePlan:
+        """The RSU's message from ``measure_plan``'s output (``m`` pairs before it, ``n_out`` rows out; the work
+        arrays ``_scratch``'s): the pairs, slots and events kept, the partners named."""
+        _, _, out_pair, out_slot, v_cross = self._scratch(0)
         yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
-        slots = self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+        slots = self._slots_from(t, s["ids"], m, out_pair[:n_out], out_slot[:n_out])
         row, connected = self._rows(s), s["connected"]
         partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
         self._partnered.update(partners)
@@ -299,15 +326,15 @@ class GapMerging(WaveDamping):
                     ) -> dict[str, Slot]:
         """The pairs, slots and events from ``plan_slots``' output (``m`` pairs before it)."""
         rows, vals = out_pair.tolist(), out_slot.tolist()
-        for kr, kc, _, _ in rows[m:]:  # the new pairs, in pairing order
+        for kr, kc, _, _ in (rows[m:] if len(rows) > m else ()):  # the new pairs (few steps), in pairing order
             self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
-        self.pairs, self._t_slot = {}, {}
+        self.pairs, self._t_slot = pairs, t_slot = {}, {}
         out: dict[str, Slot] = {}
         for (kr, kc, status, j), f in zip(rows, vals, strict=True):
             if status != ST_SLOT:
                 continue
             r = ids[kr]
-            self.pairs[r], self._t_slot[r] = ids[kc], f[0]
+            pairs[r], t_slot[r] = ids[kc], f[0]
             out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
         return out
 
@@ -377,6 +404,9 @@ class GapMerging(WaveDamping):
                       and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
         taken = set(self.pairs.values())
         ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]).tolist() if ids[k] not in self.pairs]
+        if self.gp.pair_queue_head_only:  # none behind an unconnected vehicle on the ramp (it waits for that one)
+            humans = front[s["on_ramp"] & ~s["connected"]].tolist()
+            ramp = [k for k in ramp if not any(h > float(front[k]) for h in humans)]
         # followers: connected highway vehicles (partners, they open the gap) and, with a natural gap
         # ahead of them, human ones
         hw = np.flatnonzero(~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x - 10.0)
@@ -581,8 +611,8 @@ class GapMerging(WaveDamping):
         return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
-        if vid not in self._partnered:  # a partner in no message: its message names it in none
-            return v_cmd
+        if vid not in self._partnered:  # a partner in no message: its message names it in none (the tick
+            return v_cmd  # calls it only for those)
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
         if not HAVE_C_POW:

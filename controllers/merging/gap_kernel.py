@@ -17,6 +17,9 @@ values in the same order; the names, the draws and the event log stay in Python:
 - ``x ** 2`` on floats (Python's and numpy's scalar power) is the C library's ``pow``, not ``x * x``:
   called as glibc's ``powf64`` (``coord_kernel``), which LLVM does not turn into a multiplication.
 
+:func:`gap_tick` runs the RSU's message (:func:`measure_plan`) and ``wave_kernel.tick`` (the broadcast, the
+delivery, the highway law) in one call: ``v2x_merge_gaps``' compiled tick.
+
 ``tests/controllers/test_ctrl_gap_kernel.py`` checks the controller's compiled planning against the Python
 one on random ticks, bit for bit.
 """
@@ -30,12 +33,12 @@ import numpy as np
 from numba import njit, types
 
 from corridor.controllers.merging.coord_kernel import HAVE_C_POW, _c_pow, time_to_go_c
-from corridor.controllers.merging.wave_kernel import safe_accel_c
+from corridor.controllers.merging.wave_kernel import safe_accel_c, tick
 
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
  C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
- C_U_MAX, N_CFG) = range(19)
+ C_U_MAX, C_HEAD_ONLY, N_CFG) = range(20)
 # out_pair columns: ramp row, partner row, status, lead row (-1: none)
 P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
@@ -56,6 +59,7 @@ def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base
     cfg[C_PARTNER_MIN], cfg[C_RESTART_PARTNER] = p.partner_min_speed_mps, p.restart_partner_speed_mps
     cfg[C_HUMAN_MARGIN], cfg[C_RESTART_GAP], cfg[C_MIN_RUN] = p.human_margin_s, p.restart_gap_s, p.min_run_speed_mps
     cfg[C_COMMIT], cfg[C_B_COMFORT], cfg[C_PLAN_ACCEL] = p.commit_m, p.b_comfort_mps2, p.plan_accel_mps2
+    cfg[C_HEAD_ONLY] = 1.0 if p.pair_queue_head_only else 0.0
     return cfg
 
 
@@ -161,15 +165,23 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
         else:
             out_pair[q, P_STATUS] = ST_GONE
     n_out = m
+    # pair_queue_head_only: no connected ramp vehicle behind an unconnected vehicle on the ramp
+    behind = np.zeros(n, dtype=np.bool_)
+    if cfg[C_HEAD_ONLY] != 0.0:
+        for h in range(n):
+            if on_ramp[h] and not connected[h]:
+                for i in range(n):
+                    if front[h] > front[i]:
+                        behind[i] = True
     n_ramp = 0
     for i in range(n):
-        if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+        if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i] and not behind[i]:
             n_ramp += 1
     if n_ramp:
         cand = np.empty(n_ramp, dtype=np.int64)
         n_ramp = 0
         for i in range(n):
-            if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i]:
+            if connected[i] and ramp[i] and on_ramp[i] and not in_pair[i] and not behind[i]:
                 cand[n_ramp] = i
                 n_ramp += 1
         cand = cand[np.argsort(dist[cand], kind="mergesort")]
@@ -266,8 +278,8 @@ _MEASURE_SIG = types.int64(types.float64, types.float64[:], _RF, _RF, _RF, _RF, 
                            types.float64[:])
 
 
-@(njit(_MEASURE_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
-def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray, noise: np.ndarray,
+@njit(cache=True)
+def _measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray, noise: np.ndarray,
                  x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
                  pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
                  out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray, eta_ramp: np.ndarray,
@@ -311,6 +323,50 @@ def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray
     v_cross_out[0] = v_cross
     return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
                  has_slot, x, v, out_pair, out_slot)
+
+
+@(njit(_MEASURE_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray, noise: np.ndarray,
+                 x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
+                 pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
+                 out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray, eta_ramp: np.ndarray,
+                 v_cross_out: np.ndarray) -> int:
+    """:func:`_measure_plan` (the compiled entry point)."""
+    return _measure_plan(t, cfg, front, speed, length, noise, x_noise, v_noise, connected, ramp, on_ramp, pairs,
+                         t_slot_of, has_slot, x, v, out_pair, out_slot, near, cell_speed, eta_ramp, v_cross_out)
+
+
+_TICK_SIG = types.int64(
+    types.float64, types.float64[:], types.float64[:], _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB,
+    types.Array(types.float64, 2, "A", readonly=True),
+    types.boolean, _RI, _RI, types.float64[:], types.float64[:], _RB, types.int64[:], types.float64[:],
+    types.float64[:, :], types.int64[:], types.float64[:], types.int64[:], types.int64[:], types.int64[:],
+    types.int64[:], types.float64[:],
+    types.float64[:], types.int64[:, :], types.float64[:], types.bool_[:], types.float64[:], types.float64[:],
+    types.int64[:, :], types.float64[:, :], _RI, types.float64[:], types.float64[:], types.float64[:], types.int64[:])
+
+
+@(njit(_TICK_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def gap_tick(t: float, wave_cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray, speed: np.ndarray,
+             length: np.ndarray, noise: np.ndarray, x_noise: np.ndarray, v_noise: np.ndarray, on_ramp: np.ndarray,
+             ramp: np.ndarray, connected: np.ndarray, pos: np.ndarray, send: bool, member_rows: np.ndarray,
+             member_nodes: np.ndarray, u: np.ndarray, src: np.ndarray, attached: np.ndarray, latest: np.ndarray,
+             msg_t: np.ndarray, msg_cells: np.ndarray, pend_node: np.ndarray, pend_t: np.ndarray, pend_msg: np.ndarray,
+             cnt: np.ndarray, out_row: np.ndarray, out_act: np.ndarray, out_v: np.ndarray,
+             plan_cfg: np.ndarray, pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray,
+             v: np.ndarray, out_pair: np.ndarray, out_slot: np.ndarray, near: np.ndarray, cell_speed: np.ndarray,
+             eta_ramp: np.ndarray, v_cross_out: np.ndarray, n_plan_out: np.ndarray) -> int:
+    """``v2x_merge_gaps``' compiled tick in one call: when ``send``, the RSU's message (:func:`measure_plan` on
+    ``noise``, ``x_noise`` and ``v_noise``: its cells, ramp arrival times, crossing speed and pairs and slots;
+    their count into ``n_plan_out[0]``), then ``wave_kernel.tick`` with those cells (its broadcast's copies, the
+    delivery, the law).  Returns ``wave_kernel.tick``'s count of commands."""
+    if send:
+        n_plan_out[0] = _measure_plan(t, plan_cfg, front, speed, length, noise, x_noise, v_noise, connected, ramp,
+                                      on_ramp, pairs, t_slot_of, has_slot, x, v, out_pair, out_slot, near, cell_speed,
+                                      eta_ramp, v_cross_out)
+    return tick(t, wave_cfg, cells_x, front, speed, length, on_ramp, ramp, connected, pos, send, False, noise,
+                cell_speed, member_rows, member_nodes, u, src, attached, latest, msg_t, msg_cells, pend_node, pend_t,
+                pend_msg, cnt, out_row, out_act, out_v)
 
 
 _ROWS_SIG = types.UniTuple(types.int64, 3)(_RB, _RB, _RB, _RF, types.float64, types.float64, types.float64, types.int64[:],
@@ -465,5 +521,5 @@ def partner_cap(cfg: np.ndarray, t: float, t_sent: float, t_partner: float, t_ra
     return y if y > 0.0 else 0.0  # Python's max(0.0, y)
 
 
-__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "measure_plan", "partner_cap", "plan_slots", "ramp_cfg_array", "ramp_command",
+__all__ = ["HAVE_C_POW", "MIN_CROSS_SPEED_MPS", "ST_SLOT", "cfg_array", "gap_tick", "measure_plan", "partner_cap", "plan_slots", "ramp_cfg_array", "ramp_command",
            "tick_rows"]

@@ -138,6 +138,7 @@ class WaveDamping(Controller):
         self._next_rsu_s = 0.0
         self._yield: tuple[str, float | None] | None = None  # (the yielding vehicle, when it stopped [s])
         self._yielded: set[str] = set()  # vehicles that have held once (never asked twice)
+        self._partnered: set[str] = set()  # vehicles whose law's command a subclass caps (_capped); none here
 
     def setup(self, ctx: RunContext) -> None:
         super().setup(ctx)
@@ -152,6 +153,8 @@ class WaveDamping(Controller):
         # information: the controller reports the delivery ratio only)
         self.channel = rsu_broadcast(self.chan_cfg, ctx.rng(f"{self.name}.channel"), ctx.duration, RSU)
         self._members: set[str] = set()  # the channel's receivers
+        self._member_list: list[str] = []  # the compiled tick's: by row, and their nodes (_update_members)
+        self._nodes = np.empty(0, dtype=np.int64)
         self._rsu_pos = np.array([self.merge_x, 0.0, 0.0])  # [m]
         self._cell_base = float(self.cells[0] - 0.5 * self.p.cell_m)  # [m] the first cell's start
         self._cells_of: tuple[RoadAhead | None, list[tuple[float, float]]] = (None, [])  # message -> its known
@@ -232,48 +235,26 @@ class WaveDamping(Controller):
         assert isinstance(ch, RsuBroadcast)
         rows = self._receiver_rows(s)
         members = [ids[k] for k in rows.tolist()]
-        member_set = set(members)
-        if member_set != self._members:  # attach in name order (see _communicate)
-            for vid in sorted(member_set - self._members):
-                ch.attach(vid)
-            for vid in sorted(self._members - member_set):
-                ch.detach(vid)
-                self._latest_row[ch.index[vid]] = -1
-            self._members = member_set
-            if len(self._latest_row) < len(ch._attached):
-                self._latest_row = np.concatenate([self._latest_row,
-                                                   np.full(len(ch._attached) - len(self._latest_row), -1)])
+        if members != self._member_list:  # the same receivers in the same rows: the same set and nodes
+            self._update_members(members)
         m, cnt = len(members), self._cnt
-        send, noise, u, cells_in = False, self._none, self._none, self._none
-        if t + 1e-9 >= self._next_rsu_s:
+        send = t + 1e-9 >= self._next_rsu_s
+        if send:
             self._next_rsu_s += self.p.rsu_period_s
-            send = True
-            if self.measure_compiled:
-                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
-            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
-                msg = self._measure(t, s)
-                cells_in = msg.cell_speed_mps
-                if m:
-                    self._msg_objs.append(msg)  # its row: the send order
-            if m:
-                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
         if m:
             self._make_room(int(cnt[wk.K_SEQ]) + 1, int(cnt[wk.K_N_PEND]) + m)
         out_row, out_act, out_v = self._out
         if len(out_row) < len(ids):
             self._out = out_row, out_act, out_v = (np.empty(2 * len(ids), dtype=np.int64),
                                                    np.empty(2 * len(ids), dtype=np.int64), np.empty(2 * len(ids)))
-        nodes = np.array([ch.index[r] for r in members], dtype=np.int64)
-        k = wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
-                      s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, nodes, u, self._rsu_pos, ch._attached,
-                      self._latest_row, self._msg_t, self._msg_cells, self._pend_node, self._pend_t, self._pend_msg,
-                      cnt, out_row, out_act, out_v)
+        k = self._compiled_step(t, s, send, rows)
         cmds: list[Any] = []
+        capped, mode, controlled = self._partnered, self.p.command_speed_mode, self.controlled
         for j, act, v in zip(out_row[:k].tolist(), out_act[:k].tolist(), out_v[:k].tolist(), strict=True):
             vid = ids[j]
             if act == ACT_COMMAND:
-                cmds.append(SetSpeed(vid, self._capped(t, s, j, vid, v), self.p.command_speed_mode))
-                self.controlled.add(vid)
+                cmds.append(SetSpeed(vid, self._capped(t, s, j, vid, v) if vid in capped else v, mode))
+                controlled.add(vid)
                 self.commands_sent += 1
                 continue
             if act != ACT_RELEASE and vid in self.controlled:  # no fresh message
@@ -283,13 +264,55 @@ class WaveDamping(Controller):
         self._decide_more(t, s, cmds)
         return cmds
 
+    def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
+        """The compiled tick's call (``wave_kernel.wave_tick``) with its draws, for the receivers at ``rows``
+        (``send``: a broadcast time); the commands' count in ``self._out``."""
+        ch = self.channel
+        assert isinstance(ch, RsuBroadcast)
+        m = len(rows)
+        noise, u, cells_in = self._none, self._none, self._none
+        if send:
+            if self.measure_compiled:
+                noise = self.sensor_rng.normal(0.0, self.p.sensor_noise_mps, len(s["speed"]))  # measured or not
+            else:  # the message as _communicate makes it (measured whoever listens: _unheard is False)
+                msg = self._measure(t, s)
+                cells_in = msg.cell_speed_mps
+                if m:
+                    self._msg_objs.append(msg)  # its row: the send order
+            if m:
+                u = ch._rng.random(2 * m)  # the channel's loss, then delay uniforms
+        out_row, out_act, out_v = self._out
+        return wave_tick(t, self._wave_cfg, self.cells, s["front"], s["speed"], s["length"], s["on_ramp"], s["ramp"],
+                         s["connected"], s["pos"], send, self.measure_compiled, noise, cells_in, rows, self._nodes, u,
+                         self._rsu_pos, ch._attached, self._latest_row, self._msg_t, self._msg_cells, self._pend_node,
+                         self._pend_t, self._pend_msg, self._cnt, out_row, out_act, out_v)
+
+    def _update_members(self, members: list[str]) -> None:
+        """The compiled tick's receivers are now ``members`` (by row): attach and detach by the membership
+        (in name order, see ``_communicate``), their nodes in that order."""
+        ch = self.channel
+        assert isinstance(ch, RsuBroadcast)
+        member_set = set(members)
+        if member_set != self._members:
+            for vid in sorted(member_set - self._members):
+                ch.attach(vid)
+            for vid in sorted(self._members - member_set):
+                ch.detach(vid)
+                self._latest_row[ch.index[vid]] = -1
+            self._members = member_set
+            if len(self._latest_row) < len(ch._attached):
+                self._latest_row = np.concatenate([self._latest_row,
+                                                   np.full(len(ch._attached) - len(self._latest_row), -1)])
+        self._member_list = members
+        self._nodes = np.array([ch.index[r] for r in members], dtype=np.int64)
+
     def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
         """The compiled tick's receivers: the rows of ``_receivers``' mask (a subclass may find them otherwise)."""
         return np.flatnonzero(self._receivers(s))
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
         """The compiled tick's command [m/s] for vehicle ``vid`` (row ``k``) whose law gives ``v_cmd``
-        (a subclass caps it as its ``_speed`` does)."""
+        (a subclass caps it as its ``_speed`` does; called only for the vehicles in ``_partnered``)."""
         return v_cmd
 
     def _decide_more(self, t: float, s: dict[str, Any], cmds: list[Any]) -> None:

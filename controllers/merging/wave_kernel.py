@@ -143,13 +143,13 @@ _SIG = types.int64(types.float64, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, _RF2, 
                    types.int64[:], types.int64[:], types.int64[:], types.int64[:], types.float64[:])
 
 
-@(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
-def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
-              on_ramp: np.ndarray, ramp: np.ndarray, connected: np.ndarray, pos: np.ndarray, send: bool,
-              measure: bool, noise: np.ndarray, cells_in: np.ndarray, member_rows: np.ndarray, member_nodes: np.ndarray, u: np.ndarray, src: np.ndarray,
-              attached: np.ndarray, latest: np.ndarray, msg_t: np.ndarray, msg_cells: np.ndarray,
-              pend_node: np.ndarray, pend_t: np.ndarray, pend_msg: np.ndarray, cnt: np.ndarray, out_row: np.ndarray,
-              out_act: np.ndarray, out_v: np.ndarray) -> int:
+@njit(cache=True)
+def tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+         on_ramp: np.ndarray, ramp: np.ndarray, connected: np.ndarray, pos: np.ndarray, send: bool,
+         measure: bool, noise: np.ndarray, cells_in: np.ndarray, member_rows: np.ndarray, member_nodes: np.ndarray,
+         u: np.ndarray, src: np.ndarray, attached: np.ndarray, latest: np.ndarray, msg_t: np.ndarray,
+         msg_cells: np.ndarray, pend_node: np.ndarray, pend_t: np.ndarray, pend_msg: np.ndarray, cnt: np.ndarray,
+         out_row: np.ndarray, out_act: np.ndarray, out_v: np.ndarray) -> int:
     """The RSU's broadcast (``send``: its measurement from ``noise``, or ``cells_in`` when not ``measure``:
     the caller measured, and its copies to ``member_rows`` at
     nodes ``member_nodes`` from the channel's uniforms ``u``), the delivery of the copies due to the
@@ -275,5 +275,18 @@ def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray,
     return n_out
 
 
+@(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
+def wave_tick(t: float, cfg: np.ndarray, cells_x: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
+              on_ramp: np.ndarray, ramp: np.ndarray, connected: np.ndarray, pos: np.ndarray, send: bool,
+              measure: bool, noise: np.ndarray, cells_in: np.ndarray, member_rows: np.ndarray, member_nodes: np.ndarray, u: np.ndarray, src: np.ndarray,
+              attached: np.ndarray, latest: np.ndarray, msg_t: np.ndarray, msg_cells: np.ndarray,
+              pend_node: np.ndarray, pend_t: np.ndarray, pend_msg: np.ndarray, cnt: np.ndarray, out_row: np.ndarray,
+              out_act: np.ndarray, out_v: np.ndarray) -> int:
+    """:func:`tick` (the compiled entry point)."""
+    return tick(t, cfg, cells_x, front, speed, length, on_ramp, ramp, connected, pos, send, measure, noise, cells_in,
+                member_rows, member_nodes, u, src, attached, latest, msg_t, msg_cells, pend_node, pend_t, pend_msg, cnt,
+                out_row, out_act, out_v)
+
+
 __all__ = ["ACT_COMMAND", "ACT_RELEASE", "ACT_STALE", "HAVE_C_POW", "cfg_array", "follower_stopper_c", "law_speed",
-           "safe_accel_c", "wave_tick"]
+           "safe_accel_c", "tick", "wave_tick"]

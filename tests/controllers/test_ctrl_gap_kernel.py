@@ -79,7 +79,8 @@ class _Drive:
 PARAMS = [
     GapMerging.Params(),
     GapMerging.Params(human_margin_s=0.5, ramp_time_gap_s=1.0, open_time_gap_s=1.0, restart_gap_s=1.0,
-                      partner_min_speed_mps=5.0, pair_zone_m=300.0, min_run_speed_mps=6.0, commit_m=120.0),
+                      partner_min_speed_mps=5.0, pair_zone_m=300.0, min_run_speed_mps=6.0, commit_m=120.0,
+                      pair_queue_head_only=False),
     GapMerging.Params(ramp_time_gap_s=0.0, open_time_gap_s=3.0, restart_partner_speed_mps=25.0, plan_accel_mps2=0.4,
                       ramp_sensor_noise_m=0.0, sensor_noise_mps=0.0),
 ]
@@ -210,3 +211,39 @@ def test_tick_rows_are_the_numpy_masks() -> None:
             n_recv += len(got)
             n_partner += len(c.pairs)
     assert n_recv > 10000 and n_partner > 3000
+
+
+def _queue(vehicles: list[tuple[str, float, float, bool, bool]]) -> dict[str, Any]:
+    """A state of (id, front [m], speed [m/s], connected, on the ramp) vehicles (ramp vehicles: those on it)."""
+    return {"ids": [v[0] for v in vehicles], "front": np.array([v[1] for v in vehicles]),
+            "speed": np.array([v[2] for v in vehicles]), "length": np.full(len(vehicles), 5.0),
+            "connected": np.array([v[3] for v in vehicles]), "ramp": np.array([v[4] for v in vehicles]),
+            "on_ramp": np.array([v[4] for v in vehicles])}
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_a_connected_ramp_vehicle_behind_a_human_one_gets_no_partner(compiled: bool) -> None:
+    """``pair_queue_head_only``: a connected ramp vehicle with an unconnected vehicle ahead of it on the ramp
+    gets no partner and no slot (it waits behind that driver at the yield line anyway); the one at the head
+    of the ramp does, and so does the one behind once the human has left the ramp; with the option off both
+    are paired (the former behaviour).  Both the Python planning and the compiled one."""
+    quiet = {"ramp_sensor_noise_m": 0.0, "sensor_noise_mps": 0.0}
+    highway = [("p1", 300.0, 25.0, True, False), ("p2", 200.0, 25.0, True, False), ("p3", 100.0, 25.0, True, False)]
+
+    def plan(params: GapMerging.Params, vehicles: list[tuple[str, float, float, bool, bool]]) -> GapMerging:
+        c = _controller(params, 0)
+        slots = c._slots(0.0, _queue(vehicles), 15.0) if compiled else c._slots_py(0.0, _queue(vehicles), 15.0)
+        assert set(slots) == set(c.pairs)
+        return c
+
+    head = [("c_head", 570.0, 8.0, True, True), ("h", 550.0, 8.0, False, True), ("c_back", 530.0, 8.0, True, True)]
+    c = plan(GapMerging.Params(**quiet), highway + head)
+    assert "c_head" in c.pairs and "c_back" not in c.pairs  # the one behind the human: no partner
+    c = plan(GapMerging.Params(**quiet, pair_queue_head_only=False), highway + head)
+    assert "c_head" in c.pairs and "c_back" in c.pairs
+    gone = [v for v in head if v[0] != "h"]  # the human has merged: the connected one is at the head now
+    c = plan(GapMerging.Params(**quiet), highway + gone)
+    assert "c_back" in c.pairs
+    on_hw = [*gone, ("h", 620.0, 8.0, False, False)]  # past the ramp (on the highway): no longer ahead on it
+    c = plan(GapMerging.Params(**quiet), highway + on_hw)
+    assert "c_back" in c.pairs

@@ -93,7 +93,7 @@ class _Drive:
     """Vehicles on a highway line and a ramp lane (fronts in [0, 760] m), moving, entering and leaving."""
 
     def __init__(self, rng: np.random.Generator) -> None:
-        self.rng, self.serial = rng, 0
+        self.rng, self.serial, self.n_states = rng, 0, 0
         self.veh: dict[str, list[Any]] = {}  # id -> [front, speed, length, connected, ramp role, on ramp, y]
         for _ in range(int(rng.integers(0, 40))):
             self._add(float(rng.uniform(0.0, END_X)))
@@ -127,6 +127,9 @@ class _Drive:
             vs[b][0] = vs[a][0]
 
     def state(self) -> dict[str, Any]:
+        self.n_states += 1
+        if self.n_states % 5 == 0:  # the same vehicles in other rows (the snapshot's order may change)
+            self.veh = dict(reversed(list(self.veh.items())))
         ids = list(self.veh)
         a = np.array([[v[0], v[1], v[2], v[6]] for v in self.veh.values()], dtype=float).reshape(len(ids), 4)
         b = np.array([v[3:6] for v in self.veh.values()], dtype=bool).reshape(len(ids), 3)
