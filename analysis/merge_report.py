@@ -26,7 +26,8 @@ from corridor.analysis.plots import heatmap, line_chart, scatter_chart
 from corridor.analysis.report_series import load_npz, representative_runs
 from corridor.analysis.stats import mean_ci
 
-PAIRED = (("avg_speed_mps", "average speed [m/s]"), ("outflow_vph", "outflow [veh/h]"),
+PAIRED = (("avg_speed_mps", "average speed [m/s]"),
+          ("avg_speed_all_mps", "average speed, vehicles waiting to enter at 0 [m/s]"), ("outflow_vph", "outflow [veh/h]"),
           ("delay_mean_s", "mean delay [s]"), ("hard_brakes", "hard brakes"), ("min_ttc_s", "min TTC [s]"),
           ("co2_g_per_km", "CO2 [g/km]"), ("fuel_g_per_km", "fuel [g/km]"), ("collisions", "collisions"),
           ("capacity_drop_pct", "capacity drop [%]"))

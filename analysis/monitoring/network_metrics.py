@@ -4,6 +4,10 @@ A DETECT-phase monitor that reads only the snapshot's road frame:
 
 * ``avg_speed_mps``: Flow's "average speed" of the merge benchmarks, the mean speed of all vehicles in
   the network at each road step, averaged over the steps of the horizon (after the warm-up);
+* ``avg_speed_all_mps``: the same with the vehicles waiting to enter the network (SUMO's insertion
+  backlog) counted at 0 m/s.  Flow's figure leaves them out, so a controller that moves a queue from
+  inside the network to its entrance (a blocked insertion) raises it without moving anyone faster;
+  this one does not reward that;
 * ``outflow_vph``: vehicles that left the network (arrived) per hour, after the warm-up;
 * ``co2_g_per_km``, ``fuel_g_per_km``: CO2 and fuel of all vehicles over the distance they drove
   (after the warm-up), integrated from the per-vehicle rates [mg/s] that the road backend reads from
@@ -31,6 +35,8 @@ class NetworkMetrics(Component):
     phase = Phase.DETECT
     metrics: ClassVar[tuple[Metric, ...]] = (
         Metric('avg_speed_mps', 'm/s', "Flow's average speed: mean speed of all vehicles in the network over the measured steps."),
+        Metric('avg_speed_all_mps', 'm/s',
+               "Flow's average speed with the vehicles waiting to enter the network counted at 0 m/s."),
         Metric('outflow_vph', 'veh/h', 'Vehicles that left the network per hour after the warm-up.'),
         Metric('co2_g_per_km', 'g/km', "CO2 from SUMO's emission model per vehicle-kilometre (road.sumo.emissions)."),
         Metric('fuel_g_per_km', 'g/km', "Fuel from SUMO's emission model per vehicle-kilometre (road.sumo.emissions)."),
@@ -50,6 +56,8 @@ class NetworkMetrics(Component):
         self.warmup = scenario.warmup if scenario is not None else 0.0
         self.speed_sum = 0.0  # sum over steps of the step's mean speed [m/s]
         self.steps = 0
+        self.speed_all_sum = 0.0  # sum over steps of the step's speed sum / (vehicles in + waiting to enter)
+        self.steps_all = 0
         self.arrived = 0
         self.distance_m = 0.0  # [m] driven by all vehicles after the warm-up
         self.co2_mg = 0.0
@@ -73,10 +81,14 @@ class NetworkMetrics(Component):
         if ctx.t < self.warmup:
             return
         self.arrived += len(road.events.arrived)
-        if not len(road):
+        n, waiting = len(road), road.events.backlog
+        if n + waiting:
+            self.steps_all += 1
+        if not n:
             return
         speed = ctx.snapshot.speed[road.sl]
         mean = float(speed.mean())
+        self.speed_all_sum += float(speed.sum()) / (n + waiting)
         self.speed_sum += mean
         self.steps += 1
         self.distance_m += float(speed.sum()) * self.period
@@ -112,6 +124,7 @@ class NetworkMetrics(Component):
         km = self.distance_m / 1000.0
         out: dict[str, Any] = {
             "avg_speed_mps": self.speed_sum / self.steps if self.steps else np.nan,
+            "avg_speed_all_mps": self.speed_all_sum / self.steps_all if self.steps_all else np.nan,
             "outflow_vph": self.arrived / span_h,
         }
         if self.emissions_read:
