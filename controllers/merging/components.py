@@ -420,20 +420,24 @@ class V2XMerging(Controller):
             got = self._fused_call(t, s)
             assert got is not None
         r_cam, r_dlv, k, r_crd, target, r_send = got
-        out = self._cam.pose_views(len(s["ids"]), r_cam)
-        s["pos"] = out[20]
-        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = out[15:20]
-        cams = self._took_stage(s, out[:15])
+        # the stage's outputs the tick reads (pose_views' and _took_stage's, without the CAMs' views: the
+        # compiled call sent them, unless a step below was left to Python, which takes them then)
+        cam, n, n_keys, n_c = self._cam, len(s["ids"]), r_cam[5], r_cam[6]
+        s["pos"] = cam.centre[:n]
+        s["dist"], s["connected"], s["ramp"], s["right"], s["merged"] = (
+            cam.dist[:n], cam.connected[:n], cam.ramp[:n], cam.right[:n], cam.merged[:n])
+        self._listen_keys = cam.keys[:n_keys]
+        s["stream"], s["cand"], s["leader"] = (r_cam[7], r_cam[8]), cam.cand[:n_c], cam.leader[:n]
         self.tracks.fused_done(self.channel, t, r_dlv)  # _receive's steps after its call
         self._forget_sent(t)
         if k:
             self._take_assignments(k, *self._ref_bufs)
         if r_crd[0] == NOT_RUN:  # the fuse was completed in Python: the coordination on its own
             target = self.p.target_speed_mps or self._stream_speed(s)
-            return cams, target, self._coordinate(t, s, target)
+            return self._took_stage(s, cam.pose_views(n, r_cam)[:15]), target, self._coordinate(t, s, target)
         zone_out = self._coordinated(t, s, target, *r_crd)
         if r_send[0] == NOT_RUN:  # coordinated in Python (a tie, more draws): _send follows
-            return cams, target, zone_out
+            return self._took_stage(s, cam.pose_views(n, r_cam)[:15]), target, zone_out
         self.channel.commit_send(*r_send[1:])
         assignments = zone_out[1]
         if assignments:  # their references, as _send keeps them
