@@ -143,7 +143,8 @@ class GapMerging(WaveDamping):
         ramp_sensor_noise_m: float = Field(1.0, ge=0)  # [m] RSU position sensing
         pair_queue_head_only: bool = True  # pair only connected ramp vehicles with no unconnected vehicle ahead
         #   of them on the ramp: one behind a human driver waits with it at the yield line, and a partner
-        #   slowing down for it only costs the highway speed (False: every connected ramp vehicle, as before)
+        #   slowing down for it only costs the highway speed; until it is at the head it is left to its driver
+        #   (False: every connected ramp vehicle paired and commanded, as before)
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -487,6 +488,10 @@ class GapMerging(WaveDamping):
         leaders = self._ramp_leaders(s, front, speed)
         merge_x, cos_ramp = self.merge_x, self.cos_ramp
         command = self._ramp_command_c if self.compiled and HAVE_C_POW else self._ramp_command
+        # fronts of the unconnected vehicles on the ramp (pair_queue_head_only): a connected vehicle behind
+        # one of them, without a slot, is left to its driver, who queues behind it up to the yield line;
+        # the wait law would stop it where its run-up fits and hold the ramp queue behind it there
+        humans = s["front"][s["on_ramp"] & ~s["connected"]].tolist() if self.gp.pair_queue_head_only else []
         for k in rows:
             vid = ids[k]
             if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
@@ -498,6 +503,9 @@ class GapMerging(WaveDamping):
                 if vid in self.controlled:
                     self.fallbacks += 1
                 self.committed.discard(vid)
+                self._release(vid, cmds)
+                continue
+            if humans and vid not in self.committed and vid not in msg.slots and any(h > front[k] for h in humans):
                 self._release(vid, cmds)
                 continue
             x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value

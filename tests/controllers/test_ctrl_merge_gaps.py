@@ -117,3 +117,52 @@ def test_rows_do_not_depend_on_the_string_hash_seed(tmp_path: Path) -> None:
     assert rows[0]["v2x_commands"] == rows[1]["v2x_commands"]
     assert rows[0]["v2x_delivery_ratio"] == rows[1]["v2x_delivery_ratio"]
     assert rows[0]["avg_speed_mps"] == rows[1]["avg_speed_mps"]
+
+
+def _behind_a_human(duration_s: float, seed: int) -> tuple[int, int]:
+    """Mixed ramp (10 % of each stream connected): ticks x connected ramp vehicles with an unconnected
+    vehicle ahead of them on the ramp and no slot; of those, how many the controller still commanded."""
+    from corridor.run import build
+    from corridor.scenario import apply_overrides, load, validate
+
+    sets = [f"duration={duration_s}", "sweep.cal_all10_ramp.road.demand.flows.ramp.connected_share=0.1",
+            "sweep.cal_all10_ramp.road.demand.flows.highway.connected_share=0.1"]
+    sc, raw = load(SCENARIOS / "flow_merge.yaml", sets)
+    sim = build(validate(apply_overrides(raw, sc.sweep["cal_all10_ramp"]), "cal_all10_ramp"), seed,
+                Path(tempfile.mkdtemp()))
+    ctx = sim.ctx
+    ctrl = ctx.components["wave"]
+    seen = [0, 0]
+    inner = ctrl._decide_more
+
+    def decide_more(t: float, s: dict, cmds: list) -> None:
+        inner(t, s, cmds)
+        humans = s["front"][s["on_ramp"] & ~s["connected"]]
+        for k in np.flatnonzero(s["connected"] & s["on_ramp"]).tolist():
+            vid = s["ids"][k]
+            msg = ctrl._latest_of(vid)
+            slot = getattr(msg, "slots", {}).get(vid) if msg is not None else None
+            if (humans > s["front"][k]).any() and slot is None and vid not in ctrl.committed:
+                seen[0] += 1
+                seen[1] += vid in ctrl.controlled
+
+    ctrl._decide_more = decide_more
+    for c in ctx.components.values():
+        c.setup(ctx)
+    for _ in range(round(duration_s / ctx.dt)):
+        sim.step()
+    for c in ctx.components.values():
+        c.close()
+    return seen[0], seen[1]
+
+
+def test_a_connected_ramp_vehicle_behind_a_human_is_left_to_its_driver() -> None:
+    """With ``pair_queue_head_only`` a connected ramp vehicle behind a human ramp driver gets no slot; it
+    is then not commanded either (the wait law stopped it where its run-up fits, 100 m and more before
+    the line, and the ramp queue behind it backed up to the ramp's entrance: vehicles kept out of the
+    network, +0.5 teleports a run)."""
+    ctx = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(max_workers=1, mp_context=ctx) as pool:  # libsumo: one per process
+        behind, commanded = pool.submit(_behind_a_human, 750.0, 0).result()
+    assert behind > 20, behind  # the situation occurs
+    assert commanded == 0, (commanded, behind)
