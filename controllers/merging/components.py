@@ -801,8 +801,7 @@ class V2XMerging(Controller):
                            cross_ahead=a.cross_ahead is not None and not cross_pred)
             ha = self._automaton(vid, road_k)  # every tick (tools/trace_hard_brakes wraps it per vehicle)
             # most ticks no guard fires (then the general update); quiet_update written out when it applies
-            usable = ha.switching is None and ha.decider is None and not ha.decided  # QuietMerge.usable
-            if not (quiet(ha, t, x) if usable else ha.quiet_update(t, x)):
+            if not (quiet(ha, t, x) if quiet.usable(ha) else ha.quiet_update(t, x)):
                 ha.update(t, x, self.events, settle=3)
             flags = mode_flags.get(ha.mode)
             if flags is None:

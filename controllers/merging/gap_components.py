@@ -491,7 +491,9 @@ class GapMerging(WaveDamping):
         # fronts of the unconnected vehicles on the ramp (pair_queue_head_only): a connected vehicle behind
         # one of them, without a slot, is left to its driver, who queues behind it up to the yield line;
         # the wait law would stop it where its run-up fits and hold the ramp queue behind it there
-        humans = s["front"][s["on_ramp"] & ~s["connected"]].tolist() if self.gp.pair_queue_head_only else []
+        # (the last of them: behind any one of them is behind it)
+        human_x = (float(s["front"][s["on_ramp"] & ~s["connected"]].max(initial=-math.inf))
+                   if self.gp.pair_queue_head_only else -math.inf)
         for k in rows:
             vid = ids[k]
             if front[k] >= self.cross_x or not (on_ramp[k] or vid in self.committed):
@@ -505,7 +507,7 @@ class GapMerging(WaveDamping):
                 self.committed.discard(vid)
                 self._release(vid, cmds)
                 continue
-            if humans and vid not in self.committed and vid not in msg.slots and any(h > front[k] for h in humans):
+            if front[k] < human_x and vid not in self.committed and vid not in msg.slots:
                 self._release(vid, cmds)
                 continue
             x = merge_x - (merge_x - front[k]) / cos_ramp if on_ramp[k] else front[k]  # _projected's value

@@ -140,6 +140,6 @@ def fused_tick_into(t, ref_xy, back, cos_yaw, sin_yaw, size, front_x, pos, role,
 # (~2.5 us of the ~7 us a call costs on its arguments alone; the eleventh CPU pass), and unboxes them for the
 # one signature it was compiled for (explicit, above), so the caller must pass exactly those types (tested on
 # every call of real runs: tests/controllers/test_ctrl_merging_tick_kernel.py); without the explicit signature
-# (no powf64) the dispatcher
+# (no powf64) the dispatcher itself is called
 FUSED_TICK = (fused_tick_into.overloads[fused_tick_into.signatures[0]].entry_point if HAVE_C_POW
               else fused_tick_into)
