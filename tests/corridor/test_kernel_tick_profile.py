@@ -81,7 +81,13 @@ def test_prediction_takes_the_slowest_rank_per_segment() -> None:
         assert len(r["trace"]) == 2  # the loop's collectives only (not the round trips, not the gather)
     wall, per_tick = predict_wall(ranks)
     # segments (rank 0 | rank 1): [0.02 | 0], [0 + 0.02 | 0.02 + 0], [0 | 0.02]: 0.06 s on the slowest
-    # rank each; per tick each rank burns 0.02 s: 0.04 s
-    assert wall == pytest.approx(0.06, abs=0.006)
-    assert per_tick == pytest.approx(0.04, abs=0.006)
+    # rank each; per tick each rank burns 0.02 s: 0.04 s. The spins are exact in thread CPU; the
+    # collectives' own CPU (pickling, pipes) is not, and grows on a loaded machine: bound it by what
+    # the ranks measured instead of a fixed tolerance
+    work = np.array([r["parts"]["a"] + r["parts"]["b"] for r in ranks])  # (ranks, ticks)
+    comm = np.array([sum(v for k, v in r["parts"].items() if k not in ("a", "b")) for r in ranks])
+    comm_cpu = float(comm.sum(axis=1).max())  # the busiest rank's CPU inside the collectives [s]
+    assert float(work.max(axis=0).sum()) == pytest.approx(0.04, abs=0.004)
+    assert 0.04 - 0.004 <= per_tick <= 0.04 + 0.004 + comm_cpu
+    assert 0.06 - 0.006 <= wall <= 0.06 + 0.006 + comm_cpu * 2 + ranks[0]["rtt_s"] * 2
     assert 0.0 < ranks[0]["rtt_s"] < 0.05
