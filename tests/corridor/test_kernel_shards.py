@@ -68,6 +68,9 @@ def _late_peer(comm: ShardComm) -> tuple[dict[str, Any], list[Event]]:
         return len(calls) < 50  # then nothing left
 
     comm.idle = idle
+    # the lower rank's receive waits for its peer's answer (a round trip): with the default 2 ms a loaded
+    # machine's scheduling alone started a chunk (CI); 0.1 s is no round trip and still far below 0.3 s
+    comm.idle_after_s = 0.1
     if comm.rank == 1:
         time.sleep(0.3)
     first = comm.allgather(comm.rank)
