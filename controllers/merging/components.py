@@ -87,6 +87,7 @@ from corridor.controllers.merging.switching import (
     MergeState,
     QuietMerge,
     VirtualGap,
+    clone_automaton,
     merge_automaton,
     resolved,
 )
@@ -153,6 +154,7 @@ class V2XMerging(Controller):
     )
     period = 0.1  # [s] a constant (period_source None), unless the scenario gives `period:`
     compiled_decisions: ClassVar[bool] = True  # the quiet vehicles' decisions in one compiled call (see _decide)
+    clone_automata: ClassVar[bool] = True  # new automata cloned from a template per road (switching.clone_automaton)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -257,6 +259,7 @@ class V2XMerging(Controller):
         self._quiet = QuietMerge(self.theta)  # quiet_update written out for the merge automata (see _decide)
         self._mode_flags: dict[str, tuple[bool, bool, bool]] = {}  # leaf mode -> what _decide reads of its path
         self.automata: dict[str, HybridAutomaton] = {}  # vid -> its automaton while it holds an assignment
+        self._ha_templates: dict[str, HybridAutomaton] = {}  # road -> the automaton new ones are cloned from
         self._dec_code, self._dec_out = np.empty(0, dtype=np.int64), np.empty((0, 4))  # decide_into's outputs
         self._decide_cfg = np.zeros(0)  # decide_into's configuration (setup)
         self._ids_key: tuple[np.ndarray, slice, list[str], dict[str, int]] | None = None  # see _id_rows
@@ -971,7 +974,13 @@ class V2XMerging(Controller):
         if ha is None:
             sw = self.p.switching
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
-            ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
+            if self.clone_automata:  # merge_automaton's, from the road's template
+                template = self._ha_templates.get(road)
+                if template is None:
+                    template = self._ha_templates[road] = merge_automaton(self.name, "", road, self.theta, sw, rng)
+                ha = self.automata[vid] = clone_automaton(template, vid, rng)
+            else:
+                ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
 
     # age of information at the RSU, sampled per tick over the coordinated vehicles (coord_kernel's state)

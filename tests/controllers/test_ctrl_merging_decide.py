@@ -67,6 +67,7 @@ def _run(variant: str, path: str, tmp: Path, monkeypatch: pytest.MonkeyPatch) ->
     with monkeypatch.context() as m:
         m.setattr(components, "decide_into", counted_decide_into)
         m.setattr(V2XMerging, "compiled_decisions", path == "compiled")
+        m.setattr(V2XMerging, "clone_automata", not general)  # the reference: merge_automaton per vehicle
         m.setattr(V2XMerging, "_decide", logged_decide)
         m.setattr(V2XMerging, "_automaton", general_automaton)
         m.setattr(QuietMerge, "__call__", counted_quiet)
