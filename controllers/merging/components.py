@@ -61,6 +61,20 @@ from corridor.controllers.merging.coord_kernel import (
     tie_zone,
 )
 from corridor.controllers.merging.coordinator import Coordinator, CoordinatorConfig, SlotCheck, ZoneVehicle
+from corridor.controllers.merging.decide_kernel import (
+    G_NAMES,
+    I_T_CROSS,
+    MODE_CODES,
+    OUT_COMMAND_GAP,
+    OUT_FALLBACK,
+    OUT_LEAVE,
+    OUT_PYTHON,
+    OUT_RELEASE,
+    OUT_SKIP,
+    OUT_STALE,
+    decide_config,
+    decide_into,
+)
 from corridor.controllers.merging.safety_layer import (
     SafetyParams,
     lane_leaders,
@@ -73,6 +87,7 @@ from corridor.controllers.merging.switching import (
     MergeState,
     QuietMerge,
     VirtualGap,
+    clone_automaton,
     merge_automaton,
     resolved,
 )
@@ -95,6 +110,9 @@ HOLD_LANE_MODE = 512  # SUMO lane-change mode: no own lane changes (strategic, c
 
 
 _ROADS = ("main", "ramp")  # by an on-the-ramp flag
+_ROAD_CODE = {"main": 0, "ramp": 1}  # decide_kernel's predecessor roads (2: another, -1: no predecessor)
+# the decision steps a tool may wrap on the instance (tools/trace_hard_brakes): then every decision in Python
+_PY_HOOKS = ("_automaton", "_virtual_gap", "_pre_opening_accel", "_gap_opening_accel", "_physical_leader_cap")
 # the tick's sends (cam_kernel.CamStage): the count of CAMs and of their receivers, then the sends' sender
 # nodes, positions (e, 3) [m], contents (e, 2), ptr (e + 1) into the receiver nodes, those receivers and the
 # references: the CAMs first, then room for the RSU's assignments
@@ -135,6 +153,8 @@ class V2XMerging(Controller):
                'Smallest gap between a ramp vehicle and its virtual (projected) mainline leader.'),
     )
     period = 0.1  # [s] a constant (period_source None), unless the scenario gives `period:`
+    compiled_decisions: ClassVar[bool] = True  # the quiet vehicles' decisions in one compiled call (see _decide)
+    clone_automata: ClassVar[bool] = True  # new automata cloned from a template per road (switching.clone_automaton)
 
     class Params(BaseModel):
         model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
@@ -239,6 +259,9 @@ class V2XMerging(Controller):
         self._quiet = QuietMerge(self.theta)  # quiet_update written out for the merge automata (see _decide)
         self._mode_flags: dict[str, tuple[bool, bool, bool]] = {}  # leaf mode -> what _decide reads of its path
         self.automata: dict[str, HybridAutomaton] = {}  # vid -> its automaton while it holds an assignment
+        self._ha_templates: dict[str, HybridAutomaton] = {}  # road -> the automaton new ones are cloned from
+        self._dec_code, self._dec_out = np.empty(0, dtype=np.int64), np.empty((0, 4))  # decide_into's outputs
+        self._decide_cfg = np.zeros(0)  # decide_into's configuration (setup)
         self._ids_key: tuple[np.ndarray, slice, list[str], dict[str, int]] | None = None  # see _id_rows
 
     # ------------------------------------------------------------------ wiring
@@ -283,6 +306,8 @@ class V2XMerging(Controller):
                                     vel_noise=0.3, stale_after_s=self.p.stale_after_s)
         self.tracks.add_receiver(RSU)
         self.safety = deliverable_safety(self.p.safety, ctx.scenario, self.p.command_speed_mode, self.period)
+        self._decide_cfg = decide_config(self.period, self.p.stale_after_s, self.p.limits, self.p.merge_gap_s0_m,
+                                         self.p.merge_time_gap_s, self.safety, self._quiet)
 
     # ------------------------------------------------------------------ the tick
     def tick(self, ctx: RunContext) -> None:
@@ -747,14 +772,12 @@ class V2XMerging(Controller):
         return index, out
 
     def _decide(self, t: float, s: dict[str, Any], zone: dict[str, int], target: float) -> list[Any]:
-        """Per vehicle holding an assignment: its automaton, then its command (or its release). The rows'
-        columns are read per vehicle as Python scalars (``item``: the same floats; a ``tolist`` of every
-        column cost more for the ~4 vehicles of a tick)."""
+        """Per vehicle holding an assignment: its automaton, then its command (or its release): in one compiled
+        call (``decide_kernel.decide_into``) for the vehicles whose automaton stays quiet, in Python
+        (``_decide_py``) for the others, and all in Python when a step is wrapped on the instance
+        (``tools/trace_hard_brakes``) or ``compiled_decisions`` is off."""
         cmds: list[Any] = []
-        length = s["length"]
-        dist, speed = s["dist"].item, s["speed"].item
-        lim = self.p.limits
-        a_min, a_max = lim.a_min_mps2, lim.a_max_mps2
+        dist = s["dist"].item
         live = s["row"]
         controlled, assigned, automata = self.controlled, self.assigned, self.automata
         for vid in list(controlled):  # release vehicles past the merge or gone
@@ -764,17 +787,106 @@ class V2XMerging(Controller):
                 if k is not None:
                     cmds.append(Release(vid))
         if assigned:
-            ramp_l, right_l, merged_l = s["ramp"].item, s["right"].item, s["merged"].item
+            if self.compiled_decisions and not any(h in self.__dict__ for h in _PY_HOOKS):
+                self._decide_compiled(t, s, target, cmds)
+            else:
+                self._decide_py(t, s, target, list(assigned.items()), cmds)
+        if automata:  # past the conflict point, gone, or no longer coordinated
+            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist(live[v]) < 0]:
+                del automata[vid]
+        return cmds
+
+    def _decide_compiled(self, t: float, s: dict[str, Any], target: float, cmds: list[Any]) -> None:
+        """``_decide_py`` on every vehicle holding an assignment, in order: the compiled call first (the quiet
+        automata's g values and the commands), the vehicles it leaves to Python (a guard fires, no automaton yet)
+        through ``_decide_py`` in their place."""
+        live, index, automata, usable = s["row"], self.tracks.index, self.automata, QuietMerge.usable
+        items = list(self.assigned.items())
+        modes: list[int] = []
+        rows = []
+        for vid, (_t_recv, a) in items:
+            ha = automata.get(vid)
+            mode = MODE_CODES.get(ha.mode, -1) if ha is not None and usable(ha) else -1
+            modes.append(mode)
+            pred, ahead = a.pred, a.cross_ahead
+            rows.append((live.get(vid, -1), index.get(vid, -1), mode, index.get(pred, -1), live.get(pred, -1),
+                         -1 if pred is None else _ROAD_CODE.get(a.pred_road, 2), index.get(ahead, -1),
+                         live.get(ahead, -1), ahead is not None, a.t_sent_s, a.t_cross_s))
+        inp = np.array(rows, dtype=np.float64)
+        t3 = (inp[:, I_T_CROSS] - t) ** 3  # numpy's, as trajectory.start_accel's (a contiguous array: the same bits)
+        n = len(items)
+        if self._dec_code.shape[0] < n:
+            self._dec_code, self._dec_out = np.empty(2 * n, dtype=np.int64), np.empty((2 * n, 4))
+        leader = s.get("leader")
+        if leader is None:  # a state without the CAM stage's
+            leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
+        _, row_of, trk_x, trk_t = self.tracks.receiver_arrays(RSU)
+        decide_into(t, target, inp, self._decide_cfg, s["dist"], s["speed"], s["ramp"], s["right"], s["merged"],
+                    s["length"], s["lane_pos"], leader, self.tracks.slot_of, row_of, trk_x, trk_t, t3,
+                    self._dec_code, self._dec_out)
+        codes, out = self._dec_code[:n].tolist(), self._dec_out[:n].tolist()
+        controlled, assigned = self.controlled, self.assigned
+        hold, mode_cmd = self.p.hold_lane_change, self.p.command_speed_mode
+        for (vid, (_t_recv, a)), c, (v_next, g1, g2, gap), mode in zip(items, codes, out, modes, strict=True):
+            if c == OUT_SKIP:
+                continue
+            if c == OUT_LEAVE:
+                if vid in controlled:
+                    controlled.discard(vid)
+                    cmds.append(Release(vid))
+                del assigned[vid]
+                automata.pop(vid, None)
+                continue
+            if c == OUT_STALE:
+                self._fallback(t, vid, cmds)
+                continue
+            if c == OUT_PYTHON:
+                self._decide_py(t, s, target, [(vid, (_t_recv, a))], cmds)
+                continue
+            ha = automata[vid]  # QuietMerge's keep: the g values of the mode's boundaries
+            names = G_NAMES[mode]
+            ha._g_prev, ha._t_prev = ha.g_now, ha._t_last
+            ha.g_now, ha._t_last = ({names[0]: g1} if len(names) == 1 else {names[0]: g1, names[1]: g2}), t
+            if ha.pending_draws:
+                ha.pending_draws = []
+            if c == OUT_RELEASE:
+                if vid in controlled:
+                    controlled.discard(vid)
+                    cmds.append(Release(vid))
+                continue
+            if c == OUT_FALLBACK:
+                self._fallback(t, vid, cmds)
+                continue
+            if c == OUT_COMMAND_GAP and gap < self.min_virtual_gap:  # Python's min(min_virtual_gap, gap)
+                self.min_virtual_gap = gap
+            if hold and vid not in controlled and s["ramp"].item(live[vid]):
+                cmds.append(SetLaneChangeMode(vid, HOLD_LANE_MODE))
+            cmds.append(SetSpeed(vid, v_next, mode_cmd))
+            controlled.add(vid)
+            self.commands_sent += 1
+
+    def _decide_py(self, t: float, s: dict[str, Any], target: float, items: list[tuple[str, tuple[float, Assignment]]],
+                   cmds: list[Any]) -> None:
+        """The decisions of the vehicles ``items`` (vehicle, (arrival, assignment)) in Python, in order. The rows'
+        columns are read per vehicle as Python scalars (``item``: the same floats; a ``tolist`` of every column
+        cost more for the ~4 vehicles of a tick)."""
+        length = s["length"]
+        dist, speed = s["dist"].item, s["speed"].item
+        lim = self.p.limits
+        a_min, a_max = lim.a_min_mps2, lim.a_max_mps2
+        live = s["row"]
+        controlled, assigned, automata = self.controlled, self.assigned, self.automata
+        ramp_l, right_l, merged_l = s["ramp"].item, s["right"].item, s["merged"].item
         quiet, mode_flags, safety = self._quiet, self._mode_flags, self.safety
         # _physical_leader_cap's and _command_speed's steps inline, unless the cap is wrapped on the instance
         # (tools/trace_hard_brakes; the tests' reference)
         cap_inline = "_physical_leader_cap" not in self.__dict__
         leader = s.get("leader")
-        if leader is None and cap_inline and assigned:  # a state without the CAM stage's (_physical_leader_cap)
+        if leader is None and cap_inline:  # a state without the CAM stage's (_physical_leader_cap)
             leader = s["leader"] = lane_leaders(s["lane"], s["lane_pos"])
         lane_pos, len_at = s["lane_pos"].item, length.item
         v_max, a_down, period = lim.v_max_mps, lim.a_min_mps2 * self.period, self.period
-        for vid, (_t_recv, a) in list(assigned.items()):
+        for vid, (_t_recv, a) in items:
             k = live.get(vid)
             if k is None:
                 continue
@@ -857,17 +969,18 @@ class V2XMerging(Controller):
             cmds.append(SetSpeed(vid, v_next, self.p.command_speed_mode))
             controlled.add(vid)
             self.commands_sent += 1
-        if automata:  # past the conflict point, gone, or no longer coordinated
-            for vid in [v for v in automata if v not in assigned or live.get(v) is None or dist(live[v]) < 0]:
-                del automata[vid]
-        return cmds
-
     def _automaton(self, vid: str, road: str) -> HybridAutomaton:
         ha = self.automata.get(vid)
         if ha is None:
             sw = self.p.switching
             rng = self._ctx.rng(f"{self.name}.switching.{vid}") if sw.temperature is not None else None
-            ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
+            if self.clone_automata:  # merge_automaton's, from the road's template
+                template = self._ha_templates.get(road)
+                if template is None:
+                    template = self._ha_templates[road] = merge_automaton(self.name, "", road, self.theta, sw, rng)
+                ha = self.automata[vid] = clone_automaton(template, vid, rng)
+            else:
+                ha = self.automata[vid] = merge_automaton(self.name, vid, road, self.theta, sw, rng)
         return ha
 
     # age of information at the RSU, sampled per tick over the coordinated vehicles (coord_kernel's state)

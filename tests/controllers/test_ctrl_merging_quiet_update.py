@@ -12,6 +12,7 @@ from corridor.controllers.merging.switching import (
     MergeState,
     QuietMerge,
     VirtualGap,
+    clone_automaton,
     merge_automaton,
     resolved,
 )
@@ -138,3 +139,36 @@ def test_quiet_merge_declines_as_quiet_update_does() -> None:
     assert not quiet(ha, 0.1, MergeState("ramp", 50.0, False))  # merge_enter holds: a jump
     assert ha.mode == "approach" and ha.g_now == {}  # nothing changed
     assert quiet(ha, 0.1, MergeState("ramp", 150.0, False)) and ha.g_now == {"merge_enter": -50.0}
+
+
+@pytest.mark.parametrize("road", ["ramp", "main"])
+def test_a_cloned_automaton_is_merge_automatons(road: str) -> None:
+    """``clone_automaton`` (the thirteenth CPU pass) from a template that several clones share: each clone jumps,
+    locates its crossings, logs (its own vehicle's tag and data) and keeps its g values exactly as the automaton
+    ``merge_automaton`` builds for its vehicle, and shares no state with the template or the other clones."""
+    theta = resolved(MergeBoundaries(open_ahead={"dist_m": 150.0}), 100.0)
+    template = merge_automaton("m", "", road, theta)
+    clones = [clone_automaton(template, f"v{case}") for case in range(10)]
+    rng = np.random.default_rng(5)
+    for case, b in enumerate(clones):
+        a = merge_automaton("m", f"v{case}", road, theta)
+        assert set(vars(b)) == set(vars(a))
+        ev_a, ev_b = EventLog(), EventLog()
+        for j, x in enumerate(_states(rng, 300)):
+            t = round(0.1 * (j + 1), 1)
+            x.road = road
+            a.update(t, x, ev_a, settle=3)
+            b.update(t, x, ev_b, settle=3)
+            assert (b.mode, b._t_prev, b._t_last) == (a.mode, a._t_prev, a._t_last), (case, j)
+            assert _same(b.g_now, a.g_now) and _same(b._g_prev, a._g_prev), (case, j)
+        assert b.history == a.history and len(a.history) > 3
+        assert [(e.t, e.source, e.kind, e.message, e.data) for e in ev_b.events] == [
+            (e.t, e.source, e.kind, e.message, e.data) for e in ev_a.events]
+    fresh = merge_automaton("m", "", road, theta)
+    assert (template.mode, template.history, template.g_now, template.decided) == (
+        fresh.mode, fresh.history, fresh.g_now, fresh.decided)  # the template untouched
+    state = ("history", "g_now", "_g_prev", "decided", "_held", "pending_draws", "event_data")
+    assert all(getattr(c, k) is not getattr(template, k) for c in clones for k in state)
+    with pytest.raises(ValueError, match="random generator"):
+        clone_automaton(merge_automaton("m", "", road, theta, SwitchingParams(temperature=0.1),
+                                        np.random.default_rng(0)), "v")
