@@ -38,7 +38,7 @@ from corridor.controllers.merging.wave_kernel import safe_accel_c, tick
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
  C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
- C_U_MAX, C_HEAD_ONLY, N_CFG) = range(20)
+ C_U_MAX, C_HEAD_ONLY, C_LEAD_ON, C_LEAD_GAP, C_LEAD_RAMP_GAP, C_A_MAX, N_CFG) = range(24)
 # out_pair columns: ramp row, partner row, status, lead row (-1: none)
 P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
@@ -60,6 +60,8 @@ def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base
     cfg[C_HUMAN_MARGIN], cfg[C_RESTART_GAP], cfg[C_MIN_RUN] = p.human_margin_s, p.restart_gap_s, p.min_run_speed_mps
     cfg[C_COMMIT], cfg[C_B_COMFORT], cfg[C_PLAN_ACCEL] = p.commit_m, p.b_comfort_mps2, p.plan_accel_mps2
     cfg[C_HEAD_ONLY] = 1.0 if p.pair_queue_head_only else 0.0
+    cfg[C_LEAD_ON] = 1.0 if p.lead_close_up else 0.0
+    cfg[C_LEAD_GAP], cfg[C_LEAD_RAMP_GAP], cfg[C_A_MAX] = p.lead_time_gap_s, p.lead_ramp_gap_s, p.a_max_mps2
     return cfg
 
 
@@ -97,6 +99,24 @@ def _fits_at(cfg: np.ndarray, connected: bool, x_j: float, eta_j: float, t: floa
         v_min = cfg[C_PARTNER_MIN] if h2 <= cfg[C_OPEN_GAP] else cfg[C_RESTART_PARTNER]
         return t + (cfg[C_MERGE_X] - x_j) / v_min >= t_ramp + h2
     return h2 <= cfg[C_OPEN_GAP] and eta_j >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
+
+
+@njit(cache=True)
+def _lead_term(cfg: np.ndarray, t: float, j: int, order: np.ndarray, front_sorted: np.ndarray, front: np.ndarray,
+               connected: np.ndarray, eta: np.ndarray, dist: np.ndarray, v: np.ndarray) -> float:
+    """``GapMerging._lead_term``: the earliest slot [s] behind highway vehicle ``j``."""
+    if cfg[C_LEAD_ON] == 0.0 or not connected[j]:
+        return eta[j] + cfg[C_RAMP_GAP]
+    t_plan = t + time_to_go_c(dist[j], v[j], cfg[C_U_MAX], cfg[C_A_MAX])
+    j2 = _lead(order, front_sorted, front[j] + 0.1)
+    if j2 >= 0:
+        b = eta[j2] + cfg[C_LEAD_GAP]
+        if b > t_plan:  # Python's max(t_plan, b)
+            t_plan = b
+    a = eta[j]
+    if t_plan < a:  # Python's min(eta, t_plan)
+        a = t_plan
+    return a + cfg[C_LEAD_RAMP_GAP]
 
 
 @njit(cache=True)
@@ -200,20 +220,40 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
         for k in cand:
             h2 = _follow_gap(cfg, speed[k], dist[k])
             best, t_best = -1, 0.0
-            for j in hw:
-                if taken[j]:
-                    continue
-                lead = _lead(order, front_sorted, front[j] + 0.1)
-                t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, eta[lead] + ramp_gap or -inf)
-                b = t_prev + cfg[C_OPEN_GAP]
-                if b > t_ramp:
-                    t_ramp = b
-                b = eta[lead] + cfg[C_RAMP_GAP] if lead >= 0 else -math.inf
-                if b > t_ramp:
-                    t_ramp = b
-                if _fits_at(cfg, connected[j], front[j], eta[j], t, t_ramp, h2):
-                    best, t_best = j, t_ramp
-                    break
+            # lead_close_up: first behind a connected leader, the follower at its own speed (nobody slowing)
+            if cfg[C_LEAD_ON] != 0.0 and h2 <= cfg[C_OPEN_GAP]:
+                for j in hw:
+                    if taken[j]:
+                        continue
+                    lead = _lead(order, front_sorted, front[j] + 0.1)
+                    if lead < 0 or not connected[lead]:
+                        continue
+                    t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, _lead_term)
+                    b = t_prev + cfg[C_OPEN_GAP]
+                    if b > t_ramp:
+                        t_ramp = b
+                    b = _lead_term(cfg, t, lead, order, front_sorted, front, connected, eta, dist, v)
+                    if b > t_ramp:
+                        t_ramp = b
+                    if eta[j] >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]:
+                        best, t_best = j, t_ramp
+                        break
+            if best < 0:  # the partner-slows pairing
+                for j in hw:
+                    if taken[j]:
+                        continue
+                    lead = _lead(order, front_sorted, front[j] + 0.1)
+                    t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, _lead_term or -inf)
+                    b = t_prev + cfg[C_OPEN_GAP]
+                    if b > t_ramp:
+                        t_ramp = b
+                    b = (_lead_term(cfg, t, lead, order, front_sorted, front, connected, eta, dist, v) if lead >= 0
+                         else -math.inf)
+                    if b > t_ramp:
+                        t_ramp = b
+                    if _fits_at(cfg, connected[j], front[j], eta[j], t, t_ramp, h2):
+                        best, t_best = j, t_ramp
+                        break
             if best < 0:
                 continue
             out_pair[n_out, P_RAMP], out_pair[n_out, P_PARTNER], out_pair[n_out, P_STATUS] = k, best, ST_SLOT
@@ -239,8 +279,8 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
         j = _lead(order, front_sorted, front[kc] + 0.1)
         out_pair[q, P_LEAD] = j
         if j >= 0:
-            b = eta[j] + cfg[C_RAMP_GAP]
-            if b > t_slot:  # Python's max(t_slot, eta + gap)
+            b = _lead_term(cfg, t, j, order, front_sorted, front, connected, eta, dist, v)
+            if b > t_slot:  # Python's max(t_slot, _lead_term)
                 t_slot = b
             out_slot[q, S_LEAD_X], out_slot[q, S_LEAD_V], out_slot[q, S_LEAD_LEN] = x[j], v[j], length[j]
         h2 = _follow_gap(cfg, v[kr], dist[kr])
