@@ -164,6 +164,19 @@ class GapMerging(WaveDamping):
         lead_ramp_gap_s: float = Field(1.0, ge=0)  # [s] the ramp vehicle's arrival after a connected leader's
         lead_k_gap: float = Field(0.23, ge=0)  # [1/s²] the ACC law's gain on the gap error
         lead_k_speed: float = Field(0.07, ge=0)  # [1/s] ... on the speed difference (Milanés & Shladover 2014)
+        # its second iteration (``lead_hold``, with ``lead_close_up``; variant ``cal_all10_lead2``): (a) a slot behind
+        # a connected leader holds once given (the follower's fit checked at pairing only, with ``lead_noise_k``
+        # standard deviations of the RSU's arrival-time error to spare, never against the leader's re-planned
+        # arrival; the go / no-go at commit unchanged); (b) every connected highway vehicle in the pair zone
+        # closes up (the ACC law above) whenever a connected ramp vehicle is on the ramp; (c) no partner slows:
+        # without a slot behind a connected leader only natural gaps (any follower at its own speed); the
+        # follower's time gap behind the ramp vehicle is the calibrated humans' desired one, front to front at
+        # the crossing speed v: ``lead_follow_tau_s`` + ``lead_follow_gap_m`` / v.  The planning in Python (the
+        # compiled planner does not know it), the commands on either path.  Off: as before
+        lead_hold: bool = False
+        lead_noise_k: float = Field(2.0, ge=0)  # [σ] the fit's margin for the RSU's arrival-time error at pairing
+        lead_follow_tau_s: float = Field(1.2, ge=0)  # [s] EIDM tau of the calibrated humans (human_merge)
+        lead_follow_gap_m: float = Field(7.0, ge=0)  # [m] their minGap 2 m + the ramp vehicle's length 5 m
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
@@ -173,6 +186,9 @@ class GapMerging(WaveDamping):
         self.committed: set[str] = set()  # ramp vehicles crossing on their reservation
         self._t_slot: dict[str, float] = {}  # ramp vehicle -> its slot at the junction [s]
         self._dropped: set[str] = set()  # ramp vehicles that missed their slot this broadcast
+        self._held: set[str] = set()  # ramp vehicles whose slot behind a connected leader holds (lead_hold)
+        self._closers: list[str] = []  # connected highway vehicles closing up (lead_hold: a ramp vehicle comes)
+        self._v_cross = 15.0  # [m/s] this broadcast's crossing speed (lead_hold's follower gap)
         self.reserved_crossings = 0
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
@@ -188,7 +204,7 @@ class GapMerging(WaveDamping):
         self._near_cells = np.flatnonzero((self.cells < self.merge_x) & (self.cells > self.merge_x - 100.0))
         self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
         # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
-        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
+        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8 and not self._hold
         self._zone = (self.merge_x - self.p.zone_before_m, self.merge_x + self.p.release_after_m)  # _receivers' bounds
         self._ramp_cfg = ramp_cfg_array(self.gp, self.safety, self.merge_x, self.period, K_SPEED)  # ramp_command's
 
@@ -211,6 +227,9 @@ class GapMerging(WaveDamping):
             row = self._rows(s)
             out[[row[c] for c in self.pairs.values() if c in row]] = True
             out[[row[c] for c in self.leaders.values() if c in row]] = True  # the connected leaders
+        if self._closers:
+            row = self._rows(s)
+            out[[row[c] for c in self._closers if c in row]] = True  # lead_hold: the ones closing up
         return out
 
     def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
@@ -222,10 +241,10 @@ class GapMerging(WaveDamping):
             w = self._row_work = (np.empty(2 * n, dtype=np.int64), np.empty(2 * n, dtype=np.int64),
                                   np.empty(2 * n, dtype=np.int64))
         recv, cramp, onramp = w
-        if self.pairs:
+        if self.pairs or self._closers:
             row = self._rows(s)
-            partners = np.array([row[c] for c in (*self.pairs.values(), *self.leaders.values()) if c in row],
-                                dtype=np.int64)
+            partners = np.array([row[c] for c in (*self.pairs.values(), *self.leaders.values(), *self._closers)
+                                 if c in row], dtype=np.int64)
         else:
             partners = self._no_rows
         n_recv, n_cramp, n_on = tick_rows(s["connected"], s["ramp"], s["on_ramp"], s["front"], self._zone[0],
@@ -244,6 +263,11 @@ class GapMerging(WaveDamping):
         row, connected = self._rows(s), s["connected"]
         partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
         leaders = {c: r for r, c in self.leaders.items()}
+        if self._hold:  # nobody slows for a slot; every connected highway vehicle in the pair zone closes up
+            partners = {}
+            self._closers = self._closing(s)
+            for c in self._closers:
+                leaders.setdefault(c, "")
         self._partnered.update(partners)
         self._partnered.update(leaders)
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
@@ -265,7 +289,7 @@ class GapMerging(WaveDamping):
     def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
         """``_slots_py`` in one compiled call (``gap_kernel.plan_slots``: the same values, draws and
         events); Python keeps the names, the draws and the event log."""
-        if not HAVE_C_POW:
+        if not HAVE_C_POW or self._hold:
             return self._slots_py(t, s, v_cross)
         p, ids = self.gp, s["ids"]
         n = len(ids)
@@ -390,6 +414,7 @@ class GapMerging(WaveDamping):
         for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
             earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
+        self._v_cross = v_cross
         self._pair_py(t, s, eta, earliest, dist, v)
         row = {vid: k for k, vid in enumerate(s["ids"])}
         self.leaders = {}
@@ -407,11 +432,13 @@ class GapMerging(WaveDamping):
                 continue
             j = self._lead_of(s, kc)
             lead = None
+            held = r in self._held  # lead_hold: neither moved with the leader's re-plan nor re-checked
             if j is not None:
                 lead = state(j)
-                t_slot = max(t_slot, self._lead_term(s, j, t, eta, dist, v))
+                if not held:
+                    t_slot = max(t_slot, self._lead_term(s, j, t, eta, dist, v))
             h2 = self._follow_gap(float(v[kr]), float(dist[kr]))
-            if not running and not self._fits(s, kc, t, t_slot, eta, x, h2):
+            if not running and not held and not self._fits(s, kc, t, t_slot, eta, x, h2):
                 self._dropped.add(r)  # the follower would arrive too early (a partner: slow too much)
                 continue
             if j is not None and p.lead_close_up and s["connected"][j]:
@@ -422,6 +449,7 @@ class GapMerging(WaveDamping):
             self.pairs.pop(r, None)
             self._t_slot.pop(r, None)
         self._dropped.clear()
+        self._held.intersection_update(self.pairs)
         self._t_slot = {r: v for r, v in self._t_slot.items() if r in self.pairs}
         return out
 
@@ -458,17 +486,27 @@ class GapMerging(WaveDamping):
             best = None
             h2 = self._follow_gap(speed_l[k], dist_l[k])
             cands = sorted((j for j in hw_l if ids[j] not in taken), key=lambda i: eta_l[i])
-            if p.lead_close_up and h2 <= p.open_time_gap_s:  # behind a connected leader, nobody slowing
-                for j in cands:
+            held = False
+            if p.lead_close_up and h2 <= (p.restart_gap_s - 1e-9 if self._hold else p.open_time_gap_s):
+                for j in cands:  # behind a connected leader, nobody slowing
                     lead = self._lead_of(s, j)
                     if lead is None or not conn_l[lead]:
                         continue
                     t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
                                  self._lead_term(s, lead, t, eta_l, dist_l, v_l))
-                    if eta_l[j] >= t_ramp + h2 + p.human_margin_s:
+                    if eta_l[j] >= t_ramp + h2 + p.human_margin_s + self._noise_margin(j, lead, dist_l, v_l):
+                        best, held = (j, t_ramp), self._hold
+                        break
+            if self._hold and best is None:  # no partner slows: a natural gap, any follower at its own speed
+                for j in cands:
+                    lead = self._lead_of(s, j)
+                    t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
+                                 self._lead_term(s, lead, t, eta_l, dist_l, v_l) if lead is not None else -math.inf)
+                    if (h2 < p.restart_gap_s - 1e-9 and eta_l[j] >= t_ramp + h2 + p.human_margin_s
+                            + self._noise_margin(j, lead, dist_l, v_l)):
                         best = (j, t_ramp)
                         break
-            for j in cands if best is None else ():
+            for j in cands if best is None and not self._hold else ():
                 lead = self._lead_of(s, j)
                 t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
                              self._lead_term(s, lead, t, eta_l, dist_l, v_l) if lead is not None else -math.inf)
@@ -480,6 +518,8 @@ class GapMerging(WaveDamping):
             j, t_ramp = best
             self.pairs[ids[k]] = ids[j]
             self._t_slot[ids[k]] = float(t_ramp)
+            if held:
+                self._held.add(ids[k])
             taken.add(ids[j])
             t_prev = t_ramp
             self.events.emit(t, self.name, "gap_pair", f"{ids[j]} opens a gap for {ids[k]}", vehicle=ids[k])
@@ -501,9 +541,43 @@ class GapMerging(WaveDamping):
 
     def _follow_gap(self, v_mps: float, dist_m: float) -> float:
         """[s] between the ramp vehicle's arrival and its follower's: ``restart_gap_s`` for one that
-        stands near the stop line (it starts from rest: the follower must be able to stop behind it)."""
+        stands near the stop line (it starts from rest: the follower must be able to stop behind it);
+        with ``lead_hold`` the calibrated humans' desired gap front to front at the crossing speed."""
         p = self.gp
-        return p.restart_gap_s if v_mps < p.min_run_speed_mps and dist_m <= p.commit_m else p.open_time_gap_s
+        if v_mps < p.min_run_speed_mps and dist_m <= p.commit_m:
+            return p.restart_gap_s
+        if self._hold:
+            return p.lead_follow_tau_s + p.lead_follow_gap_m / max(self._v_cross, MIN_CROSS_SPEED_MPS)
+        return p.open_time_gap_s
+
+    @property
+    def _hold(self) -> bool:
+        """The gap made from ahead's second iteration is on (``lead_hold`` with ``lead_close_up``)."""
+        return self.gp.lead_close_up and self.gp.lead_hold
+
+    def _noise_margin(self, j: int, lead: int | None, dist: Any, v: Any) -> float:
+        """[s] ``lead_noise_k`` standard deviations of the difference of the RSU's predicted arrivals (distance /
+        speed, each with its position noise ``ramp_sensor_noise_m`` and speed noise ``sensor_noise_mps``) of
+        follower ``j`` and of ``lead`` (None: the follower's alone); 0 without ``lead_hold``.  To first order
+        var(d / v) = (σ_x / v)² + (d σ_v / v²)²."""
+        if not self._hold:
+            return 0.0
+        sx, sv = self.gp.ramp_sensor_noise_m, self.p.sensor_noise_mps
+        var = 0.0
+        for k in (j,) if lead is None else (j, lead):
+            vk = max(float(v[k]), 1.0)
+            var += (sx / vk) ** 2 + (float(dist[k]) * sv / (vk * vk)) ** 2
+        return self.gp.lead_noise_k * math.sqrt(var)
+
+    def _closing(self, s: dict[str, Any]) -> list[str]:
+        """``lead_hold``: the connected highway vehicles in the pair zone, when a connected ramp vehicle is on the
+        ramp before the junction's end (none: [])."""
+        front = s["front"]
+        if not np.any(s["connected"] & s["on_ramp"] & (front < self.cross_x)):
+            return []
+        hw = np.flatnonzero(s["connected"] & ~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x)
+                            & (front > self.merge_x - self.gp.pair_zone_m))
+        return [s["ids"][k] for k in hw.tolist()]
 
     def _fits(self, s: dict[str, Any], j: int, t: float, t_ramp: float, eta: np.ndarray, x: np.ndarray,
               h2: float) -> bool:
@@ -515,7 +589,7 @@ class GapMerging(WaveDamping):
     def _fits_at(self, connected: bool, x_j: float, eta_j: float, t: float, t_ramp: float, h2: float) -> bool:
         """``_fits`` for a highway vehicle at ``x_j`` [m] predicted at the junction at ``eta_j`` [s]."""
         p = self.gp
-        if connected:
+        if connected and not self._hold:  # lead_hold: no partner slows, it follows at its own speed
             v_min = p.partner_min_speed_mps if h2 <= p.open_time_gap_s else p.restart_partner_speed_mps
             return t + (self.merge_x - x_j) / v_min >= t_ramp + h2
         return h2 <= p.open_time_gap_s and eta_j >= t_ramp + h2 + p.human_margin_s  # no restart behind a human
