@@ -171,8 +171,8 @@ class GapMerging(WaveDamping):
         # closes up (the ACC law above) whenever a connected ramp vehicle is on the ramp; (c) no partner slows:
         # without a slot behind a connected leader only natural gaps (any follower at its own speed); the
         # follower's time gap behind the ramp vehicle is the calibrated humans' desired one, front to front at
-        # the crossing speed v: ``lead_follow_tau_s`` + ``lead_follow_gap_m`` / v.  The planning in Python (the
-        # compiled planner does not know it), the commands on either path.  Off: as before
+        # the crossing speed v: ``lead_follow_tau_s`` + ``lead_follow_gap_m`` / v.  Planned by ``_slots_py`` and
+        # ``gap_kernel.plan_slots`` alike (not the fused tick), commanded on either path.  Off: as before
         lead_hold: bool = False
         lead_noise_k: float = Field(2.0, ge=0)  # [σ] the fit's margin for the RSU's arrival-time error at pairing
         lead_follow_tau_s: float = Field(1.2, ge=0)  # [s] EIDM tau of the calibrated humans (human_merge)
@@ -289,7 +289,7 @@ class GapMerging(WaveDamping):
     def _slots(self, t: float, s: dict[str, Any], v_cross: float) -> dict[str, Slot]:
         """``_slots_py`` in one compiled call (``gap_kernel.plan_slots``: the same values, draws and
         events); Python keeps the names, the draws and the event log."""
-        if not HAVE_C_POW or self._hold:
+        if not HAVE_C_POW:
             return self._slots_py(t, s, v_cross)
         p, ids = self.gp, s["ids"]
         n = len(ids)
@@ -298,9 +298,14 @@ class GapMerging(WaveDamping):
         pairs, t_slot, has_slot = self._pair_arrays(s)
         x, v = np.empty(n), np.empty(n)
         out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
+        held = np.zeros(len(pairs) + n, dtype=bool)  # lead_hold: the kept pairs' in, the new ones' out
+        if self._held:
+            held[:len(pairs)] = [r in self._held for r in self.pairs]
         n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
-                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
-        return self._slots_from(t, ids, s["connected"], len(pairs), out_pair[:n_out], out_slot[:n_out])
+                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
+                           held)
+        return self._slots_from(t, ids, s["connected"], len(pairs), out_pair[:n_out], out_slot[:n_out],
+                                held[:n_out])
 
     def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
         """``WaveDamping._compiled_step`` with ``_measure`` (the plain law's measurement and the slots) in the same
@@ -374,19 +379,24 @@ class GapMerging(WaveDamping):
         return pairs, t_slot, has_slot
 
     def _slots_from(self, t: float, ids: list[str], connected: np.ndarray, m: int, out_pair: np.ndarray,
-                    out_slot: np.ndarray) -> dict[str, Slot]:
-        """The pairs, slots, connected leaders and events from ``plan_slots``' output (``m`` pairs before it)."""
+                    out_slot: np.ndarray, held: np.ndarray | None = None) -> dict[str, Slot]:
+        """The pairs, slots, connected leaders, held slots (``held``: per row; None: none) and events from
+        ``plan_slots``' output (``m`` pairs before it)."""
         rows, vals = out_pair.tolist(), out_slot.tolist()
         for kr, kc, _, _ in (rows[m:] if len(rows) > m else ()):  # the new pairs (few steps), in pairing order
             self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
         self.pairs, self._t_slot, self.leaders = pairs, t_slot, leaders = {}, {}, {}
         lead_on = self.gp.lead_close_up
+        held_l = held.tolist() if held is not None else [False] * len(rows)
+        self._held = set()
         out: dict[str, Slot] = {}
-        for (kr, kc, status, j), f in zip(rows, vals, strict=True):
+        for (kr, kc, status, j), f, h in zip(rows, vals, held_l, strict=True):
             if status != ST_SLOT:
                 continue
             r = ids[kr]
             pairs[r], t_slot[r] = ids[kc], f[0]
+            if h:
+                self._held.add(r)
             if lead_on and j >= 0 and connected[j]:
                 leaders[r] = ids[j]
             out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
@@ -466,6 +476,7 @@ class GapMerging(WaveDamping):
         row = {vid: k for k, vid in enumerate(ids)}
         self.pairs = {r: c for r, c in self.pairs.items() if r in row and c in row
                       and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
+        self._held.intersection_update(self.pairs)  # a ramp vehicle paired again is held only if so paired
         taken = set(self.pairs.values())
         ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]).tolist() if ids[k] not in self.pairs]
         if self.gp.pair_queue_head_only:  # none behind an unconnected vehicle on the ramp (it waits for that one)
