@@ -32,6 +32,12 @@ vehicles):
    leader (sensed on board) and the virtual one; a vehicle whose newest message is older than
    ``stale_after_s`` is handed back to its driver model.
 
+Gap made from ahead (``lead_close_up``, off by default; variant ``cal_all10_lead``): when the highway vehicle
+ahead of a slot is connected, that *leader* closes up to its own leader (a constant-time-gap ACC law,
+``lead_time_gap_s``) and the ramp vehicle crosses ``lead_ramp_gap_s`` behind it; the follower, human or
+connected, qualifies at its own speed (nobody behind slows).  The partner-slows pairing above is the fallback
+when no such slot is found.
+
 Measured on ``scenarios/flow_merge.yaml`` (variant ``cal_all10_ramp``): docs/guide/flow-merge.md.
 """
 
@@ -88,6 +94,8 @@ class MergePlan(RoadAhead):
     slots: dict[str, Slot] = field(default_factory=dict)
     partners: dict[str, str] = field(default_factory=dict)  # partner -> the ramp vehicle it lets in
     cross_speed_mps: float = 15.0
+    leaders: dict[str, str] = field(default_factory=dict)  # connected leader -> the ramp vehicle behind it
+    #   (``lead_close_up``: it closes up to its own leader)
 
 
 def arrival_accel(dist_m: float, v_mps: float, time_s: float, v_cross: float, accel: float, brake: float) -> float:
@@ -145,14 +153,42 @@ class GapMerging(WaveDamping):
         #   of them on the ramp: one behind a human driver waits with it at the yield line, and a partner
         #   slowing down for it only costs the highway speed; until it is at the head it is left to its driver
         #   (False: every connected ramp vehicle paired and commanded, as before)
+        # gap made from ahead (``lead_close_up``): when the highway vehicle ahead of a slot (the ramp vehicle's
+        # virtual leader) is connected, it closes up to its own leader with an ACC time gap, so the gap behind
+        # it grows without anyone behind slowing; the ramp vehicle, which receives that leader's state by V2X,
+        # crosses ``lead_ramp_gap_s`` behind it, and the follower (human or connected) must arrive
+        # ``open_time_gap_s`` after the ramp vehicle at its own speed.  The partner-slows pairing only when no
+        # such slot is found.  Off: as before
+        lead_close_up: bool = False
+        lead_time_gap_s: float = Field(1.0, gt=0)  # [s] the leader's time gap to its own leader (ACC)
+        lead_ramp_gap_s: float = Field(1.0, ge=0)  # [s] the ramp vehicle's arrival after a connected leader's
+        lead_k_gap: float = Field(0.23, ge=0)  # [1/s²] the ACC law's gain on the gap error
+        lead_k_speed: float = Field(0.07, ge=0)  # [1/s] ... on the speed difference (Milanés & Shladover 2014)
+        # its second iteration (``lead_hold``, with ``lead_close_up``; variant ``cal_all10_lead2``): (a) a slot behind
+        # a connected leader holds once given (the follower's fit checked at pairing only, with ``lead_noise_k``
+        # standard deviations of the RSU's arrival-time error to spare, never against the leader's re-planned
+        # arrival; the go / no-go at commit unchanged); (b) every connected highway vehicle in the pair zone
+        # closes up (the ACC law above) whenever a connected ramp vehicle is on the ramp; (c) no partner slows:
+        # without a slot behind a connected leader only natural gaps (any follower at its own speed); the
+        # follower's time gap behind the ramp vehicle is the calibrated humans' desired one, front to front at
+        # the crossing speed v: ``lead_follow_tau_s`` + ``lead_follow_gap_m`` / v.  Planned by ``_slots_py`` and
+        # ``gap_kernel.plan_slots`` alike (not the fused tick), commanded on either path.  Off: as before
+        lead_hold: bool = False
+        lead_noise_k: float = Field(2.0, ge=0)  # [σ] the fit's margin for the RSU's arrival-time error at pairing
+        lead_follow_tau_s: float = Field(1.2, ge=0)  # [s] EIDM tau of the calibrated humans (human_merge)
+        lead_follow_gap_m: float = Field(7.0, ge=0)  # [m] their minGap 2 m + the ramp vehicle's length 5 m
 
     def __init__(self, name: str, params: Params, scenario: Any) -> None:
         super().__init__(name, params, scenario)
         self.gp: GapMerging.Params = params
         self.pairs: dict[str, str] = {}  # ramp vehicle -> its partner on the highway
+        self.leaders: dict[str, str] = {}  # ramp vehicle -> its connected virtual leader (lead_close_up)
         self.committed: set[str] = set()  # ramp vehicles crossing on their reservation
         self._t_slot: dict[str, float] = {}  # ramp vehicle -> its slot at the junction [s]
         self._dropped: set[str] = set()  # ramp vehicles that missed their slot this broadcast
+        self._held: set[str] = set()  # ramp vehicles whose slot behind a connected leader holds (lead_hold)
+        self._closers: list[str] = []  # connected highway vehicles closing up (lead_hold: a ramp vehicle comes)
+        self._v_cross = 15.0  # [m/s] this broadcast's crossing speed (lead_hold's follower gap)
         self.reserved_crossings = 0
         self._work: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None  # _scratch
         self._no_pairs = (np.empty((0, 2), dtype=np.int64), np.zeros(0), np.zeros(0, dtype=bool))  # _pair_arrays
@@ -168,7 +204,7 @@ class GapMerging(WaveDamping):
         self._near_cells = np.flatnonzero((self.cells < self.merge_x) & (self.cells > self.merge_x - 100.0))
         self._plan_cfg = plan_cfg(self.gp, self.merge_x, self.cross_x, self.cos_ramp, self._cell_base)  # gap_kernel's
         # the measurement and the slots in one call (compiled tick): no courtesy stop, fewer than 8 cells averaged
-        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8
+        self._fused = HAVE_C_POW and self.p.yield_stop_m == 0 and len(self._near_cells) < 8 and not self._hold
         self._zone = (self.merge_x - self.p.zone_before_m, self.merge_x + self.p.release_after_m)  # _receivers' bounds
         self._ramp_cfg = ramp_cfg_array(self.gp, self.safety, self.merge_x, self.period, K_SPEED)  # ramp_command's
 
@@ -190,6 +226,10 @@ class GapMerging(WaveDamping):
         if self.pairs:  # the partners on the road (a pair is a few vehicles: their rows, not every id tested)
             row = self._rows(s)
             out[[row[c] for c in self.pairs.values() if c in row]] = True
+            out[[row[c] for c in self.leaders.values() if c in row]] = True  # the connected leaders
+        if self._closers:
+            row = self._rows(s)
+            out[[row[c] for c in self._closers if c in row]] = True  # lead_hold: the ones closing up
         return out
 
     def _receiver_rows(self, s: dict[str, Any]) -> np.ndarray:
@@ -201,9 +241,10 @@ class GapMerging(WaveDamping):
             w = self._row_work = (np.empty(2 * n, dtype=np.int64), np.empty(2 * n, dtype=np.int64),
                                   np.empty(2 * n, dtype=np.int64))
         recv, cramp, onramp = w
-        if self.pairs:
+        if self.pairs or self._closers:
             row = self._rows(s)
-            partners = np.array([row[c] for c in self.pairs.values() if c in row], dtype=np.int64)
+            partners = np.array([row[c] for c in (*self.pairs.values(), *self.leaders.values(), *self._closers)
+                                 if c in row], dtype=np.int64)
         else:
             partners = self._no_rows
         n_recv, n_cramp, n_on = tick_rows(s["connected"], s["ramp"], s["on_ramp"], s["front"], self._zone[0],
@@ -221,9 +262,16 @@ class GapMerging(WaveDamping):
         slots = self._slots(t, s, v_cross)
         row, connected = self._rows(s), s["connected"]
         partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        leaders = {c: r for r, c in self.leaders.items()}
+        if self._hold:  # nobody slows for a slot; every connected highway vehicle in the pair zone closes up
+            partners = {}
+            self._closers = self._closing(s)
+            for c in self._closers:
+                leaders.setdefault(c, "")
         self._partnered.update(partners)
+        self._partnered.update(leaders)
         return MergePlan(base.t_sent_s, base.cell_x_m, base.cell_speed_mps, base.ramp_eta_s, base.yielder,
-                         slots, partners, v_cross)
+                         slots, partners, v_cross, leaders)
 
     def _merge_speed(self, cell_speed: np.ndarray) -> float:
         """[m/s] the mean measured speed of the cells in the 100 m before the merge (u_max: none known):
@@ -250,9 +298,14 @@ class GapMerging(WaveDamping):
         pairs, t_slot, has_slot = self._pair_arrays(s)
         x, v = np.empty(n), np.empty(n)
         out_pair, out_slot = np.empty((len(pairs) + n, 4), dtype=np.int64), np.empty((len(pairs) + n, 11))
+        held = np.zeros(len(pairs) + n, dtype=bool)  # lead_hold: the kept pairs' in, the new ones' out
+        if self._held:
+            held[:len(pairs)] = [r in self._held for r in self.pairs]
         n_out = plan_slots(t, v_cross, self._plan_cfg, s["front"], s["speed"], s["length"], x_noise, v_noise,
-                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot)
-        return self._slots_from(t, ids, len(pairs), out_pair[:n_out], out_slot[:n_out])
+                           s["connected"], s["ramp"], s["on_ramp"], pairs, t_slot, has_slot, x, v, out_pair, out_slot,
+                           held)
+        return self._slots_from(t, ids, s["connected"], len(pairs), out_pair[:n_out], out_slot[:n_out],
+                                held[:n_out])
 
     def _compiled_step(self, t: float, s: dict[str, Any], send: bool, rows: np.ndarray) -> int:
         """``WaveDamping._compiled_step`` with ``_measure`` (the plain law's measurement and the slots) in the same
@@ -294,11 +347,13 @@ class GapMerging(WaveDamping):
         arrays ``_scratch``'s): the pairs, slots and events kept, the partners named."""
         _, _, out_pair, out_slot, v_cross = self._scratch(0)
         yielder = self._pick_yielder(t, s, False)  # WaveDamping._measure's (no courtesy stop: None)
-        slots = self._slots_from(t, s["ids"], m, out_pair[:n_out], out_slot[:n_out])
+        slots = self._slots_from(t, s["ids"], s["connected"], m, out_pair[:n_out], out_slot[:n_out])
         row, connected = self._rows(s), s["connected"]
         partners = {c: r for r, c in self.pairs.items() if r in slots and connected[row[c]]}
+        leaders = {c: r for r, c in self.leaders.items()}
         self._partnered.update(partners)
-        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots, partners, float(v_cross[0]))
+        self._partnered.update(leaders)
+        return MergePlan(t, self.cells, cell_speed, eta, yielder, slots, partners, float(v_cross[0]), leaders)
 
     def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``measure_plan``'s work arrays (noisy x, v; pairs and slots out; the crossing speed) for ``n`` rows,
@@ -323,19 +378,27 @@ class GapMerging(WaveDamping):
                 t_slot[q], has_slot[q] = ts, True
         return pairs, t_slot, has_slot
 
-    def _slots_from(self, t: float, ids: list[str], m: int, out_pair: np.ndarray, out_slot: np.ndarray
-                    ) -> dict[str, Slot]:
-        """The pairs, slots and events from ``plan_slots``' output (``m`` pairs before it)."""
+    def _slots_from(self, t: float, ids: list[str], connected: np.ndarray, m: int, out_pair: np.ndarray,
+                    out_slot: np.ndarray, held: np.ndarray | None = None) -> dict[str, Slot]:
+        """The pairs, slots, connected leaders, held slots (``held``: per row; None: none) and events from
+        ``plan_slots``' output (``m`` pairs before it)."""
         rows, vals = out_pair.tolist(), out_slot.tolist()
         for kr, kc, _, _ in (rows[m:] if len(rows) > m else ()):  # the new pairs (few steps), in pairing order
             self.events.emit(t, self.name, "gap_pair", f"{ids[kc]} opens a gap for {ids[kr]}", vehicle=ids[kr])
-        self.pairs, self._t_slot = pairs, t_slot = {}, {}
+        self.pairs, self._t_slot, self.leaders = pairs, t_slot, leaders = {}, {}, {}
+        lead_on = self.gp.lead_close_up
+        held_l = held.tolist() if held is not None else [False] * len(rows)
+        self._held = set()
         out: dict[str, Slot] = {}
-        for (kr, kc, status, j), f in zip(rows, vals, strict=True):
+        for (kr, kc, status, j), f, h in zip(rows, vals, held_l, strict=True):
             if status != ST_SLOT:
                 continue
             r = ids[kr]
             pairs[r], t_slot[r] = ids[kc], f[0]
+            if h:
+                self._held.add(r)
+            if lead_on and j >= 0 and connected[j]:
+                leaders[r] = ids[j]
             out[r] = Slot(f[0], f[1], (f[2], f[3], f[4]) if j >= 0 else None, (f[5], f[6], f[7]), (f[8], f[9], f[10]))
         return out
 
@@ -361,8 +424,10 @@ class GapMerging(WaveDamping):
         for k in np.flatnonzero(s["connected"] & s["ramp"]).tolist():
             earliest[k] = t + time_to_go(max(self.merge_x - float(x[k]), 0.0), float(v[k]), v_cross, p.plan_accel_mps2)
         dist = np.maximum(self.merge_x - x, 0.0)
-        self._pair_py(t, s, eta, earliest, dist)
+        self._v_cross = v_cross
+        self._pair_py(t, s, eta, earliest, dist, v)
         row = {vid: k for k, vid in enumerate(s["ids"])}
+        self.leaders = {}
         state = lambda j: (float(x[j]), float(v[j]), float(s["length"][j]))  # noqa: E731
         out: dict[str, Slot] = {}
         for r, c in self.pairs.items():
@@ -377,32 +442,41 @@ class GapMerging(WaveDamping):
                 continue
             j = self._lead_of(s, kc)
             lead = None
+            held = r in self._held  # lead_hold: neither moved with the leader's re-plan nor re-checked
             if j is not None:
                 lead = state(j)
-                t_slot = max(t_slot, float(eta[j]) + p.ramp_time_gap_s)
+                if not held:
+                    t_slot = max(t_slot, self._lead_term(s, j, t, eta, dist, v))
             h2 = self._follow_gap(float(v[kr]), float(dist[kr]))
-            if not running and not self._fits(s, kc, t, t_slot, eta, x, h2):
+            if not running and not held and not self._fits(s, kc, t, t_slot, eta, x, h2):
                 self._dropped.add(r)  # the follower would arrive too early (a partner: slow too much)
                 continue
+            if j is not None and p.lead_close_up and s["connected"][j]:
+                self.leaders[r] = s["ids"][j]
             self._t_slot[r] = t_slot
             out[r] = Slot(t_slot, t_slot + h2, lead, state(kc), state(kr))
         for r in self._dropped:
             self.pairs.pop(r, None)
             self._t_slot.pop(r, None)
         self._dropped.clear()
+        self._held.intersection_update(self.pairs)
         self._t_slot = {r: v for r, v in self._t_slot.items() if r in self.pairs}
         return out
 
-    def _pair_py(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray) -> None:
+    def _pair_py(self, t: float, s: dict[str, Any], eta: np.ndarray, earliest: np.ndarray, dist: np.ndarray,
+                 v: np.ndarray) -> None:
         """Keep the pairs whose ramp vehicle has not crossed and whose partner has not reached the
         junction; give every other connected ramp vehicle (in their order on the ramp) the first
         connected highway vehicle that can arrive ``open_time_gap_s`` after it without slowing below
         ``partner_min_speed_mps`` (the ramp vehicle arriving ``ramp_time_gap_s`` after the highway
-        vehicle ahead of that partner, and no earlier than it can)."""
+        vehicle ahead of that partner, and no earlier than it can).  With ``lead_close_up`` first a follower,
+        human or connected, behind a connected leader that leaves the gap at its own speed (the leader closing
+        up: ``_lead_term``), then, none found, the partner-slows pairing."""
         ids, front = s["ids"], s["front"]
         row = {vid: k for k, vid in enumerate(ids)}
         self.pairs = {r: c for r, c in self.pairs.items() if r in row and c in row
                       and front[row[r]] < self.cross_x and front[row[c]] < self.merge_x}
+        self._held.intersection_update(self.pairs)  # a ramp vehicle paired again is held only if so paired
         taken = set(self.pairs.values())
         ramp = [k for k in np.flatnonzero(s["connected"] & s["ramp"] & s["on_ramp"]).tolist() if ids[k] not in self.pairs]
         if self.gp.pair_queue_head_only:  # none behind an unconnected vehicle on the ramp (it waits for that one)
@@ -418,14 +492,35 @@ class GapMerging(WaveDamping):
             return
         # Python floats from here (the same values, without numpy's per-element cost)
         eta_l, earliest_l, dist_l, front_l = eta.tolist(), earliest.tolist(), dist.tolist(), front.tolist()
-        speed_l, conn_l, hw_l = s["speed"].tolist(), s["connected"].tolist(), hw.tolist()
+        speed_l, conn_l, hw_l, v_l = s["speed"].tolist(), s["connected"].tolist(), hw.tolist(), v.tolist()
         for k in sorted(ramp, key=lambda j: dist_l[j]):  # in their order on the ramp
             best = None
             h2 = self._follow_gap(speed_l[k], dist_l[k])
-            for j in sorted((j for j in hw_l if ids[j] not in taken), key=lambda i: eta_l[i]):
+            cands = sorted((j for j in hw_l if ids[j] not in taken), key=lambda i: eta_l[i])
+            held = False
+            if p.lead_close_up and h2 <= (p.restart_gap_s - 1e-9 if self._hold else p.open_time_gap_s):
+                for j in cands:  # behind a connected leader, nobody slowing
+                    lead = self._lead_of(s, j)
+                    if lead is None or not conn_l[lead]:
+                        continue
+                    t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
+                                 self._lead_term(s, lead, t, eta_l, dist_l, v_l))
+                    if eta_l[j] >= t_ramp + h2 + p.human_margin_s + self._noise_margin(j, lead, dist_l, v_l):
+                        best, held = (j, t_ramp), self._hold
+                        break
+            if self._hold and best is None:  # no partner slows: a natural gap, any follower at its own speed
+                for j in cands:
+                    lead = self._lead_of(s, j)
+                    t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
+                                 self._lead_term(s, lead, t, eta_l, dist_l, v_l) if lead is not None else -math.inf)
+                    if (h2 < p.restart_gap_s - 1e-9 and eta_l[j] >= t_ramp + h2 + p.human_margin_s
+                            + self._noise_margin(j, lead, dist_l, v_l)):
+                        best = (j, t_ramp)
+                        break
+            for j in cands if best is None and not self._hold else ():
                 lead = self._lead_of(s, j)
                 t_ramp = max(earliest_l[k], t_prev + p.open_time_gap_s,
-                             eta_l[lead] + p.ramp_time_gap_s if lead is not None else -math.inf)
+                             self._lead_term(s, lead, t, eta_l, dist_l, v_l) if lead is not None else -math.inf)
                 if self._fits_at(conn_l[j], front_l[j], eta_l[j], t, t_ramp, h2):
                     best = (j, t_ramp)
                     break
@@ -434,15 +529,66 @@ class GapMerging(WaveDamping):
             j, t_ramp = best
             self.pairs[ids[k]] = ids[j]
             self._t_slot[ids[k]] = float(t_ramp)
+            if held:
+                self._held.add(ids[k])
             taken.add(ids[j])
             t_prev = t_ramp
             self.events.emit(t, self.name, "gap_pair", f"{ids[j]} opens a gap for {ids[k]}", vehicle=ids[k])
 
+    def _lead_term(self, s: dict[str, Any], j: int, t: float, eta: Any, dist: Any, v: Any) -> float:
+        """[s] the earliest slot behind highway vehicle ``j`` (RSU's view: arrival ``eta``, distance ``dist``,
+        speed ``v``, indexable by row): ``ramp_time_gap_s`` after its arrival; with ``lead_close_up`` and ``j``
+        connected ``lead_ramp_gap_s`` after its planned arrival, which closing up advances: no later than today's,
+        no earlier than ``lead_time_gap_s`` after its own leader's, nor than it can make it accelerating at
+        ``a_max_mps2`` to ``u_max_mps`` (the limit)."""
+        p = self.gp
+        if not (p.lead_close_up and s["connected"][j]):
+            return float(eta[j]) + p.ramp_time_gap_s
+        t_plan = t + time_to_go(float(dist[j]), float(v[j]), p.u_max_mps, p.a_max_mps2)
+        j2 = self._lead_of(s, j)
+        if j2 is not None:
+            t_plan = max(t_plan, float(eta[j2]) + p.lead_time_gap_s)
+        return min(float(eta[j]), t_plan) + p.lead_ramp_gap_s
+
     def _follow_gap(self, v_mps: float, dist_m: float) -> float:
         """[s] between the ramp vehicle's arrival and its follower's: ``restart_gap_s`` for one that
-        stands near the stop line (it starts from rest: the follower must be able to stop behind it)."""
+        stands near the stop line (it starts from rest: the follower must be able to stop behind it);
+        with ``lead_hold`` the calibrated humans' desired gap front to front at the crossing speed."""
         p = self.gp
-        return p.restart_gap_s if v_mps < p.min_run_speed_mps and dist_m <= p.commit_m else p.open_time_gap_s
+        if v_mps < p.min_run_speed_mps and dist_m <= p.commit_m:
+            return p.restart_gap_s
+        if self._hold:
+            return p.lead_follow_tau_s + p.lead_follow_gap_m / max(self._v_cross, MIN_CROSS_SPEED_MPS)
+        return p.open_time_gap_s
+
+    @property
+    def _hold(self) -> bool:
+        """The gap made from ahead's second iteration is on (``lead_hold`` with ``lead_close_up``)."""
+        return self.gp.lead_close_up and self.gp.lead_hold
+
+    def _noise_margin(self, j: int, lead: int | None, dist: Any, v: Any) -> float:
+        """[s] ``lead_noise_k`` standard deviations of the difference of the RSU's predicted arrivals (distance /
+        speed, each with its position noise ``ramp_sensor_noise_m`` and speed noise ``sensor_noise_mps``) of
+        follower ``j`` and of ``lead`` (None: the follower's alone); 0 without ``lead_hold``.  To first order
+        var(d / v) = (σ_x / v)² + (d σ_v / v²)²."""
+        if not self._hold:
+            return 0.0
+        sx, sv = self.gp.ramp_sensor_noise_m, self.p.sensor_noise_mps
+        var = 0.0
+        for k in (j,) if lead is None else (j, lead):
+            vk = max(float(v[k]), 1.0)
+            var += (sx / vk) ** 2 + (float(dist[k]) * sv / (vk * vk)) ** 2
+        return self.gp.lead_noise_k * math.sqrt(var)
+
+    def _closing(self, s: dict[str, Any]) -> list[str]:
+        """``lead_hold``: the connected highway vehicles in the pair zone, when a connected ramp vehicle is on the
+        ramp before the junction's end (none: [])."""
+        front = s["front"]
+        if not np.any(s["connected"] & s["on_ramp"] & (front < self.cross_x)):
+            return []
+        hw = np.flatnonzero(s["connected"] & ~s["ramp"] & ~s["on_ramp"] & (front < self.merge_x)
+                            & (front > self.merge_x - self.gp.pair_zone_m))
+        return [s["ids"][k] for k in hw.tolist()]
 
     def _fits(self, s: dict[str, Any], j: int, t: float, t_ramp: float, eta: np.ndarray, x: np.ndarray,
               h2: float) -> bool:
@@ -454,7 +600,7 @@ class GapMerging(WaveDamping):
     def _fits_at(self, connected: bool, x_j: float, eta_j: float, t: float, t_ramp: float, h2: float) -> bool:
         """``_fits`` for a highway vehicle at ``x_j`` [m] predicted at the junction at ``eta_j`` [s]."""
         p = self.gp
-        if connected:
+        if connected and not self._hold:  # lead_hold: no partner slows, it follows at its own speed
             v_min = p.partner_min_speed_mps if h2 <= p.open_time_gap_s else p.restart_partner_speed_mps
             return t + (self.merge_x - x_j) / v_min >= t_ramp + h2
         return h2 <= p.open_time_gap_s and eta_j >= t_ramp + h2 + p.human_margin_s  # no restart behind a human
@@ -616,15 +762,49 @@ class GapMerging(WaveDamping):
         return float(gap), float(s["speed"][j])
 
     def _speed(self, t: float, msg: RoadAhead, x: float, v: float, gap: float, v_lead: float, vid: str = "") -> float:
-        """The wave-damping speed; for a partner capped to reach the junction no earlier than its slot
-        and bounded by the safety layer behind the projected ramp vehicle."""
-        return self._partner_cap(t, msg, x, v, vid, super()._speed(t, msg, x, v, gap, v_lead, vid))
+        """The wave-damping speed (a connected leader's: ``_lead_speed``); for a partner capped to reach the
+        junction no earlier than its slot and bounded by the safety layer behind the projected ramp vehicle."""
+        if isinstance(msg, MergePlan) and vid in msg.leaders:
+            v_cmd = self._lead_speed(v, gap, v_lead)
+        else:
+            v_cmd = super()._speed(t, msg, x, v, gap, v_lead, vid)
+        return self._partner_cap(t, msg, x, v, vid, v_cmd)
+
+    def _lead_speed(self, v: float, gap: float, v_lead: float) -> float:
+        """[m/s] a connected leader closing up to its own leader (``gap`` [m], ``v_lead`` [m/s]; inf: none):
+        the constant-time-gap ACC law of Milanés & Shladover (2014), a = k_gap (gap - s0 - T v) + k_speed
+        (v_lead - v) with T = ``lead_time_gap_s``, the change bounded as the wave law's, never above the limit
+        (``u_max_mps``), then the safety layer."""
+        p = self.gp
+        if math.isfinite(gap):
+            a = p.lead_k_gap * (gap - self.safety.s0_m - p.lead_time_gap_s * v) + p.lead_k_speed * (v_lead - v)
+        else:
+            a = p.a_max_mps2
+        a = min(max(min(a, (p.u_max_mps - v) / self.period), -p.b_comfort_mps2), p.a_max_mps2)
+        if math.isfinite(gap):
+            a = safe_accel(gap, v, v_lead, a, self.safety)
+        return max(0.0, v + a * self.period)
+
+    def _line_leader(self, s: dict[str, Any], k: int) -> tuple[float, float]:
+        """Row ``k``'s physical leader on the highway line as ``WaveDamping._decide`` finds it (the vehicles
+        not on the ramp, sorted stably by front, the next one): its gap [m] and speed [m/s]; (inf, u_max)."""
+        nxt = s.get("_line_next")
+        if nxt is None:  # once per tick
+            line = np.flatnonzero(~s["on_ramp"])
+            order = line[np.argsort(s["front"][line], kind="stable")].tolist()
+            nxt = s["_line_next"] = dict(zip(order, [*order[1:], -1], strict=True))
+        j = nxt.get(k, -1)
+        if j < 0:
+            return math.inf, self.p.u_max_mps
+        return float(s["front"][j] - s["length"][j] - s["front"][k]), float(s["speed"][j])
 
     def _capped(self, t: float, s: dict[str, Any], k: int, vid: str, v_cmd: float) -> float:
         if vid not in self._partnered:  # a partner in no message: its message names it in none (the tick
             return v_cmd  # calls it only for those)
         msg = self._latest_of(vid)
         assert msg is not None  # commanded: a fresh message
+        if isinstance(msg, MergePlan) and vid in msg.leaders:  # the connected leader's law, not the wave law's
+            v_cmd = self._lead_speed(float(s["speed"][k]), *self._line_leader(s, k))
         if not HAVE_C_POW:
             return self._partner_cap(t, msg, float(s["front"][k]), float(s["speed"][k]), vid, v_cmd)
         if not isinstance(msg, MergePlan) or vid not in msg.partners:

@@ -38,7 +38,8 @@ from corridor.controllers.merging.wave_kernel import safe_accel_c, tick
 # cfg: the parameters, in this order
 (C_MERGE_X, C_CROSS_X, C_COS_RAMP, C_OPEN_GAP, C_RAMP_GAP, C_PAIR_ZONE, C_PARTNER_MIN, C_RESTART_PARTNER,
  C_HUMAN_MARGIN, C_RESTART_GAP, C_MIN_RUN, C_COMMIT, C_B_COMFORT, C_PLAN_ACCEL, C_CELL_BASE, C_CELL_M, C_CROSS_SPEED,
- C_U_MAX, C_HEAD_ONLY, N_CFG) = range(20)
+ C_U_MAX, C_HEAD_ONLY, C_LEAD_ON, C_LEAD_GAP, C_LEAD_RAMP_GAP, C_A_MAX, C_HOLD, C_NOISE_K, C_FOLLOW_TAU, C_FOLLOW_GAP,
+ C_SX, C_SV, N_CFG) = range(30)
 # out_pair columns: ramp row, partner row, status, lead row (-1: none)
 P_RAMP, P_PARTNER, P_STATUS, P_LEAD = range(4)
 ST_SLOT, ST_DROPPED, ST_GONE = 0, 1, 2  # a slot given; dropped in the slot phase; not kept by the pairing
@@ -60,6 +61,11 @@ def cfg_array(p: Any, merge_x: float, cross_x: float, cos_ramp: float, cell_base
     cfg[C_HUMAN_MARGIN], cfg[C_RESTART_GAP], cfg[C_MIN_RUN] = p.human_margin_s, p.restart_gap_s, p.min_run_speed_mps
     cfg[C_COMMIT], cfg[C_B_COMFORT], cfg[C_PLAN_ACCEL] = p.commit_m, p.b_comfort_mps2, p.plan_accel_mps2
     cfg[C_HEAD_ONLY] = 1.0 if p.pair_queue_head_only else 0.0
+    cfg[C_LEAD_ON] = 1.0 if p.lead_close_up else 0.0
+    cfg[C_LEAD_GAP], cfg[C_LEAD_RAMP_GAP], cfg[C_A_MAX] = p.lead_time_gap_s, p.lead_ramp_gap_s, p.a_max_mps2
+    cfg[C_HOLD] = 1.0 if p.lead_close_up and p.lead_hold else 0.0
+    cfg[C_NOISE_K], cfg[C_FOLLOW_TAU], cfg[C_FOLLOW_GAP] = p.lead_noise_k, p.lead_follow_tau_s, p.lead_follow_gap_m
+    cfg[C_SX], cfg[C_SV] = p.ramp_sensor_noise_m, p.sensor_noise_mps
     return cfg
 
 
@@ -77,11 +83,30 @@ def _lead(order: np.ndarray, front_sorted: np.ndarray, x: float) -> int:
 
 
 @njit(cache=True)
-def _follow_gap(cfg: np.ndarray, v: float, dist: float) -> float:
-    """``GapMerging._follow_gap``."""
+def _follow_gap(cfg: np.ndarray, v: float, dist: float, v_cross: float) -> float:
+    """``GapMerging._follow_gap`` (``v_cross``: this broadcast's crossing speed)."""
     if v < cfg[C_MIN_RUN] and dist <= cfg[C_COMMIT]:
         return cfg[C_RESTART_GAP]
+    if cfg[C_HOLD] != 0.0:
+        w = v_cross if v_cross >= MIN_CROSS_SPEED_MPS else MIN_CROSS_SPEED_MPS  # Python's max(v_cross, MIN)
+        return cfg[C_FOLLOW_TAU] + cfg[C_FOLLOW_GAP] / w
     return cfg[C_OPEN_GAP]
+
+
+@njit(cache=True)
+def _noise_margin(cfg: np.ndarray, j: int, lead: int, dist: np.ndarray, v: np.ndarray) -> float:
+    """``GapMerging._noise_margin`` (``lead`` -1: none)."""
+    if cfg[C_HOLD] == 0.0:
+        return 0.0
+    sx, sv = cfg[C_SX], cfg[C_SV]
+    var = 0.0
+    for q in range(2):
+        k = j if q == 0 else lead
+        if k < 0:
+            break
+        vk = v[k] if v[k] >= 1.0 else 1.0  # Python's max(v, 1.0)
+        var += _c_pow(sx / vk, 2.0) + _c_pow(dist[k] * sv / (vk * vk), 2.0)
+    return cfg[C_NOISE_K] * math.sqrt(var)
 
 
 @njit(cache=True)
@@ -93,18 +118,37 @@ def _running(cfg: np.ndarray, v: float, dist: float, b2: float) -> bool:
 @njit(cache=True)
 def _fits_at(cfg: np.ndarray, connected: bool, x_j: float, eta_j: float, t: float, t_ramp: float, h2: float) -> bool:
     """``GapMerging._fits_at``."""
-    if connected:
+    if connected and cfg[C_HOLD] == 0.0:
         v_min = cfg[C_PARTNER_MIN] if h2 <= cfg[C_OPEN_GAP] else cfg[C_RESTART_PARTNER]
         return t + (cfg[C_MERGE_X] - x_j) / v_min >= t_ramp + h2
     return h2 <= cfg[C_OPEN_GAP] and eta_j >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
 
 
 @njit(cache=True)
+def _lead_term(cfg: np.ndarray, t: float, j: int, order: np.ndarray, front_sorted: np.ndarray, front: np.ndarray,
+               connected: np.ndarray, eta: np.ndarray, dist: np.ndarray, v: np.ndarray) -> float:
+    """``GapMerging._lead_term``: the earliest slot [s] behind highway vehicle ``j``."""
+    if cfg[C_LEAD_ON] == 0.0 or not connected[j]:
+        return eta[j] + cfg[C_RAMP_GAP]
+    t_plan = t + time_to_go_c(dist[j], v[j], cfg[C_U_MAX], cfg[C_A_MAX])
+    j2 = _lead(order, front_sorted, front[j] + 0.1)
+    if j2 >= 0:
+        b = eta[j2] + cfg[C_LEAD_GAP]
+        if b > t_plan:  # Python's max(t_plan, b)
+            t_plan = b
+    a = eta[j]
+    if t_plan < a:  # Python's min(eta, t_plan)
+        a = t_plan
+    return a + cfg[C_LEAD_RAMP_GAP]
+
+
+@njit(cache=True)
 def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
           x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
           pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
-          out_pair: np.ndarray, out_slot: np.ndarray) -> int:
-    """``GapMerging._slots`` (with ``_pair``) on rows.  ``pairs`` (m, 2): the pairs (ramp row, partner row;
+          out_pair: np.ndarray, out_slot: np.ndarray, held: np.ndarray) -> int:
+    """``GapMerging._slots`` (with ``_pair``) on rows (``held``: per pair, whether its slot holds (``lead_hold``):
+    read for the ``m`` kept pairs, written for the new ones).  ``pairs`` (m, 2): the pairs (ramp row, partner row;
     -1: gone from the road) in the controller's order, ``t_slot_of`` / ``has_slot`` their slots so far.
     Writes the noisy view ``x``, ``v`` and per pair, the kept ones in order then the new ones in pairing
     order, ``out_pair`` (ramp row, partner row, status, lead row) and ``out_slot`` (the slot's floats).
@@ -197,28 +241,71 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
                 hw[n_hw] = i
                 n_hw += 1
         hw = hw[np.argsort(eta[hw], kind="mergesort")]
+        hold = cfg[C_HOLD] != 0.0
         for k in cand:
-            h2 = _follow_gap(cfg, speed[k], dist[k])
-            best, t_best = -1, 0.0
-            for j in hw:
-                if taken[j]:
-                    continue
-                lead = _lead(order, front_sorted, front[j] + 0.1)
-                t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, eta[lead] + ramp_gap or -inf)
-                b = t_prev + cfg[C_OPEN_GAP]
-                if b > t_ramp:
-                    t_ramp = b
-                b = eta[lead] + cfg[C_RAMP_GAP] if lead >= 0 else -math.inf
-                if b > t_ramp:
-                    t_ramp = b
-                if _fits_at(cfg, connected[j], front[j], eta[j], t, t_ramp, h2):
-                    best, t_best = j, t_ramp
-                    break
+            h2 = _follow_gap(cfg, speed[k], dist[k], v_cross)
+            best, t_best, is_held = -1, 0.0, False
+            # lead_close_up: first behind a connected leader, the follower at its own speed (nobody slowing)
+            if cfg[C_LEAD_ON] != 0.0 and h2 <= (cfg[C_RESTART_GAP] - 1e-9 if hold else cfg[C_OPEN_GAP]):
+                for j in hw:
+                    if taken[j]:
+                        continue
+                    lead = _lead(order, front_sorted, front[j] + 0.1)
+                    if lead < 0 or not connected[lead]:
+                        continue
+                    t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, _lead_term)
+                    b = t_prev + cfg[C_OPEN_GAP]
+                    if b > t_ramp:
+                        t_ramp = b
+                    b = _lead_term(cfg, t, lead, order, front_sorted, front, connected, eta, dist, v)
+                    if b > t_ramp:
+                        t_ramp = b
+                    if hold:
+                        fit = eta[j] >= t_ramp + h2 + cfg[C_HUMAN_MARGIN] + _noise_margin(cfg, j, lead, dist, v)
+                    else:
+                        fit = eta[j] >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
+                    if fit:
+                        best, t_best, is_held = j, t_ramp, hold
+                        break
+            if hold and best < 0:  # no partner slows: a natural gap, any follower at its own speed
+                for j in hw:
+                    if taken[j]:
+                        continue
+                    lead = _lead(order, front_sorted, front[j] + 0.1)
+                    t_ramp = earliest[k]
+                    b = t_prev + cfg[C_OPEN_GAP]
+                    if b > t_ramp:
+                        t_ramp = b
+                    b = (_lead_term(cfg, t, lead, order, front_sorted, front, connected, eta, dist, v) if lead >= 0
+                         else -math.inf)
+                    if b > t_ramp:
+                        t_ramp = b
+                    if (h2 < cfg[C_RESTART_GAP] - 1e-9 and eta[j] >= t_ramp + h2 + cfg[C_HUMAN_MARGIN]
+                            + _noise_margin(cfg, j, lead, dist, v)):
+                        best, t_best = j, t_ramp
+                        break
+            if best < 0 and not hold:  # the partner-slows pairing
+                for j in hw:
+                    if taken[j]:
+                        continue
+                    lead = _lead(order, front_sorted, front[j] + 0.1)
+                    t_ramp = earliest[k]  # Python's max(earliest, t_prev + open, _lead_term or -inf)
+                    b = t_prev + cfg[C_OPEN_GAP]
+                    if b > t_ramp:
+                        t_ramp = b
+                    b = (_lead_term(cfg, t, lead, order, front_sorted, front, connected, eta, dist, v) if lead >= 0
+                         else -math.inf)
+                    if b > t_ramp:
+                        t_ramp = b
+                    if _fits_at(cfg, connected[j], front[j], eta[j], t, t_ramp, h2):
+                        best, t_best = j, t_ramp
+                        break
             if best < 0:
                 continue
             out_pair[n_out, P_RAMP], out_pair[n_out, P_PARTNER], out_pair[n_out, P_STATUS] = k, best, ST_SLOT
             out_pair[n_out, P_LEAD] = -1
             out_slot[n_out, S_T_RAMP] = t_best  # the new pair's slot so far
+            held[n_out] = is_held
             taken[best] = True
             t_prev = t_best
             n_out += 1
@@ -239,12 +326,13 @@ def _plan(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: n
         j = _lead(order, front_sorted, front[kc] + 0.1)
         out_pair[q, P_LEAD] = j
         if j >= 0:
-            b = eta[j] + cfg[C_RAMP_GAP]
-            if b > t_slot:  # Python's max(t_slot, eta + gap)
-                t_slot = b
+            if not held[q]:  # lead_hold: a held slot is not moved with the leader's re-plan
+                b = _lead_term(cfg, t, j, order, front_sorted, front, connected, eta, dist, v)
+                if b > t_slot:  # Python's max(t_slot, _lead_term)
+                    t_slot = b
             out_slot[q, S_LEAD_X], out_slot[q, S_LEAD_V], out_slot[q, S_LEAD_LEN] = x[j], v[j], length[j]
-        h2 = _follow_gap(cfg, v[kr], dist[kr])
-        if not running and not _fits_at(cfg, connected[kc], x[kc], eta[kc], t, t_slot, h2):
+        h2 = _follow_gap(cfg, v[kr], dist[kr], v_cross)
+        if not running and not held[q] and not _fits_at(cfg, connected[kc], x[kc], eta[kc], t, t_slot, h2):
             out_pair[q, P_STATUS] = ST_DROPPED
             continue
         out_slot[q, S_T_RAMP], out_slot[q, S_T_PARTNER] = t_slot, t_slot + h2
@@ -259,17 +347,17 @@ _RF, _RB = types.Array(types.float64, 1, "A", readonly=True), types.Array(types.
 _RI = types.Array(types.int64, 1, "A", readonly=True)
 _SIG = types.int64(types.float64, types.float64, _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB, types.int64[:, :],
                    types.float64[:], types.bool_[:], types.float64[:], types.float64[:], types.int64[:, :],
-                   types.float64[:, :])
+                   types.float64[:, :], types.bool_[:])
 
 
 @(njit(_SIG, cache=True) if HAVE_C_POW else njit(cache=True))
 def plan_slots(t: float, v_cross: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarray, length: np.ndarray,
                x_noise: np.ndarray, v_noise: np.ndarray, connected: np.ndarray, ramp: np.ndarray, on_ramp: np.ndarray,
                pairs: np.ndarray, t_slot_of: np.ndarray, has_slot: np.ndarray, x: np.ndarray, v: np.ndarray,
-               out_pair: np.ndarray, out_slot: np.ndarray) -> int:
+               out_pair: np.ndarray, out_slot: np.ndarray, held: np.ndarray) -> int:
     """``GapMerging._slots`` (see :func:`_plan`)."""
     return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
-                 has_slot, x, v, out_pair, out_slot)
+                 has_slot, x, v, out_pair, out_slot, held)
 
 
 _MEASURE_SIG = types.int64(types.float64, types.float64[:], _RF, _RF, _RF, _RF, _RF, _RF, _RB, _RB, _RB,
@@ -321,8 +409,9 @@ def _measure_plan(t: float, cfg: np.ndarray, front: np.ndarray, speed: np.ndarra
         v_merge = MIN_CROSS_SPEED_MPS
     v_cross = cfg[C_CROSS_SPEED] if cfg[C_CROSS_SPEED] < v_merge else v_merge  # Python's min(v_merge, cross)
     v_cross_out[0] = v_cross
+    held = np.zeros(out_pair.shape[0], dtype=np.bool_)  # no lead_hold on the fused path (its planning: plan_slots)
     return _plan(t, v_cross, cfg, front, speed, length, x_noise, v_noise, connected, ramp, on_ramp, pairs, t_slot_of,
-                 has_slot, x, v, out_pair, out_slot)
+                 has_slot, x, v, out_pair, out_slot, held)
 
 
 @(njit(_MEASURE_SIG, cache=True) if HAVE_C_POW else njit(cache=True))

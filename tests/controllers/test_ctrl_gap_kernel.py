@@ -83,6 +83,9 @@ PARAMS = [
                       pair_queue_head_only=False),
     GapMerging.Params(ramp_time_gap_s=0.0, open_time_gap_s=3.0, restart_partner_speed_mps=25.0, plan_accel_mps2=0.4,
                       ramp_sensor_noise_m=0.0, sensor_noise_mps=0.0),
+    GapMerging.Params(lead_close_up=True),  # the gap made from ahead (connected leaders close up)
+    GapMerging.Params(lead_close_up=True, lead_time_gap_s=0.6, lead_ramp_gap_s=0.0, a_max_mps2=3.0, u_max_mps=20.0,
+                      open_time_gap_s=1.0, human_margin_s=0.5, pair_queue_head_only=False),
 ]
 
 
@@ -90,7 +93,7 @@ PARAMS = [
 def test_compiled_planning_is_the_python_planning(which: int) -> None:
     params = PARAMS[which]
     rng = np.random.default_rng(100 + which)
-    n_ticks = n_pairs = n_new = n_dropped = 0
+    n_ticks = n_pairs = n_new = n_dropped = n_leaders = 0
     for drive_no in range(25):
         drive = _Drive(rng)
         ref, got = _controller(params, drive_no), _controller(params, drive_no)
@@ -105,6 +108,7 @@ def test_compiled_planning_is_the_python_planning(which: int) -> None:
             assert list(slots_got) == list(slots_ref)
             assert list(got.pairs.items()) == list(ref.pairs.items())
             assert got._t_slot == ref._t_slot
+            assert list(got.leaders.items()) == list(ref.leaders.items())
             assert not got._dropped and not ref._dropped
             assert got.events.events == ref.events.events
             assert got.pos_rng.bit_generator.state == ref.pos_rng.bit_generator.state
@@ -113,8 +117,10 @@ def test_compiled_planning_is_the_python_planning(which: int) -> None:
             n_pairs += len(slots_ref)
             n_new += len(set(ref.pairs) - set(before))
             n_dropped += len(set(before) - set(ref.pairs))
+            n_leaders += len(ref.leaders)
             drive.step()
     assert n_ticks == 2000 and n_pairs > 300 and n_new > 50 and n_dropped > 50, (n_pairs, n_new, n_dropped)
+    assert (n_leaders > 100) == params.lead_close_up, n_leaders  # slots behind connected leaders: with the option
 
 
 def test_the_run_test_squares_as_python() -> None:

@@ -22,6 +22,7 @@ def test_flow_merge_pairs() -> None:
         "merge0": "human", "merge1": "human", "merge2": "human",
         "cal_merge0": "human_cal", "cal_merge1": "human_cal", "cal_merge2": "human_cal",
         "cal_all10_ramp": "human_cal", "cal_all25_ramp": "human_cal", "cal_all33_ramp": "human_cal",
+        "cal_all10_lead": "human_cal", "cal_all10_lead2": "human_cal",
     }
     assert set(v2x_cost.pairs(sc.sweep, "human").values()) == {"human"}
 
